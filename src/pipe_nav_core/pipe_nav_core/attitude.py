@@ -1,0 +1,179 @@
+"""Rotations: quaternions (scalar-last [x, y, z, w]), rotation vectors, direction cosine matrices.
+
+``q_nb`` / ``C_nb`` rotate base_link (FLU) vectors into ENU. All functions are vectorized over
+leading axes. Angles are radians. People-facing attitude (roll, pitch positive nose up, azimuth
+clockwise from true north) is produced by :func:`euler_from_dcm`; the CLI converts to degrees.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+def skew(v: ArrayLike) -> Array:
+    """Cross-product matrix [v x], shape (..., 3, 3)."""
+    v = np.asarray(v, dtype=np.float64)
+    z = np.zeros_like(v[..., 0])
+    return np.stack(
+        [
+            np.stack([z, -v[..., 2], v[..., 1]], axis=-1),
+            np.stack([v[..., 2], z, -v[..., 0]], axis=-1),
+            np.stack([-v[..., 1], v[..., 0], z], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def quat_mul(p: ArrayLike, q: ArrayLike) -> Array:
+    """Hamilton product p * q of scalar-last quaternions (rotation q first, then p)."""
+    p = np.asarray(p, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+            pw * qw - px * qx - py * qy - pz * qz,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q: ArrayLike) -> Array:
+    """Conjugate (inverse of a unit quaternion)."""
+    q = np.array(q, dtype=np.float64)
+    q[..., :3] *= -1.0
+    return q
+
+
+def quat_normalize(q: ArrayLike) -> Array:
+    """Unit quaternion with non-negative scalar part."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def quat_from_rotvec(rv: ArrayLike) -> Array:
+    """Quaternion of the rotation vector rv (rad), exact, with a series near zero."""
+    rv = np.asarray(rv, dtype=np.float64)
+    th2 = np.sum(rv * rv, axis=-1, keepdims=True)
+    th = np.sqrt(th2)
+    small = th < 1e-6
+    safe = np.where(small, 1.0, th)
+    k = np.where(small, 0.5 - th2 / 48.0, np.sin(0.5 * safe) / safe)
+    w = np.where(small, 1.0 - th2 / 8.0, np.cos(0.5 * safe))
+    return np.concatenate([rv * k, w], axis=-1)
+
+
+def rotvec_from_quat(q: ArrayLike) -> Array:
+    """Rotation vector (rad) of a unit quaternion, angle in [0, pi]."""
+    q = quat_normalize(q)
+    s = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    ang = 2.0 * np.arctan2(s, q[..., 3:4])
+    small = s < 1e-9
+    k = np.where(small, 2.0, ang / np.where(small, 1.0, s))
+    return q[..., :3] * k
+
+
+def dcm_from_quat(q: ArrayLike) -> Array:
+    """Rotation matrix of a unit quaternion, shape (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return np.stack(
+        [
+            np.stack([1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)], axis=-1),
+            np.stack([2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)], axis=-1),
+            np.stack([2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def quat_from_dcm(c: ArrayLike) -> Array:
+    """Unit quaternion of a rotation matrix (robust for any angle)."""
+    from scipy.spatial.transform import Rotation
+
+    c = np.asarray(c, dtype=np.float64)
+    return quat_normalize(Rotation.from_matrix(c.reshape(-1, 3, 3)).as_quat().reshape(c.shape[:-2] + (4,)))
+
+
+def dcm_from_rotvec(rv: ArrayLike) -> Array:
+    """Rotation matrix of a rotation vector (Rodrigues)."""
+    return dcm_from_quat(quat_from_rotvec(rv))
+
+
+def quat_cumprod(q0: ArrayLike, dq: ArrayLike) -> Array:
+    """Attitudes q0 * dq[0] * dq[1] * ... * dq[i] for every i, shape (N, 4).
+
+    Body-frame increments dq (N, 4) are chained on the right. A log-depth parallel prefix scan
+    keeps the work vectorized.
+    """
+    acc = np.array(dq, dtype=np.float64)
+    n = acc.shape[0]
+    step = 1
+    while step < n:
+        acc[step:] = quat_mul(acc[:-step].copy(), acc[step:])
+        step *= 2
+    return quat_mul(np.asarray(q0, dtype=np.float64), acc)
+
+
+def coning_increments(dtheta: ArrayLike, prev: ArrayLike | None = None) -> Array:
+    """Attitude increments with the two-sample coning correction.
+
+    dtheta: (N, 3) angle increments (rad), each the mean rate times the sample interval.
+    prev: the increment preceding dtheta[0] (zeros if None). Returns (N, 3) rotation vectors
+    dtheta[i] + (1/12) dtheta[i-1] x dtheta[i].
+    """
+    d = np.asarray(dtheta, dtype=np.float64)
+    p = np.zeros(3) if prev is None else np.asarray(prev, dtype=np.float64)
+    before = np.vstack([p[None, :], d[:-1]])
+    return d + np.cross(before, d) / 12.0
+
+
+def euler_from_dcm(c_nb: ArrayLike) -> tuple[Array, Array, Array]:
+    """(roll, pitch, azimuth) in rad from C_nb (base_link FLU -> ENU).
+
+    pitch: positive nose up, in [-pi/2, pi/2]; roll: about the body x axis, right side down
+    positive, in (-pi, pi]; azimuth: clockwise from true north, in [0, 2 pi).
+    """
+    c = np.asarray(c_nb, dtype=np.float64)
+    pitch = np.arcsin(np.clip(c[..., 2, 0], -1.0, 1.0))
+    roll = np.arctan2(c[..., 2, 1], c[..., 2, 2])
+    azimuth = np.mod(np.arctan2(c[..., 0, 0], c[..., 1, 0]), 2.0 * np.pi)
+    return roll, pitch, azimuth
+
+
+def dcm_from_euler(roll: ArrayLike, pitch: ArrayLike, azimuth: ArrayLike) -> Array:
+    """C_nb (FLU -> ENU) from roll, pitch (nose up) and azimuth (clockwise from north), rad.
+
+    C_nb = Rz(pi/2 - azimuth) * Ry(-pitch) * Rx(roll).
+    """
+    roll, pitch, azimuth = np.broadcast_arrays(
+        np.asarray(roll, float), np.asarray(pitch, float), np.asarray(azimuth, float)
+    )
+    yaw = 0.5 * np.pi - azimuth
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cr, sr = np.cos(roll), np.sin(roll)
+    # Ry(-pitch): rotation about y by -pitch, so that +pitch lifts the nose (x towards +z).
+    return np.stack(
+        [
+            np.stack([cy * cp, -sy * cr - cy * sp * sr, sy * sr - cy * sp * cr], axis=-1),
+            np.stack([sy * cp, cy * cr - sy * sp * sr, -cy * sr - sy * sp * cr], axis=-1),
+            np.stack([sp, cp * sr, cp * cr], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def quat_from_euler(roll: ArrayLike, pitch: ArrayLike, azimuth: ArrayLike) -> Array:
+    """q_nb from roll, pitch (nose up) and azimuth (clockwise from north), rad."""
+    return quat_from_dcm(dcm_from_euler(roll, pitch, azimuth))

@@ -1,0 +1,194 @@
+"""Estimator settings: one dataclass, validated, loadable from a flat dict (YAML, ROS parameters).
+
+Fields are SI with radians. In dicts, any angle field may instead be given in degrees by
+appending ``_deg`` to its name (``initial_azimuth_deg: 45``); that is how people write them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
+
+from .sensors import ImuSpec, imu_grade
+
+
+class ConfigError(ValueError):
+    """An invalid estimator setting; the message names the setting and what is allowed."""
+
+
+ANGLE_FIELDS = {
+    "imu_mount_rpy",
+    "initial_azimuth",
+    "initial_heading_sigma",
+    "initial_tilt_sigma",
+    "boresight_sigma",
+    "mag_declination",
+    "mag_heading_sigma",
+    "mag_dip_gate",
+    "stop_gyro_threshold",
+}
+
+
+@dataclass(frozen=True)
+class NavConfig:
+    """All settings of the navigation engine.
+
+    mode: "ins" (strapdown INS aided by the odometer) or "dr" (odometer dead reckoning, seed 001).
+    imu_grade: consumer | industrial | tactical: the noise model used for process noise;
+      ``imu_overrides`` replaces single ImuSpec fields (SI units, see sensors.ImuSpec).
+    imu_mount_rpy: (roll, pitch, yaw) rad of imu_link in base_link (rotation imu_link -> base_link,
+      applied as Rz(yaw) Ry(pitch) Rx(roll)); zeros = aligned.
+    filter_rate_hz: rate of covariance propagation and measurement updates (IMU integrates at its
+      own rate in between).
+    reorder_window_s: samples are held this long to put topics in stamp order; later ones are
+      counted as late and dropped.
+    """
+
+    mode: str = "ins"
+    imu_grade: str = "industrial"
+    imu_overrides: Mapping[str, float] = field(default_factory=dict)
+    imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    filter_rate_hz: float = 10.0
+    reorder_window_s: float = 0.5
+
+    # Odometer (wheel on the pipe wall)
+    odometer_speed_sigma: float = 0.02  # m/s, white noise of the mean speed over one filter epoch
+    nhc_sigma: float = 0.02  # m/s, lateral and vertical body velocity (non-holonomic constraint)
+    odometer_scale_sigma: float = 0.02  # initial one-sigma of the scale-factor error (fraction)
+    odometer_scale_rw: float = 1e-6  # 1/sqrt(s), random walk of the scale factor
+    boresight_sigma: float = 0.01  # rad, initial one-sigma of odometer/IMU misalignment
+    odometer_lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m, wheel contact in base_link
+    pipe_diameter: float = 0.2  # m; wall-vs-centreline distance noise in bends when no lever arm
+    dr_lateral_sigma: float = 1e-3  # m/sqrt(m), DR-mode lateral/vertical path noise
+
+    # Stops: zero velocity and zero angular rate
+    stop_speed_threshold: float = 0.002  # m/s, odometer speed below which the pig may be stopped
+    stop_gyro_threshold: float = 0.02  # rad/s, |gyro| (bias removed) below which it may be stopped
+    zupt_sigma: float = 0.002  # m/s
+    zaru_sigma: float = 1e-4  # rad/s, extra noise of the zero-angular-rate update
+
+    # Gravity tilt (seed 001 eq. 11-13)
+    tilt_update: str = "auto"  # auto (on in dr mode, off in ins mode) | on | off
+    tilt_gate: float = 0.05  # m/s^2, seed 001 eq. 13 threshold xi_g on |C [0,0,g] x f|
+    tilt_sigma: float = 0.02  # m/s^2
+
+    # Magnetometer (seed 001 eq. 10, 31)
+    mag_update: bool = False
+    mag_declination: float = 0.0  # rad, east of true north positive
+    mag_attenuation: float = 0.0  # in-pipe relative permeability mu; 0 = estimate at the start
+    mag_heading_sigma: float = 0.05  # rad
+    mag_magnitude_gate: float = 0.15  # reject when | |m| / (mu |B|) - 1 | exceeds this
+    mag_dip_gate: float = 0.2  # rad, reject when the dip angle differs more from the reference
+    mag_hard_iron: tuple[float, float, float] = (0.0, 0.0, 0.0)  # T, in imu_link
+
+    # Markers
+    marker_time_sigma: float = 0.03  # s, passage-time error; adds speed * sigma along track
+
+    # Alignment and initial uncertainty
+    static_alignment_s: float = 2.0  # s of rest needed for coarse alignment at the start
+    heading_source: str = "markers"  # markers | magnetometer | fixed
+    initial_azimuth: float = 0.0  # rad, used with heading_source "fixed" and as fallback
+    initial_heading_sigma: float = math.radians(20.0)  # rad, before the second marker
+    initial_tilt_sigma: float = math.radians(0.5)  # rad, after static levelling
+    initial_position_sigma: float = 0.05  # m, when starting at the first marker
+
+    # Innovation gating
+    gate_probability: float = 0.9999  # chi-square acceptance probability of every update
+
+    def imu_spec(self) -> ImuSpec:
+        """The process-noise IMU model: the named grade with overrides applied."""
+        spec = imu_grade(self.imu_grade)
+        return replace(spec, **dict(self.imu_overrides)) if self.imu_overrides else spec
+
+    def tilt_enabled(self) -> bool:
+        return self.tilt_update == "on" or (self.tilt_update == "auto" and self.mode == "dr")
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> NavConfig:
+        """Build and validate from a flat mapping; ``*_deg`` keys are converted to radians."""
+        known = {f.name: f for f in fields(cls)}
+        kwargs: dict[str, Any] = {}
+        for key, value in values.items():
+            name = key
+            if key.endswith("_deg") and key[:-4] in ANGLE_FIELDS:
+                name = key[:-4]
+                value = _to_rad(value, key)
+            if name not in known:
+                raise ConfigError(f"unknown setting {key!r}")
+            kwargs[name] = tuple(value) if isinstance(value, list) else value
+        cfg = cls(**kwargs)
+        cfg.validate()
+        return cfg
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def validate(self) -> None:
+        """Raise ConfigError naming the first invalid setting."""
+        if self.mode not in ("ins", "dr"):
+            raise ConfigError(f"mode must be 'ins' or 'dr', not {self.mode!r}")
+        try:
+            self.imu_spec()
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"imu_grade/imu_overrides: {exc}") from None
+        if self.tilt_update not in ("auto", "on", "off"):
+            raise ConfigError(f"tilt_update must be auto, on or off, not {self.tilt_update!r}")
+        if self.heading_source not in ("markers", "magnetometer", "fixed"):
+            raise ConfigError(
+                f"heading_source must be markers, magnetometer or fixed, not {self.heading_source!r}"
+            )
+        for name in ("imu_mount_rpy", "odometer_lever_arm", "mag_hard_iron"):
+            v = getattr(self, name)
+            if len(v) != 3 or not all(math.isfinite(float(x)) for x in v):
+                raise ConfigError(f"{name} must be three finite numbers, not {v!r}")
+        positive = (
+            "filter_rate_hz",
+            "odometer_speed_sigma",
+            "nhc_sigma",
+            "odometer_scale_sigma",
+            "boresight_sigma",
+            "pipe_diameter",
+            "dr_lateral_sigma",
+            "zupt_sigma",
+            "zaru_sigma",
+            "tilt_gate",
+            "tilt_sigma",
+            "mag_heading_sigma",
+            "mag_magnitude_gate",
+            "mag_dip_gate",
+            "static_alignment_s",
+            "initial_heading_sigma",
+            "initial_tilt_sigma",
+            "initial_position_sigma",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ConfigError(f"{name} must be a positive number, not {v!r}")
+        non_negative = (
+            "reorder_window_s",
+            "odometer_scale_rw",
+            "stop_speed_threshold",
+            "stop_gyro_threshold",
+            "mag_attenuation",
+            "marker_time_sigma",
+        )
+        for name in non_negative:
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ConfigError(f"{name} must be a number >= 0, not {v!r}")
+        if not 0.5 < self.gate_probability < 1.0:
+            raise ConfigError(f"gate_probability must be in (0.5, 1), not {self.gate_probability}")
+        if self.filter_rate_hz > 1000:
+            raise ConfigError("filter_rate_hz must be at most 1000")
+
+
+def _to_rad(value: Any, key: str) -> Any:
+    try:
+        if isinstance(value, (list, tuple)):
+            return tuple(math.radians(float(v)) for v in value)
+        return math.radians(float(value))
+    except (TypeError, ValueError):
+        raise ConfigError(f"{key} must be a number (degrees), not {value!r}") from None

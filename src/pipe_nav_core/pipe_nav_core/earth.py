@@ -1,0 +1,108 @@
+"""WGS84 Earth model: radii, normal gravity, Earth and transport rates, coordinate conversions.
+
+Navigation frame n is local East-North-Up. Latitude and longitude in radians, heights in metres
+above the WGS84 ellipsoid. Functions accept scalars or numpy arrays (broadcasting).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pymap3d
+from numpy.typing import ArrayLike, NDArray
+
+A = 6378137.0  # m, semi-major axis
+F = 1.0 / 298.257223563
+E2 = F * (2.0 - F)  # first eccentricity squared
+B = A * (1.0 - F)
+OMEGA_IE = 7.292115e-5  # rad/s, Earth rotation rate
+GM = 3.986004418e14  # m^3/s^2
+# Somigliana normal gravity constants
+GAMMA_E = 9.7803253359  # m/s^2 at the equator
+GAMMA_K = 0.00193185265241
+M_RATIO = OMEGA_IE**2 * A**2 * B / GM
+
+Array = NDArray[np.float64]
+
+
+def radii(lat: ArrayLike) -> tuple[Array, Array]:
+    """Meridian radius R_M and prime-vertical radius R_N (m) at geodetic latitude lat (rad)."""
+    s2 = np.sin(lat) ** 2
+    w = np.sqrt(1.0 - E2 * s2)
+    rn = A / w
+    rm = A * (1.0 - E2) / w**3
+    return rm, rn
+
+
+def gravity(lat: ArrayLike, h: ArrayLike) -> Array:
+    """Magnitude of normal gravity (m/s^2) at latitude lat (rad) and height h (m) (Somigliana
+    with the second-order free-air correction). Gravity points down (-U) in ENU."""
+    s2 = np.sin(lat) ** 2
+    g0 = GAMMA_E * (1.0 + GAMMA_K * s2) / np.sqrt(1.0 - E2 * s2)
+    h = np.asarray(h, dtype=np.float64)
+    return g0 * (1.0 - 2.0 / A * (1.0 + F + M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * h**2)
+
+
+def gravity_n(lat: ArrayLike, h: ArrayLike) -> Array:
+    """Normal gravity vector in ENU (m/s^2), shape (..., 3)."""
+    g = gravity(lat, h)
+    z = np.zeros_like(g)
+    return np.stack([z, z, -g], axis=-1)
+
+
+def earth_rate_n(lat: ArrayLike) -> Array:
+    """Earth rotation rate omega_ie in ENU (rad/s), shape (..., 3)."""
+    lat = np.asarray(lat, dtype=np.float64)
+    return np.stack(
+        [np.zeros_like(lat), OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat)], axis=-1
+    )
+
+
+def transport_rate_n(lat: ArrayLike, h: ArrayLike, vel_n: ArrayLike) -> Array:
+    """Transport rate omega_en in ENU (rad/s) for ENU velocity vel_n (m/s), shape (..., 3)."""
+    v = np.asarray(vel_n, dtype=np.float64)
+    rm, rn = radii(lat)
+    ve, vn = v[..., 0], v[..., 1]
+    return np.stack(
+        [-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)], axis=-1
+    )
+
+
+def enu_to_geodetic_increment(
+    d_enu: ArrayLike, lat: ArrayLike, h: ArrayLike
+) -> tuple[Array, Array, Array]:
+    """Small ENU displacement (m) -> (dlat rad, dlon rad, dh m) at latitude lat, height h."""
+    d = np.asarray(d_enu, dtype=np.float64)
+    rm, rn = radii(lat)
+    return d[..., 1] / (rm + h), d[..., 0] / ((rn + h) * np.cos(lat)), d[..., 2]
+
+
+def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> Array:
+    """WGS84 geodetic (rad, rad, m) -> ECEF (m), shape (..., 3)."""
+    x, y, z = pymap3d.geodetic2ecef(lat, lon, h, deg=False)
+    return np.stack(np.broadcast_arrays(x, y, z), axis=-1).astype(np.float64)
+
+
+def ecef_to_geodetic(xyz: ArrayLike) -> tuple[Array, Array, Array]:
+    """ECEF (m) -> WGS84 geodetic (lat rad, lon rad, h m)."""
+    p = np.asarray(xyz, dtype=np.float64)
+    lat, lon, h = pymap3d.ecef2geodetic(p[..., 0], p[..., 1], p[..., 2], deg=False)
+    return np.asarray(lat), np.asarray(lon), np.asarray(h)
+
+
+def geodetic_to_enu(
+    lat: ArrayLike, lon: ArrayLike, h: ArrayLike, lat0: float, lon0: float, h0: float
+) -> Array:
+    """Geodetic (rad, rad, m) -> ENU (m) in the tangent plane at the datum (lat0, lon0, h0)."""
+    e, n, u = pymap3d.geodetic2enu(lat, lon, h, lat0, lon0, h0, deg=False)
+    return np.stack(np.broadcast_arrays(e, n, u), axis=-1).astype(np.float64)
+
+
+def enu_to_geodetic(
+    enu: ArrayLike, lat0: float, lon0: float, h0: float
+) -> tuple[Array, Array, Array]:
+    """ENU (m) at the datum (lat0, lon0, h0) -> geodetic (lat rad, lon rad, h m)."""
+    p = np.asarray(enu, dtype=np.float64)
+    lat, lon, h = pymap3d.enu2geodetic(
+        p[..., 0], p[..., 1], p[..., 2], lat0, lon0, h0, deg=False
+    )
+    return np.asarray(lat), np.asarray(lon), np.asarray(h)

@@ -1,0 +1,1 @@
+"""PipeNav ROS 2 Jazzy nodes (thin wrappers around pipe_nav_core)."""
