@@ -2,10 +2,10 @@ import math
 
 import numpy as np
 import pytest
+from pipe_nav_core.config import ConfigError, NavConfig
 
 from pipe_nav_core import attitude as att
 from pipe_nav_core import earth
-from pipe_nav_core.config import ConfigError, NavConfig
 
 
 def test_gravity_and_radii_known_values():
@@ -13,7 +13,9 @@ def test_gravity_and_radii_known_values():
     assert earth.gravity(0.0, 0.0) == pytest.approx(9.7803253359, abs=1e-9)
     assert earth.gravity(math.pi / 2, 0.0) == pytest.approx(9.8321849378, abs=1e-7)
     # Free-air gradient about -3.086e-6 m/s^2 per m.
-    assert earth.gravity(0.7, 1000.0) - earth.gravity(0.7, 0.0) == pytest.approx(-3.086e-3, rel=2e-3)
+    assert earth.gravity(0.7, 1000.0) - earth.gravity(0.7, 0.0) == pytest.approx(
+        -3.086e-3, rel=2e-3
+    )
     rm, rn = earth.radii(0.0)
     assert rn == pytest.approx(earth.A)
     assert rm == pytest.approx(earth.A * (1 - earth.E2))
@@ -42,7 +44,9 @@ def test_euler_round_trip_and_meaning():
     np.testing.assert_allclose(a2, az, atol=1e-9)
     # Azimuth 90 deg, pitch +10 deg: nose points east and up.
     x = att.dcm_from_euler(0.0, math.radians(10), math.radians(90))[:, 0]
-    np.testing.assert_allclose(x, [math.cos(math.radians(10)), 0, math.sin(math.radians(10))], atol=1e-12)
+    np.testing.assert_allclose(
+        x, [math.cos(math.radians(10)), 0, math.sin(math.radians(10))], atol=1e-12
+    )
 
 
 def test_quaternion_chain_matches_scipy():

@@ -102,7 +102,9 @@ def quat_from_dcm(c: ArrayLike) -> Array:
     from scipy.spatial.transform import Rotation
 
     c = np.asarray(c, dtype=np.float64)
-    return quat_normalize(Rotation.from_matrix(c.reshape(-1, 3, 3)).as_quat().reshape(c.shape[:-2] + (4,)))
+    return quat_normalize(
+        Rotation.from_matrix(c.reshape(-1, 3, 3)).as_quat().reshape(c.shape[:-2] + (4,))
+    )
 
 
 def dcm_from_rotvec(rv: ArrayLike) -> Array:

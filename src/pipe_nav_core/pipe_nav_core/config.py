@@ -59,8 +59,13 @@ class NavConfig:
     odometer_scale_sigma: float = 0.02  # initial one-sigma of the scale-factor error (fraction)
     odometer_scale_rw: float = 1e-6  # 1/sqrt(s), random walk of the scale factor
     boresight_sigma: float = 0.01  # rad, initial one-sigma of odometer/IMU misalignment
-    odometer_lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m, wheel contact in base_link
+    odometer_lever_arm: tuple[float, float, float] = (
+        0.0,
+        0.0,
+        0.0,
+    )  # m, wheel contact in base_link
     pipe_diameter: float = 0.2  # m; wall-vs-centreline distance noise in bends when no lever arm
+    odometer_distance_sigma: float = 2e-3  # m/sqrt(m), DR-mode along-track distance noise
     dr_lateral_sigma: float = 1e-3  # m/sqrt(m), DR-mode lateral/vertical path noise
 
     # Stops: zero velocity and zero angular rate
@@ -137,7 +142,8 @@ class NavConfig:
             raise ConfigError(f"tilt_update must be auto, on or off, not {self.tilt_update!r}")
         if self.heading_source not in ("markers", "magnetometer", "fixed"):
             raise ConfigError(
-                f"heading_source must be markers, magnetometer or fixed, not {self.heading_source!r}"
+                f"heading_source must be markers, magnetometer or fixed, "
+                f"not {self.heading_source!r}"
             )
         for name in ("imu_mount_rpy", "odometer_lever_arm", "mag_hard_iron"):
             v = getattr(self, name)
@@ -150,6 +156,7 @@ class NavConfig:
             "odometer_scale_sigma",
             "boresight_sigma",
             "pipe_diameter",
+            "odometer_distance_sigma",
             "dr_lateral_sigma",
             "zupt_sigma",
             "zaru_sigma",

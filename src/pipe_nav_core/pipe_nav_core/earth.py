@@ -52,9 +52,7 @@ def gravity_n(lat: ArrayLike, h: ArrayLike) -> Array:
 def earth_rate_n(lat: ArrayLike) -> Array:
     """Earth rotation rate omega_ie in ENU (rad/s), shape (..., 3)."""
     lat = np.asarray(lat, dtype=np.float64)
-    return np.stack(
-        [np.zeros_like(lat), OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat)], axis=-1
-    )
+    return np.stack([np.zeros_like(lat), OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat)], axis=-1)
 
 
 def transport_rate_n(lat: ArrayLike, h: ArrayLike, vel_n: ArrayLike) -> Array:
@@ -62,9 +60,7 @@ def transport_rate_n(lat: ArrayLike, h: ArrayLike, vel_n: ArrayLike) -> Array:
     v = np.asarray(vel_n, dtype=np.float64)
     rm, rn = radii(lat)
     ve, vn = v[..., 0], v[..., 1]
-    return np.stack(
-        [-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)], axis=-1
-    )
+    return np.stack([-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)], axis=-1)
 
 
 def enu_to_geodetic_increment(
@@ -102,7 +98,5 @@ def enu_to_geodetic(
 ) -> tuple[Array, Array, Array]:
     """ENU (m) at the datum (lat0, lon0, h0) -> geodetic (lat rad, lon rad, h m)."""
     p = np.asarray(enu, dtype=np.float64)
-    lat, lon, h = pymap3d.enu2geodetic(
-        p[..., 0], p[..., 1], p[..., 2], lat0, lon0, h0, deg=False
-    )
+    lat, lon, h = pymap3d.enu2geodetic(p[..., 0], p[..., 1], p[..., 2], lat0, lon0, h0, deg=False)
     return np.asarray(lat), np.asarray(lon), np.asarray(h)

@@ -1,0 +1,743 @@
+"""The navigation engine: one object used identically by the live node, the bag replay and the
+offline smoother.
+
+Feed samples (``push_*`` one at a time in any order within the reorder window, or
+:meth:`Navigator.run` with a time-sorted :class:`~pipe_nav_core.types.SensorLog`), collect
+:class:`NavEstimate` s (one per filter epoch) with :meth:`Navigator.poll`. With ``record=True``
+the engine keeps what the smoothers need (:class:`Recording`).
+
+Processing: static alignment -> per epoch (``filter_rate_hz``): mechanize the IMU samples
+(INS or DR), propagate the covariance, then gated updates: odometer speed + non-holonomic
+constraint (INS), zero velocity and zero rate at stops, gravity tilt, magnetic heading, marker
+fixes, with the heading re-anchored at the second marker when it comes from the markers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from . import alignment, earth
+from . import attitude as att
+from . import measurements as meas
+from .config import NavConfig
+from .kalman import ErrorStateKF
+from .mechanization import BlockResult, Carry, dr_block, ins_block
+from .process import continuous_noise, discretize, integrated_system_matrix
+from .state import Layout, NavState
+from .stream import ReorderBuffer
+from .types import (
+    Datum,
+    ImuSamples,
+    MagSamples,
+    Marker,
+    OdometerSamples,
+    SensorLog,
+    markers_sorted,
+)
+
+Array = NDArray[np.float64]
+
+ODOMETER_TIMEOUT_S = 1.0  # an epoch waits at most this long (stamp time) for odometer coverage
+ALIGN_WAIT_S = 5.0  # after motion starts, wait this long for the first marker before starting
+STATIC_MOVE_M = 0.005  # odometer change that ends the initial rest
+
+
+@dataclass
+class NavEstimate:
+    """Estimate at the end of one filter epoch.
+
+    t s; lat, lon rad; h m; vel_n (3,) m/s ENU; quat_nb (4,) [x,y,z,w] base_link->ENU;
+    omega_b (3,) rad/s bias-corrected body rate; cov_pose (6, 6) over [E, N, U (m),
+    rotation about E, N, U (rad)]; cov_vel_n (3, 3) (m/s)^2; distance m calibrated chainage;
+    status: "static" or "moving".
+    """
+
+    t: float
+    lat: float
+    lon: float
+    h: float
+    vel_n: Array
+    quat_nb: Array
+    omega_b: Array
+    cov_pose: Array
+    cov_vel_n: Array
+    distance: float
+    status: str
+
+
+@dataclass
+class Recording:
+    """What the smoothers need from a forward pass.
+
+    Per epoch k (k = 0 is the alignment): t, the state after the update (NavState), the
+    predicted and updated covariances, Phi from k-1 to k, and dx = x_upd (-) x_pred.
+    Per IMU sample: t, raw odometer distance (m), nominal lat, lon, h, q_nb and the epoch
+    whose block the sample belongs to.
+    """
+
+    t: list[float] = field(default_factory=list)
+    states: list[NavState] = field(default_factory=list)
+    P_pred: list[Array] = field(default_factory=list)
+    P_upd: list[Array] = field(default_factory=list)
+    phi: list[Array] = field(default_factory=list)
+    dx: list[Array] = field(default_factory=list)
+    s_t: list[Array] = field(default_factory=list)
+    s_odo: list[Array] = field(default_factory=list)
+    s_lat: list[Array] = field(default_factory=list)
+    s_lon: list[Array] = field(default_factory=list)
+    s_h: list[Array] = field(default_factory=list)
+    s_q: list[Array] = field(default_factory=list)
+    s_epoch: list[Array] = field(default_factory=list)
+    marker_residuals: dict[str, Array] = field(default_factory=dict)
+
+
+def mount_rotation(rpy: Sequence[float]) -> Array:
+    """Rotation imu_link -> base_link from (roll, pitch, yaw) rad: Rz(yaw) Ry(pitch) Rx(roll)."""
+    return Rotation.from_euler("xyz", list(rpy)).as_matrix()
+
+
+class Navigator:
+    """The online estimator (see module docstring).
+
+    config: estimator settings; survey: surveyed markers known in advance (their passage times
+    may be unknown); record: keep the smoother's data; reverse: the data are time-reversed (the
+    backward filter of the two-filter smoother); initial: a state whose attitude azimuth,
+    biases, odometer scale and boresight replace the static-alignment values (the offline
+    smoother's re-linearization pass); epoch_times: force the epoch ends to the first IMU
+    samples at or after these times instead of filter_rate_hz and marker passages (the backward
+    filter uses the forward filter's epochs).
+    """
+
+    def __init__(
+        self,
+        config: NavConfig,
+        survey: Sequence[Marker] = (),
+        *,
+        record: bool = False,
+        reverse: bool = False,
+        initial: NavState | None = None,
+        epoch_times: Array | None = None,
+    ) -> None:
+        config.validate()
+        self.cfg = config
+        self.layout = Layout(config.mode)
+        self.imu_spec = config.imu_spec()
+        self.r_base_imu = mount_rotation(config.imu_mount_rpy)
+        self.earth_sign = -1.0 if reverse else 1.0
+        self.survey = markers_sorted(survey)
+        self.record = record
+        self.initial = initial
+        self.epoch_times = None if epoch_times is None else np.sort(np.asarray(epoch_times, float))
+        self.lever_arm = np.asarray(config.odometer_lever_arm, dtype=np.float64)
+        self.hard_iron = np.asarray(config.mag_hard_iron, dtype=np.float64)
+        self.reset()
+
+    # ----------------------------------------------------------------- public API
+    def reset(self) -> None:
+        """Forget everything: back to waiting for the static alignment."""
+        self._reorder = ReorderBuffer(self.cfg.reorder_window_s)
+        self._imu_t = np.empty(0)
+        self._imu_g = np.empty((0, 3))
+        self._imu_a = np.empty((0, 3))
+        self._odo = OdometerSamples(np.empty(0), np.empty(0), np.empty(0))
+        self._mag = MagSamples(np.empty(0), np.empty((0, 3)))
+        self._markers: list[Marker] = []
+        self._horizon = -math.inf
+        self.state: NavState | None = None
+        self.kf: ErrorStateKF | None = None
+        self._carry = Carry.zero()
+        self._out: list[NavEstimate] = []
+        self._counts: dict[str, int] = defaultdict(int)
+        self._first_marker: Marker | None = self.survey[0] if self.survey else None
+        self._markers_seen: list[Marker] = []
+        self._anchored = self.cfg.heading_source != "markers"
+        self._prev_speed = 0.0
+        self._prev_vel_mean: Array | None = None
+        self._mag_ref: tuple[float, float] | None = None
+        self._odo_start: float | None = None
+        self._s_epoch_start = 0.0
+        self._static_epochs = 0
+        self.recording = Recording() if self.record else None
+        self.datum: Datum | None = (
+            Datum(self._first_marker.lat, self._first_marker.lon, self._first_marker.alt)
+            if self._first_marker
+            else None
+        )
+
+    def push_imu(self, t: float, gyro: Sequence[float], accel: Sequence[float]) -> None:
+        """One IMU sample: stamp s, mean rate rad/s and mean specific force m/s^2, imu_link."""
+        g = np.asarray(gyro, dtype=np.float64).reshape(3)
+        a = np.asarray(accel, dtype=np.float64).reshape(3)
+        if not (math.isfinite(t) and np.all(np.isfinite(g)) and np.all(np.isfinite(a))):
+            self._counts["dropped_nan_imu"] += 1
+            return
+        self._push(t, "imu", (g, a))
+
+    def push_odometer(self, t: float, distance: float, speed: float) -> None:
+        """One odometer sample: cumulative distance m and speed m/s."""
+        if not all(math.isfinite(x) for x in (t, distance, speed)):
+            self._counts["dropped_nan_odometer"] += 1
+            return
+        self._push(t, "odometer", (float(distance), float(speed)))
+
+    def push_mag(self, t: float, field_t: Sequence[float]) -> None:
+        """One magnetometer sample, tesla, imu_link."""
+        m = np.asarray(field_t, dtype=np.float64).reshape(3)
+        if not (math.isfinite(t) and np.all(np.isfinite(m))):
+            self._counts["dropped_nan_mag"] += 1
+            return
+        self._push(t, "mag", m)
+
+    def push_marker(self, marker: Marker) -> None:
+        """One marker passage."""
+        vals = (marker.t, marker.lat, marker.lon, marker.alt, *marker.sigma_enu)
+        if not all(math.isfinite(x) for x in vals):
+            self._counts["dropped_nan_marker"] += 1
+            return
+        self._push(marker.t, "marker", marker)
+
+    def poll(self) -> list[NavEstimate]:
+        """Estimates produced since the last call, in time order."""
+        out, self._out = self._out, []
+        return out
+
+    def finish(self) -> list[NavEstimate]:
+        """End of data: release and process everything still buffered."""
+        self._ingest_released(self._reorder.release(flush=True), math.inf)
+        return self.poll()
+
+    def run(self, log: SensorLog, *, final: bool = True) -> None:
+        """Offline fast path: ingest a time-sorted log (or consecutive chunks of one; pass
+        final=False for all but the last chunk). Identical results to pushing the samples."""
+        imu = log.imu
+        ok = (
+            np.isfinite(imu.t)
+            & np.all(np.isfinite(imu.gyro), 1)
+            & np.all(np.isfinite(imu.accel), 1)
+        )
+        self._counts["dropped_nan_imu"] += int((~ok).sum())
+        horizon = math.inf if final else _last_stamp(log)
+        self._ingest(
+            imu.t[ok],
+            imu.gyro[ok],
+            imu.accel[ok],
+            log.odometer,
+            log.mag,
+            list(log.markers),
+            horizon,
+        )
+
+    def diagnostics(self) -> dict[str, int | float | str]:
+        """Counters: samples per topic, dropped and late samples, accepted/rejected updates."""
+        d: dict[str, int | float | str] = dict(self._counts)
+        for kind, n in self._reorder.late.items():
+            d[f"late_{kind}"] = n
+        if self.kf is not None:
+            d.update(self.kf.stats.as_dict())
+        d["state"] = "navigating" if self.state is not None else "aligning"
+        if self.state is not None:
+            d["odometer_scale"] = 1.0 + self.state.k
+            d["time"] = self.state.t
+        return d
+
+    # ----------------------------------------------------------------- ingestion
+    def _push(self, t: float, kind: str, payload: object) -> None:
+        self._counts[f"received_{kind}"] += 1
+        self._reorder.push(t, kind, payload)
+        if kind == "imu" and self._counts["received_imu"] % 8 and len(self._reorder) < 4096:
+            return  # release in small batches; behaviour does not depend on batching
+        released = self._reorder.release()
+        if released:
+            self._ingest_released(released, self._reorder.horizon)
+
+    def _ingest_released(self, items: list[tuple[float, str, object]], horizon: float) -> None:
+        imu_t, imu_g, imu_a, odo, mag, mk = [], [], [], [], [], []
+        for t, kind, p in items:
+            if kind == "imu":
+                imu_t.append(t)
+                imu_g.append(p[0])  # type: ignore[index]
+                imu_a.append(p[1])  # type: ignore[index]
+            elif kind == "odometer":
+                odo.append((t, *p))  # type: ignore[misc]
+            elif kind == "mag":
+                mag.append((t, p))
+            else:
+                mk.append(p)
+        o = np.array(odo).reshape(-1, 3)
+        self._ingest(
+            np.array(imu_t),
+            np.array(imu_g).reshape(-1, 3),
+            np.array(imu_a).reshape(-1, 3),
+            OdometerSamples(o[:, 0], o[:, 1], o[:, 2]),
+            MagSamples(np.array([m[0] for m in mag]), np.array([m[1] for m in mag]).reshape(-1, 3)),
+            mk,  # type: ignore[arg-type]
+            horizon,
+        )
+
+    def _ingest(
+        self,
+        imu_t: Array,
+        gyro: Array,
+        accel: Array,
+        odo: OdometerSamples,
+        mag: MagSamples,
+        markers: list[Marker],
+        horizon: float,
+    ) -> None:
+        r = self.r_base_imu
+        if len(imu_t):
+            self._imu_t = np.concatenate([self._imu_t, imu_t])
+            self._imu_g = np.concatenate([self._imu_g, gyro @ r.T])
+            self._imu_a = np.concatenate([self._imu_a, accel @ r.T])
+        if len(odo):
+            self._odo = OdometerSamples(
+                np.concatenate([self._odo.t, odo.t]),
+                np.concatenate([self._odo.distance, odo.distance]),
+                np.concatenate([self._odo.speed, odo.speed]),
+            )
+            if self._odo_start is None:
+                self._odo_start = float(odo.distance[0])
+        if len(mag):
+            self._mag = MagSamples(
+                np.concatenate([self._mag.t, mag.t]),
+                np.concatenate([self._mag.field, (mag.field - self.hard_iron) @ r.T]),
+            )
+        for m in markers:
+            self._markers.append(m)
+            self._markers_seen.append(m)
+            if self._first_marker is None:
+                self._first_marker = m
+                if self.datum is None:
+                    self.datum = Datum(m.lat, m.lon, m.alt)
+        self._markers.sort(key=lambda m: m.t)
+        self._horizon = horizon
+        self._advance()
+
+    # ----------------------------------------------------------------- processing
+    def _advance(self) -> None:
+        while True:
+            if self.state is None:
+                if not self._try_align():
+                    return
+                continue
+            end = self._next_epoch_end()
+            if end is None:
+                return
+            self._process_epoch(end)
+
+    def _odometer_at(self, t: Array) -> Array:
+        o = self._odo
+        if len(o) == 0:
+            return np.zeros_like(t)
+        return np.interp(t, o.t, o.distance)
+
+    def _try_align(self) -> bool:
+        t = self._imu_t
+        if len(t) < 2:
+            return False
+        o = self._odo
+        # End of the initial rest: first odometer move, or the first marker passage.
+        moved = np.nonzero(np.abs(o.distance - o.distance[0]) > STATIC_MOVE_M)[0] if len(o) else []
+        t_move = float(o.t[moved[0]]) if len(moved) else math.inf
+        if self._first_marker is not None and self._first_marker.t > t[0]:
+            t_move = min(t_move, self._first_marker.t)
+        static_end = min(t_move, t[0] + max(self.cfg.static_alignment_s, 0.1) + 1e-9)
+        enough = t[-1] >= static_end and self._horizon >= static_end
+        if not enough:
+            return False
+        if self._first_marker is None and self._horizon < t_move + ALIGN_WAIT_S:
+            return False  # wait for the launch marker to give the start position
+        sel = t <= static_end
+        if sel.sum() < 2:
+            sel[:2] = True
+        idx = np.nonzero(sel)[0]
+        self._align(idx)
+        return True
+
+    def _align(self, idx: Array) -> None:
+        cfg, lay = self.cfg, self.layout
+        t = self._imu_t
+        dts = np.diff(t[idx])
+        w = np.r_[dts[0], dts]
+        f_mean = np.average(self._imu_a[idx], axis=0, weights=w)
+        g_mean = np.average(self._imu_g[idx], axis=0, weights=w)
+        t_static = float(w.sum())
+        roll, pitch = alignment.level(f_mean)
+        first = self._first_marker
+        lat, lon, h = (first.lat, first.lon, first.alt) if first else (0.0, 0.0, 0.0)
+        azimuth, az_sigma = cfg.initial_azimuth, cfg.initial_heading_sigma
+        if cfg.heading_source == "markers" and len(self.survey) >= 2:
+            azimuth, _ = alignment.marker_bearing(self.survey[0], self.survey[1])
+            if self.earth_sign < 0:  # reversed time: the pig backs along the bearing
+                azimuth = float(np.mod(azimuth + np.pi, 2 * np.pi))
+        mag_sel = self._mag.t <= t[idx[-1]]
+        if mag_sel.any():
+            m_mean = self._mag.field[mag_sel].mean(axis=0)
+            self._mag_ref = (float(np.linalg.norm(m_mean)), 0.0)
+            if cfg.heading_source == "magnetometer":
+                azimuth = alignment.mag_azimuth(m_mean, roll, pitch, cfg.mag_declination)
+                az_sigma = cfg.mag_heading_sigma
+        if self.initial is not None:
+            _, _, azimuth = att.euler_from_dcm(self.initial.c_nb)
+        c = att.dcm_from_euler(roll, pitch, azimuth)
+        if self._mag_ref is not None:
+            m_n = c @ self._mag.field[mag_sel].mean(axis=0)
+            self._mag_ref = (self._mag_ref[0], float(np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))))
+        bg = alignment.gyro_bias_at_rest(g_mean, c, lat)
+        s = NavState(
+            t=float(t[idx[-1]]),
+            lat=lat,
+            lon=lon,
+            h=h,
+            vel_n=np.zeros(3),
+            q_nb=att.quat_from_dcm(c),
+            bg=bg,
+            ba=np.zeros(3),
+        )
+        if self.initial is not None:
+            s.bg, s.ba = self.initial.bg.copy(), self.initial.ba.copy()
+            s.k, s.bore = self.initial.k, self.initial.bore.copy()
+        s.distance = 0.0
+        self.state = s
+        self.kf = ErrorStateKF(
+            self._initial_covariance(s, t_static, az_sigma), cfg.gate_probability
+        )
+        self._carry = Carry.zero()
+        self._s_epoch_start = float(self._odometer_at(np.array([s.t]))[0])
+        self._counts["aligned_at_ms"] = int(round(s.t * 1000))
+        if self.recording is not None:
+            self._record_epoch(None, self.kf.P, None, np.zeros(lay.n), None, [])
+        self._drop_processed()
+        self._emit()
+
+    def _initial_covariance(self, s: NavState, t_static: float, az_sigma: float) -> Array:
+        """P0 with the couplings static alignment creates: levelled tilt absorbs the horizontal
+        accelerometer bias, and the gyro bias absorbs the Earth rate error of the heading."""
+        cfg, lay, imu = self.cfg, self.layout, self.imu_spec
+        n = lay.n
+        P = np.zeros((n, n))
+        c = s.c_nb
+        g = earth.gravity(s.lat, s.h)
+        ba_var = imu.accel_turn_on_bias**2 + imu.accel_bias_instability**2
+        bg_var = imu.gyro_turn_on_bias**2 + imu.gyro_bias_instability**2
+        P[lay.ba, lay.ba] = np.eye(3) * ba_var
+        J = np.zeros((3, 3))  # phi = J dba (+ levelling noise)
+        J[0] = -c[1] / g
+        J[1] = c[0] / g
+        tilt_var = cfg.initial_tilt_sigma**2 + imu.accel_vrw**2 / max(t_static, 0.1) / g**2
+        P_att = J @ P[lay.ba, lay.ba] @ J.T + np.diag([tilt_var, tilt_var, az_sigma**2])
+        P[lay.att, lay.att] = P_att
+        P[lay.att, lay.ba] = J @ P[lay.ba, lay.ba]
+        P[lay.ba, lay.att] = P[lay.att, lay.ba].T
+        if self.initial is not None or t_static < 0.5:
+            P[lay.bg, lay.bg] = np.eye(3) * bg_var
+        else:
+            G = -c.T @ att.skew(self.earth_sign * earth.earth_rate_n(s.lat))
+            noise = imu.gyro_arw**2 / t_static + imu.gyro_bias_instability**2
+            P[lay.bg, lay.bg] = G @ P_att @ G.T + np.eye(3) * noise
+            P[lay.bg, lay.att] = G @ P_att
+            P[lay.att, lay.bg] = P[lay.bg, lay.att].T
+            P[lay.bg, lay.ba] = G @ P[lay.att, lay.ba]
+            P[lay.ba, lay.bg] = P[lay.bg, lay.ba].T
+        if lay.vel is not None:
+            P[lay.vel, lay.vel] = np.eye(3) * cfg.zupt_sigma**2
+        sig = self._first_marker.sigma_enu if self._first_marker else (1e3, 1e3, 1e3)
+        P[lay.pos, lay.pos] = np.diag(np.maximum(np.square(sig), cfg.initial_position_sigma**2))
+        P[lay.k, lay.k] = cfg.odometer_scale_sigma**2
+        P[lay.bore, lay.bore] = np.eye(2) * cfg.boresight_sigma**2
+        return P
+
+    def _next_epoch_end(self) -> int | None:
+        s = self.state
+        assert s is not None
+        t = self._imu_t
+        if len(t) == 0:
+            return None
+        if self.epoch_times is not None:
+            i = int(np.searchsorted(self.epoch_times, s.t + 1e-9, side="right"))
+            target = self.epoch_times[i] - 1e-9 if i < len(self.epoch_times) else math.inf
+            end = int(np.searchsorted(t, target))
+        else:
+            target = s.t + 1.0 / self.cfg.filter_rate_hz - 1e-9
+            end = int(np.searchsorted(t, target))
+            pending = [m for m in self._markers if m.t > s.t]
+            if pending:
+                end = min(end, int(np.searchsorted(t, pending[0].t)))
+        if end >= len(t):
+            return None
+        t_end = t[end]
+        if self._horizon < t_end:
+            return None
+        o = self._odo
+        covered = len(o) and o.t[-1] >= t_end
+        if not covered and self._horizon < t_end + ODOMETER_TIMEOUT_S:
+            return None
+        return end
+
+    def _process_epoch(self, end: int) -> None:
+        cfg, lay = self.cfg, self.layout
+        s0 = self.state
+        kf = self.kf
+        assert s0 is not None and kf is not None
+        t = self._imu_t[: end + 1]
+        g = self._imu_g[: end + 1]
+        a = self._imu_a[: end + 1]
+        o = self._odo
+        has_odo = bool(len(o)) and o.t[-1] >= t[-1] and o.t[0] <= s0.t + ODOMETER_TIMEOUT_S
+        if not has_odo:
+            self._counts["epochs_without_odometer"] += 1
+        s_odo = self._odometer_at(t) if has_odo else np.full(len(t), self._s_epoch_start)
+        ds = np.diff(np.r_[self._s_epoch_start, s_odo])
+        if lay.has_vel:
+            s1, blk, carry = ins_block(s0, t, g, a, self._carry, self.earth_sign)
+        else:
+            s1, blk, carry = dr_block(s0, t, g, a, ds, self._carry, self.lever_arm, self.earth_sign)
+        T = blk.T
+        speed = float(ds.sum() / T)
+        w_yz = float(np.hypot(blk.omega_b[1], blk.omega_b[2]))
+        lever_known = bool(np.any(self.lever_arm))
+        bend_sigma = 0.0 if lever_known else 0.5 * cfg.pipe_diameter * w_yz * T
+        A = integrated_system_matrix(s0, blk, lay, self.earth_sign)
+        Q = continuous_noise(
+            s0,
+            blk,
+            lay,
+            self.imu_spec,
+            scale_rw=cfg.odometer_scale_rw,
+            dr_along_sigma=cfg.odometer_distance_sigma,
+            dr_lateral_sigma=cfg.dr_lateral_sigma,
+            bend_sigma=bend_sigma,
+        )
+        phi, qd = discretize(A, Q)
+        kf.predict(phi, qd)
+        P_pred = kf.P.copy() if self.recording is not None else None
+        s1.distance = s0.distance + (1.0 + s0.k) * float(ds.sum())
+        s_pred = s1.copy()
+        gyro_mean = np.average(g, axis=0, weights=np.diff(np.r_[s0.t, t]))
+        stopped = (
+            has_odo
+            and abs(speed) < cfg.stop_speed_threshold
+            and abs(self._prev_speed) < cfg.stop_speed_threshold
+            and float(np.linalg.norm(gyro_mean - s1.bg)) < cfg.stop_gyro_threshold
+        )
+        self._static_epochs = self._static_epochs + 1 if stopped else 0
+        s = s1
+
+        def apply(m: meas.Measurement | None) -> None:
+            nonlocal s
+            if m is None:
+                return
+            dx = kf.update(m)
+            if dx is not None:
+                s = s.inject(dx, lay)
+
+        def set_state(new: NavState) -> None:
+            nonlocal s
+            s = new
+
+        if lay.has_vel and has_odo:
+            c_end = s.c_nb
+            lever_rate = float(np.cross(blk.omega_b, self.lever_arm)[0])
+            apply(
+                meas.odometer_velocity(
+                    s,
+                    lay,
+                    speed=speed,
+                    vel_b_offset=blk.mean_vel_b - c_end.T @ s.vel_n,
+                    lever_rate=lever_rate,
+                    sigma_speed=math.hypot(
+                        cfg.odometer_speed_sigma, 0.5 * cfg.pipe_diameter * w_yz * (not lever_known)
+                    ),
+                    sigma_nhc=cfg.nhc_sigma,
+                )
+            )
+        if stopped:
+            if lay.has_vel:
+                apply(meas.zero_velocity(s, lay, cfg.zupt_sigma))
+            zaru_sigma = math.sqrt(self.imu_spec.gyro_arw**2 / T + cfg.zaru_sigma**2)
+            apply(
+                meas.zero_rate(
+                    s, lay, gyro_mean=gyro_mean, sigma=zaru_sigma, earth_sign=self.earth_sign
+                )
+            )
+        if cfg.tilt_enabled() and has_odo:
+            self._tilt_update(s, blk, T, apply)
+        if cfg.mag_update:
+            self._mag_update(s, blk, apply)
+        for m in [m for m in self._markers if m.t <= t[-1]]:
+            self._markers.remove(m)
+            self._marker_update(m, apply, lambda: s, set_state)
+
+        self._prev_speed = speed
+        self._prev_vel_mean = blk.dp / T
+        self.state = s
+        self._carry = carry
+        self._s_epoch_start = float(s_odo[-1])
+        if self.recording is not None:
+            self._record_epoch(s_pred, P_pred, phi, s.difference(s_pred, lay), blk, s_odo)
+        self._counts["epochs"] += 1
+        self._drop_processed(end)
+        self._emit(status="static" if stopped else "moving", omega=blk.omega_b)
+
+    def _tilt_update(self, s: NavState, blk: BlockResult, T: float, apply) -> None:  # noqa: ANN001
+        cfg = self.cfg
+        vel_mean = blk.dp / T
+        if self._prev_vel_mean is None:
+            return
+        accel_n = (vel_mean - self._prev_vel_mean) / T
+        g = earth.gravity(s.lat, s.h)
+        f_norm = float(np.linalg.norm(blk.f_mean_n))
+        if abs(f_norm - g) > cfg.tilt_gate or float(np.linalg.norm(accel_n)) > cfg.tilt_gate:
+            self._counts["tilt_gated_motion"] += 1
+            return
+        apply(
+            meas.gravity_tilt(
+                s,
+                self.layout,
+                f_mean_n=blk.f_mean_n,
+                c_mean=blk.sum_c_dt / T,
+                accel_n=accel_n,
+                sigma=cfg.tilt_sigma,
+            )
+        )
+
+    def _mag_update(self, s: NavState, blk: BlockResult, apply) -> None:  # noqa: ANN001
+        cfg = self.cfg
+        sel = (self._mag.t > blk.t[-1] - blk.T + 1e-9) & (self._mag.t <= blk.t[-1])
+        if not sel.any() or self._mag_ref is None:
+            return
+        i = np.nonzero(sel)[0][-1]
+        m_b = self._mag.field[i]
+        j = min(int(np.searchsorted(blk.t, self._mag.t[i])), len(blk.t) - 1)
+        # attitude at the sample, moved by the corrections applied since the block end
+        c_sample = att.dcm_from_quat(blk.q_nb[j])
+        ref_mag, ref_dip = self._mag_ref
+        mag_norm = float(np.linalg.norm(m_b))
+        m_n = c_sample @ m_b
+        dip = float(np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1])))
+        if (
+            abs(mag_norm / ref_mag - 1.0) > cfg.mag_magnitude_gate
+            or abs(dip - ref_dip) > cfg.mag_dip_gate
+        ):
+            self._counts["mag_disturbed"] += 1
+            return
+        apply(
+            meas.magnetic_heading(
+                s,
+                self.layout,
+                field_b=m_b,
+                c_nb=c_sample,
+                declination=cfg.mag_declination,
+                sigma=cfg.mag_heading_sigma,
+            )
+        )
+
+    def _marker_update(self, m: Marker, apply, get, set_) -> None:  # noqa: ANN001
+        s = get()
+        if m.t < s.t - 2.0:
+            self._counts["late_marker_dropped"] += 1
+            return
+        first = self._first_marker
+        if not self._anchored and first is not None and m.name != first.name:
+            new, d_az = alignment.reanchor_heading(s, first, m)
+            set_(new)
+            self._anchored = True
+            self._counts["heading_reanchor_mdeg"] = int(round(math.degrees(d_az) * 1000))
+            s = new
+        mm = meas.marker_fix(s, self.layout, m, time_sigma=self.cfg.marker_time_sigma)
+        if self.recording is not None:
+            self.recording.marker_residuals[m.name] = mm.residual.copy()
+        apply(mm)
+
+    # ----------------------------------------------------------------- bookkeeping
+    def _drop_processed(self, end: int | None = None) -> None:
+        s = self.state
+        assert s is not None
+        keep = self._imu_t > s.t
+        self._imu_t, self._imu_g, self._imu_a = (
+            self._imu_t[keep],
+            self._imu_g[keep],
+            self._imu_a[keep],
+        )
+        o = self._odo
+        if len(o) > 2:
+            i = max(int(np.searchsorted(o.t, s.t)) - 1, 0)
+            if i > 0:
+                self._odo = o.slice(slice(i, None))
+        mg = self._mag
+        if len(mg):
+            self._mag = mg.slice(mg.t > s.t - 1.0)
+
+    def _emit(self, status: str = "static", omega: Array | None = None) -> None:
+        s, kf, lay = self.state, self.kf, self.layout
+        assert s is not None and kf is not None
+        idx = np.r_[np.arange(lay.pos.start, lay.pos.stop), np.arange(lay.att.start, lay.att.stop)]
+        cov_pose = kf.P[np.ix_(idx, idx)].copy()
+        cov_vel = (
+            kf.P[lay.vel, lay.vel].copy()
+            if lay.vel is not None
+            else np.eye(3) * self.cfg.odometer_speed_sigma**2
+        )
+        self._out.append(
+            NavEstimate(
+                t=s.t,
+                lat=s.lat,
+                lon=s.lon,
+                h=s.h,
+                vel_n=s.vel_n.copy(),
+                quat_nb=s.q_nb.copy(),
+                omega_b=np.zeros(3) if omega is None else omega.copy(),
+                cov_pose=cov_pose,
+                cov_vel_n=cov_vel,
+                distance=s.distance,
+                status=status,
+            )
+        )
+
+    def _record_epoch(
+        self,
+        s_pred: NavState | None,
+        P_pred: Array | None,
+        phi: Array | None,
+        dx: Array,
+        blk: BlockResult | None,
+        s_odo: Array | list,
+    ) -> None:
+        rec = self.recording
+        assert rec is not None and self.state is not None and self.kf is not None
+        n = self.layout.n
+        rec.t.append(self.state.t)
+        rec.states.append(self.state.copy())
+        rec.P_upd.append(self.kf.P.copy())
+        rec.P_pred.append(self.kf.P.copy() if P_pred is None else P_pred)
+        rec.phi.append(np.eye(n) if phi is None else phi)
+        rec.dx.append(dx)
+        k = len(rec.t) - 1
+        if blk is not None:
+            rec.s_t.append(blk.t.copy())
+            rec.s_odo.append(np.asarray(s_odo, dtype=np.float64).copy())
+            rec.s_lat.append(blk.lat.copy())
+            rec.s_lon.append(blk.lon.copy())
+            rec.s_h.append(blk.h.copy())
+            rec.s_q.append(blk.q_nb.copy())
+            rec.s_epoch.append(np.full(len(blk.t), k))
+
+
+def _last_stamp(log: SensorLog) -> float:
+    ends = [x.t[-1] for x in (log.imu, log.odometer, log.mag) if len(x)]
+    return max(ends) if ends else -math.inf
+
+
+def apply_mount(log: SensorLog, config: NavConfig) -> SensorLog:
+    """The log with imu_link vectors rotated into base_link per config.imu_mount_rpy."""
+    return log.to_base_link(mount_rotation(config.imu_mount_rpy))
+
+
+__all__ = ["NavEstimate", "Navigator", "Recording", "ImuSamples"]

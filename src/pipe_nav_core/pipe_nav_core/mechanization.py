@@ -1,0 +1,207 @@
+"""Strapdown mechanization over a block of IMU samples (one filter epoch), vectorized.
+
+Two modes (DESIGN.md):
+- :func:`ins_block`: full strapdown INS in ENU with Earth rate, transport rate, Coriolis and
+  normal gravity (seed 003), coning and sculling corrections;
+- :func:`dr_block`: odometer dead reckoning (seed 001): attitude from the gyros, position from
+  the odometer distance along the (boresight-corrected) body axis, with the wheel lever arm
+  removed.
+
+IMU samples follow INTERFACES.md: sample i holds the MEAN rate and specific force over
+(t[i-1], t[i]], in base_link. ``earth_sign = -1`` runs the equations in reversed time (the
+backward filter feeds time-reversed data: negated gyro, negated stamps).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import attitude as att
+from . import earth
+from .state import NavState, odometer_axis
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class Carry:
+    """Increments of the last sample of the previous block (for coning and sculling), base_link."""
+
+    dtheta: Array
+    dvel: Array
+
+    @classmethod
+    def zero(cls) -> Carry:
+        return cls(np.zeros(3), np.zeros(3))
+
+
+@dataclass
+class BlockResult:
+    """Per-sample trajectory of one block and the sums the filter needs for its transition matrix.
+
+    t (M,) s; q_nb (M, 4); lat, lon (M,) rad; h (M,) m; vel_n (M, 3) m/s ENU.
+    T: block duration, s. sum_c_dt: sum of C_nb dt (3, 3), s. dv_f: sum of C_nb (f - ba) dt (3,),
+    m/s ENU. dp: ENU displacement over the block (3,), m. omega_b: mean bias-corrected body rate
+    (3,), rad/s. mean_vel_b: mean body-frame velocity (3,), m/s. w_in: omega_in^n used (3,), rad/s.
+    DR only: dp_dk (3,) = d dp / d k; dp_dbore (3, 2); path (total |distance|, m).
+    """
+
+    t: Array
+    q_nb: Array
+    lat: Array
+    lon: Array
+    h: Array
+    vel_n: Array
+    T: float
+    sum_c_dt: Array
+    dv_f: Array
+    dp: Array
+    omega_b: Array
+    f_mean_n: Array
+    mean_vel_b: Array
+    w_in: Array
+    dp_dk: Array
+    dp_dbore: Array
+    path: float
+
+
+def _attitudes(
+    s: NavState, t: Array, gyro: Array, carry: Carry, w_in: Array
+) -> tuple[Array, Array, Array, Array]:
+    """Attitudes at the sample times, the previous-sample attitudes, raw and coned increments."""
+    dt = np.diff(np.concatenate([[s.t], t]))
+    dtheta = (gyro - s.bg) * dt[:, None]
+    rv = att.coning_increments(dtheta, carry.dtheta)
+    q_body = att.quat_cumprod(s.q_nb, att.quat_from_rotvec(rv))
+    q_nav = att.quat_from_rotvec(-np.outer(t - s.t, w_in))
+    q = att.quat_mul(q_nav, q_body)
+    q_prev = np.vstack([s.q_nb[None, :], q[:-1]])
+    return q, q_prev, dtheta, dt
+
+
+def ins_block(
+    s: NavState, t: Array, gyro: Array, accel: Array, carry: Carry, earth_sign: float = 1.0
+) -> tuple[NavState, BlockResult, Carry]:
+    """Integrate the INS over samples (t, gyro, accel) from state s; returns the new state."""
+    w_ie = earth_sign * earth.earth_rate_n(s.lat)
+    w_en = earth.transport_rate_n(s.lat, s.h, s.vel_n)
+    w_in = w_ie + w_en
+    q, q_prev, dtheta, dt = _attitudes(s, t, gyro, carry, w_in)
+    dvel = (accel - s.ba) * dt[:, None]
+    th_before = np.vstack([carry.dtheta[None, :], dtheta[:-1]])
+    dv_before = np.vstack([carry.dvel[None, :], dvel[:-1]])
+    dv_b = (
+        dvel
+        + 0.5 * np.cross(dtheta, dvel)
+        + (np.cross(th_before, dvel) + np.cross(dv_before, dtheta)) / 12.0
+    )
+    c_prev = att.dcm_from_quat(q_prev)
+    dv_f_n = np.einsum("mij,mj->mi", c_prev, dv_b)
+    g = earth.gravity_n(s.lat, s.h)
+    cor = g - np.cross(2.0 * w_ie + w_en, s.vel_n)
+    vel = s.vel_n + np.cumsum(dv_f_n + np.outer(dt, cor), axis=0)
+    vel_prev = np.vstack([s.vel_n[None, :], vel[:-1]])
+    dp_i = 0.5 * (vel_prev + vel) * dt[:, None]
+    p = np.cumsum(dp_i, axis=0)
+    rm, rn = earth.radii(s.lat)
+    lat = s.lat + p[:, 1] / (rm + s.h)
+    lon = s.lon + p[:, 0] / ((rn + s.h) * np.cos(s.lat))
+    h = s.h + p[:, 2]
+    T = float(t[-1] - s.t)
+    c = att.dcm_from_quat(q)
+    c_mid = 0.5 * (c + c_prev)
+    sum_c_dt = np.einsum("mij,m->ij", c_mid, dt)
+    vel_mid = 0.5 * (vel_prev + vel)
+    mean_vel_b = np.einsum("mji,mj,m->i", c_mid, vel_mid, dt) / T
+    dv_f = dv_f_n.sum(axis=0)
+    new = s.copy()
+    new.t = float(t[-1])
+    new.q_nb = att.quat_normalize(q[-1])
+    new.vel_n = vel[-1].copy()
+    new.lat, new.lon, new.h = float(lat[-1]), float(lon[-1]), float(h[-1])
+    res = BlockResult(
+        t=t,
+        q_nb=q,
+        lat=lat,
+        lon=lon,
+        h=h,
+        vel_n=vel,
+        T=T,
+        sum_c_dt=sum_c_dt,
+        dv_f=dv_f,
+        dp=p[-1].copy(),
+        omega_b=dtheta.sum(axis=0) / T,
+        f_mean_n=dv_f / T,
+        mean_vel_b=mean_vel_b,
+        w_in=w_in,
+        dp_dk=np.zeros(3),
+        dp_dbore=np.zeros((3, 2)),
+        path=float(np.abs(np.linalg.norm(dp_i, axis=1)).sum()),
+    )
+    return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())
+
+
+def dr_block(
+    s: NavState,
+    t: Array,
+    gyro: Array,
+    accel: Array,
+    ds: Array,
+    carry: Carry,
+    lever_arm: Array,
+    earth_sign: float = 1.0,
+) -> tuple[NavState, BlockResult, Carry]:
+    """Odometer dead reckoning over one block.
+
+    ds: (M,) raw odometer distance over each sample interval, m (wall contact point).
+    lever_arm: (3,) m, wheel contact point in base_link; its rotation-induced motion is removed.
+    """
+    w_ie = earth_sign * earth.earth_rate_n(s.lat)
+    vel_guess = s.vel_n
+    w_in = w_ie + earth.transport_rate_n(s.lat, s.h, vel_guess)
+    q, q_prev, dtheta, dt = _attitudes(s, t, gyro, carry, w_in)
+    u, du = odometer_axis(s.bore)
+    lever_x = np.cross(dtheta, lever_arm)[:, 0]  # (omega x d)_x dt
+    ds_c = (1.0 + s.k) * ds - lever_x
+    c_prev = att.dcm_from_quat(q_prev)
+    c = att.dcm_from_quat(q)
+    c_mid = 0.5 * (c + c_prev)
+    cu = c_mid @ u  # (M, 3) odometer axis in ENU
+    dp_i = cu * ds_c[:, None]
+    p = np.cumsum(dp_i, axis=0)
+    rm, rn = earth.radii(s.lat)
+    lat = s.lat + p[:, 1] / (rm + s.h)
+    lon = s.lon + p[:, 0] / ((rn + s.h) * np.cos(s.lat))
+    h = s.h + p[:, 2]
+    T = float(t[-1] - s.t)
+    vel = dp_i / dt[:, None]
+    dv_f_n = np.einsum("mij,mj->mi", c_mid, (accel - s.ba)) * dt[:, None]
+    new = s.copy()
+    new.t = float(t[-1])
+    new.q_nb = att.quat_normalize(q[-1])
+    new.vel_n = p[-1] / T
+    new.lat, new.lon, new.h = float(lat[-1]), float(lon[-1]), float(h[-1])
+    res = BlockResult(
+        t=t,
+        q_nb=q,
+        lat=lat,
+        lon=lon,
+        h=h,
+        vel_n=vel,
+        T=T,
+        sum_c_dt=np.einsum("mij,m->ij", c_mid, dt),
+        dv_f=dv_f_n.sum(axis=0),
+        dp=p[-1].copy(),
+        omega_b=dtheta.sum(axis=0) / T,
+        f_mean_n=dv_f_n.sum(axis=0) / T,
+        mean_vel_b=u * (ds_c.sum() / T),
+        w_in=w_in,
+        dp_dk=(cu * ds[:, None]).sum(axis=0),
+        dp_dbore=(1.0 + s.k) * np.einsum("mij,jk,m->ik", c_mid, du, ds),
+        path=float(np.abs(ds_c).sum()),
+    )
+    dvel = (accel - s.ba) * dt[:, None]
+    return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())

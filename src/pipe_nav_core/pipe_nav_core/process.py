@@ -1,0 +1,103 @@
+"""Error-state transition matrix and process noise over one filter epoch.
+
+Built from the sums a mechanization block leaves (:class:`mechanization.BlockResult`), so that a
+pig rolling at several rad/s inside one epoch still gets the exact bias couplings
+(sum of C_nb dt over the samples), and then Phi = I + A + A^2 / 2 with A the integrated system
+matrix. Error-state conventions: :mod:`pipe_nav_core.state`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import earth
+from .attitude import skew
+from .mechanization import BlockResult
+from .sensors import ImuSpec
+from .state import Layout, NavState, odometer_axis
+
+Array = NDArray[np.float64]
+
+
+def integrated_system_matrix(
+    s: NavState, blk: BlockResult, layout: Layout, earth_sign: float = 1.0
+) -> Array:
+    """A = integral of F dt over the block (n, n), linearized about the nominal state s."""
+    n = layout.n
+    A = np.zeros((n, n))
+    T = blk.T
+    a, p = layout.att, layout.pos
+    A[a, a] = -skew(blk.w_in) * T
+    A[a, layout.bg] = -blk.sum_c_dt
+    if layout.vel is not None:
+        v = layout.vel
+        rm, rn = earth.radii(s.lat)
+        m_v = np.array(
+            [
+                [0.0, -1.0 / (rm + s.h), 0.0],
+                [1.0 / (rn + s.h), 0.0, 0.0],
+                [np.tan(s.lat) / (rn + s.h), 0.0, 0.0],
+            ]
+        )
+        w_ie = earth_sign * earth.earth_rate_n(s.lat)
+        w_en = earth.transport_rate_n(s.lat, s.h, s.vel_n)
+        A[a, v] = -m_v * T
+        A[v, a] = -skew(blk.dv_f)
+        A[v, v] = -skew(2.0 * w_ie + w_en) * T
+        A[v, layout.ba] = -blk.sum_c_dt
+        A[v.start + 2, p.start + 2] = 2.0 * earth.gravity(s.lat, s.h) / (np.sqrt(rm * rn) + s.h) * T
+        A[p, v] = np.eye(3) * T
+    else:
+        A[p, a] = -skew(blk.dp)
+        A[p, layout.k] = blk.dp_dk[:, None]
+        A[p, layout.bore] = blk.dp_dbore
+    return A
+
+
+def continuous_noise(
+    s: NavState,
+    blk: BlockResult,
+    layout: Layout,
+    imu: ImuSpec,
+    *,
+    scale_rw: float,
+    dr_along_sigma: float,
+    dr_lateral_sigma: float,
+    bend_sigma: float,
+) -> Array:
+    """Process noise accumulated over the block (n, n) before propagation through the block.
+
+    bend_sigma: m, extra along-track distance noise in DR mode for wall-versus-centreline
+    differences in bends (zero when the wheel lever arm is known and compensated).
+    """
+    T = blk.T
+    q = np.zeros(layout.n)
+    q[layout.att] = imu.gyro_arw**2 * T
+    if layout.vel is not None:
+        q[layout.vel] = imu.accel_vrw**2 * T
+    q[layout.bg] = 2.0 * imu.gyro_bias_instability**2 / imu.gyro_bias_corr_time * T
+    q[layout.ba] = 2.0 * imu.accel_bias_instability**2 / imu.accel_bias_corr_time * T
+    q[layout.k] = scale_rw**2 * T
+    q[layout.bore] = 1e-8**2 * T
+    Q = np.diag(q)
+    if layout.vel is None:
+        u, _ = odometer_axis(s.bore)
+        c_mean = blk.sum_c_dt / max(T, 1e-12)
+        u_n = c_mean @ u
+        u_n /= np.linalg.norm(u_n)
+        along = np.outer(u_n, u_n)
+        path = blk.path
+        Q[layout.pos, layout.pos] = (
+            dr_along_sigma**2 * path + bend_sigma**2
+        ) * along + dr_lateral_sigma**2 * path * (np.eye(3) - along)
+    return Q
+
+
+def discretize(A: Array, Q: Array) -> tuple[Array, Array]:
+    """Phi = I + A + A^2/2 and Qd = Q + (A Q + Q A^T)/2 + A Q A^T / 3."""
+    AA = A @ A
+    phi = np.eye(A.shape[0]) + A + 0.5 * AA
+    AQ = A @ Q
+    qd = Q + 0.5 * (AQ + AQ.T) + (AQ @ A.T) / 3.0
+    return phi, 0.5 * (qd + qd.T)

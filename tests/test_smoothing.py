@@ -1,0 +1,118 @@
+"""Smoothers on a linear Gaussian toy problem equal the batch least-squares solution."""
+
+import numpy as np
+import pytest
+from pipe_nav_core.smoothing import backward_information, fuse_covariance, fuse_information, rts
+
+
+def _toy(seed: int = 3, K: int = 40):
+    rng = np.random.default_rng(seed)
+    n = 4
+    dt = 0.5
+    F = np.eye(n)
+    F[0, 1] = F[2, 3] = dt
+    Q = np.diag([1e-3, 2e-2, 1e-3, 2e-2])
+    H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    R = np.diag([0.3, 0.2])
+    x0 = np.array([0.0, 1.0, 2.0, -0.5])
+    P0 = np.diag([1.0, 0.5, 1.0, 0.5])
+    xs, zs = [], []
+    x = x0 + rng.multivariate_normal(np.zeros(n), P0)
+    for k in range(K):
+        if k:
+            x = F @ x + rng.multivariate_normal(np.zeros(n), Q)
+        xs.append(x)
+        zs.append(H @ x + rng.multivariate_normal(np.zeros(2), R))
+    return F, Q, H, R, x0, P0, np.array(zs)
+
+
+def _batch(F, Q, H, R, x0, P0, zs):
+    """Weighted least squares over all states (information form), exact MAP."""
+    K, n = len(zs), F.shape[0]
+    N = K * n
+    A = np.zeros((N, N))
+    b = np.zeros(N)
+    P0i, Qi, Ri = np.linalg.inv(P0), np.linalg.inv(Q), np.linalg.inv(R)
+    A[:n, :n] += P0i
+    b[:n] += P0i @ x0
+    for k in range(K):
+        sl = slice(k * n, (k + 1) * n)
+        A[sl, sl] += H.T @ Ri @ H
+        b[sl] += H.T @ Ri @ zs[k]
+        if k:
+            pr = slice((k - 1) * n, k * n)
+            A[pr, pr] += F.T @ Qi @ F
+            A[sl, sl] += Qi
+            A[pr, sl] -= F.T @ Qi
+            A[sl, pr] -= Qi @ F
+    cov = np.linalg.inv(A)
+    return np.linalg.solve(A, b).reshape(K, n), np.array(
+        [cov[k * n : (k + 1) * n, k * n : (k + 1) * n] for k in range(len(zs))]
+    )
+
+
+def _forward(F, Q, H, R, x0, P0, zs):
+    n = F.shape[0]
+    x, P = x0.copy(), P0.copy()
+    out = {"x": [], "P_upd": [], "P_pred": [], "phi": [], "dx": []}
+    for k, z in enumerate(zs):
+        if k:
+            x = F @ x
+            P = F @ P @ F.T + Q
+        Pp = P.copy()
+        S = H @ P @ H.T + R
+        K_ = P @ H.T @ np.linalg.inv(S)
+        dx = K_ @ (z - H @ x)
+        x = x + dx
+        P = (np.eye(n) - K_ @ H) @ P
+        for key, v in zip(("x", "P_upd", "P_pred", "phi", "dx"), (x.copy(), P.copy(), Pp, F, dx)):
+            out[key].append(v)
+    return out
+
+
+def test_rts_equals_batch_least_squares():
+    F, Q, H, R, x0, P0, zs = _toy()
+    fw = _forward(F, Q, H, R, x0, P0, zs)
+    e, P_s = rts(fw["P_upd"], fw["P_pred"], fw["phi"], fw["dx"])
+    x_s = np.array(fw["x"]) + e
+    x_b, P_b = _batch(F, Q, H, R, x0, P0, zs)
+    np.testing.assert_allclose(x_s, x_b, atol=1e-10)
+    np.testing.assert_allclose(P_s, P_b, atol=1e-10)
+    # and smoothing really changed something (the test could fail)
+    assert np.abs(e[:-1]).max() > 1e-2
+
+
+def test_two_filter_equals_batch_least_squares():
+    F, Q, H, R, x0, P0, zs = _toy(seed=7)
+    K = len(zs)
+    fw = _forward(F, Q, H, R, x0, P0, zs)
+    y, Y = backward_information([F] * K, [Q] * K, [H] * K, [R] * K, list(zs))
+    x_b, P_b = _batch(F, Q, H, R, x0, P0, zs)
+    for k in range(K):
+        x, P = fuse_information(fw["x"][k], fw["P_upd"][k], y[k], Y[k])
+        np.testing.assert_allclose(x, x_b[k], atol=1e-10)
+        np.testing.assert_allclose(P, P_b[k], atol=1e-10)
+
+
+def test_fuse_covariance_is_inverse_covariance_weighting():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(3, 3))
+    B = rng.normal(size=(3, 3))
+    Pf, Pb = A @ A.T + np.eye(3), B @ B.T + np.eye(3)
+    xf, xb = rng.normal(size=3), rng.normal(size=3)
+    x, P = fuse_covariance(xf, Pf, xb, Pb)
+    Pi = np.linalg.inv(np.linalg.inv(Pf) + np.linalg.inv(Pb))
+    np.testing.assert_allclose(P, Pi, atol=1e-12)
+    np.testing.assert_allclose(
+        x, Pi @ (np.linalg.solve(Pf, xf) + np.linalg.solve(Pb, xb)), atol=1e-12
+    )
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_rts_reduces_error_on_average(seed):
+    F, Q, H, R, x0, P0, zs = _toy(seed=seed, K=60)
+    fw = _forward(F, Q, H, R, x0, P0, zs)
+    e, P_s = rts(fw["P_upd"], fw["P_pred"], fw["phi"], fw["dx"])
+    # smoothed covariance is never larger than the filtered one
+    for k in range(len(zs)):
+        assert np.all(np.linalg.eigvalsh(fw["P_upd"][k] - P_s[k]) > -1e-12)
