@@ -5,11 +5,11 @@ import math
 
 import numpy as np
 import pytest
+from pipe_nav_core.state import Layout, NavState
+from pipe_nav_core.types import Marker
 
 from pipe_nav_core import attitude as att
 from pipe_nav_core import measurements as meas
-from pipe_nav_core.state import Layout, NavState
-from pipe_nav_core.types import Marker
 
 
 def _state(rng: np.random.Generator) -> NavState:
