@@ -79,7 +79,9 @@ def test_zero_velocity_and_rate_jacobians(seed):
     for mode in MODES:
         lay = Layout(mode)
         m = meas.zero_rate(s, lay, gyro_mean=w, sigma=1e-4)
-        _check(lambda x, lay=lay: meas.zero_rate(x, lay, gyro_mean=w, sigma=1e-4).residual, s, lay, m.H)
+        _check(
+            lambda x, lay=lay: meas.zero_rate(x, lay, gyro_mean=w, sigma=1e-4).residual, s, lay, m.H
+        )
 
 
 @pytest.mark.parametrize("mode", MODES)
