@@ -31,9 +31,13 @@ def level(f_mean_b: Array) -> tuple[float, float]:
     return roll, pitch
 
 
-def gyro_bias_at_rest(gyro_mean_b: Array, c_nb: Array, lat: float) -> Array:
-    """Gyro bias (rad/s, base_link) from the mean rate at rest and the attitude C_nb."""
-    return np.asarray(gyro_mean_b, dtype=np.float64) - c_nb.T @ earth.earth_rate_n(lat)
+def gyro_bias_at_rest(
+    gyro_mean_b: Array, c_nb: Array, lat: float, earth_sign: float = 1.0
+) -> Array:
+    """Gyro bias (rad/s, base_link) from the mean rate at rest and the attitude C_nb
+    (earth_sign -1 for time-reversed data)."""
+    w_ie = earth_sign * earth.earth_rate_n(lat)
+    return np.asarray(gyro_mean_b, dtype=np.float64) - c_nb.T @ w_ie
 
 
 def enu_of(marker: Marker, ref: Marker) -> Array:

@@ -1,13 +1,321 @@
-"""The ``pipe-nav`` command line."""
+"""The ``pipe-nav`` command line (INTERFACES.md).
+
+    pipe-nav smooth IN --out OUT.mcap|DIR/ [--csv F] [--geojson F] [--kml F] [--plot F.png]
+    pipe-nav replay IN --out OUT.mcap
+    pipe-nav simulate --scenario NAME --seed N --out RUN.mcap
+    pipe-nav evaluate CENTERLINE.csv --truth TRUTH.csv
+    pipe-nav bench [--quick]
+
+Errors are one line on stderr with a non-zero exit status, never a traceback.
+"""
 
 from __future__ import annotations
 
+import argparse
+import json
+import math
 import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .config import ConfigError, NavConfig
+
+EXIT_ERROR = 2
 
 
-def main(argv: list[str] | None = None) -> int:
-    print("pipe-nav: not implemented yet", file=sys.stderr)
-    return 2
+class CliError(Exception):
+    """A user error with a one-line message."""
+
+
+def _load_config(args: argparse.Namespace) -> NavConfig:
+    values: dict[str, Any] = {}
+    if getattr(args, "config", None):
+        values.update(_read_config_file(args.config))
+    for item in getattr(args, "set", None) or []:
+        key, sep, raw = item.partition("=")
+        if not sep:
+            raise CliError(f"--set expects KEY=VALUE, not {item!r}")
+        values[key.strip()] = _parse_value(raw.strip())
+    if getattr(args, "mode", None):
+        values["mode"] = args.mode
+    if getattr(args, "imu_grade", None):
+        values["imu_grade"] = args.imu_grade
+    if getattr(args, "mount_rpy_deg", None):
+        values["imu_mount_rpy_deg"] = list(args.mount_rpy_deg)
+    return NavConfig.from_dict(values)
+
+
+def _parse_value(raw: str) -> Any:
+    try:
+        return json.loads(raw)
+    except json.JSONDecodeError:
+        return raw
+
+
+def _read_config_file(path: str) -> dict[str, Any]:
+    """A flat mapping of settings from YAML or JSON; a ROS parameter file
+    (``node: ros__parameters: {...}``) is accepted too."""
+    from ruamel.yaml import YAML, YAMLError
+
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+        data = YAML(typ="safe", pure=True).load(text)
+    except OSError as exc:
+        raise CliError(f"{path}: {exc.strerror or exc}") from None
+    except YAMLError as exc:
+        raise CliError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise CliError(f"{path}: expected a mapping of settings")
+    for value in data.values():
+        if isinstance(value, dict) and "ros__parameters" in value:
+            data = value["ros__parameters"]
+            break
+    return {
+        k: v for k, v in data.items() if k in NavConfig.__dataclass_fields__ or k.endswith("_deg")
+    }
+
+
+def _topics(args: argparse.Namespace):  # noqa: ANN202
+    from .io import TopicNames
+
+    return TopicNames(
+        imu=args.imu_topic, odometer=args.odom_topic, mag=args.mag_topic, markers=args.markers_topic
+    )
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", help="YAML/JSON file of estimator settings (or the ROS ekf.yaml)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting")
+    p.add_argument("--mode", choices=["ins", "dr"], help="mechanization (default ins)")
+    p.add_argument(
+        "--imu-grade", choices=["consumer", "industrial", "tactical"], help="IMU noise model"
+    )
+    p.add_argument(
+        "--mount-rpy-deg",
+        type=float,
+        nargs=3,
+        metavar=("R", "P", "Y"),
+        help="imu_link in base_link",
+    )
+    p.add_argument("--markers", help="marker CSV adding to or replacing the bag's /markers")
+    p.add_argument("--imu-topic", default="/imu/data")
+    p.add_argument("--odom-topic", default="/odom/wheel")
+    p.add_argument("--mag-topic", default="/imu/mag")
+    p.add_argument("--markers-topic", default="/markers")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def _progress(quiet: bool):  # noqa: ANN202
+    if quiet or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    bar = tqdm(total=None, file=sys.stderr, bar_format="{desc} [{elapsed}]", leave=False)
+
+    def say(msg: str) -> None:
+        bar.set_description_str(f"pipe-nav: {msg}")
+        bar.update(0)
+
+    say.close = bar.close  # type: ignore[attr-defined]
+    return say
+
+
+def cmd_smooth(args: argparse.Namespace) -> int:
+    from .pipeline import Outputs, smooth_bag
+
+    cfg = _load_config(args)
+    out = Path(args.out)
+    stem = Path(str(args.input).rstrip("/")).stem
+    if args.out.endswith(("/", "\\")) or out.is_dir():
+        out.mkdir(parents=True, exist_ok=True)
+        outputs = Outputs(
+            bag=str(out / f"{stem}_smoothed.mcap"),
+            csv=args.csv or str(out / f"{stem}_centerline.csv"),
+            geojson=args.geojson or str(out / f"{stem}_centerline.geojson"),
+            kml=args.kml or str(out / f"{stem}_centerline.kml"),
+            plot=args.plot or str(out / f"{stem}_report.png"),
+        )
+    else:
+        outputs = Outputs(
+            bag=str(out), csv=args.csv, geojson=args.geojson, kml=args.kml, plot=args.plot
+        )
+    say = _progress(args.quiet)
+    try:
+        result, report = smooth_bag(
+            args.input,
+            outputs,
+            config=cfg,
+            method=args.method,
+            iterations=args.iterations,
+            markers_csv=args.markers,
+            spacing=args.spacing,
+            topics=_topics(args),
+            progress=say,
+        )
+    finally:
+        if say is not None:
+            say.close()  # type: ignore[attr-defined]
+    for w in report.warnings:
+        print(f"pipe-nav: warning: {w}", file=sys.stderr)
+    if not args.quiet:
+        _print_summary(result.summary, args.method)
+        print("outputs:")
+        for p in outputs.paths():
+            print(f"  {p}")
+    return 0
+
+
+def _print_summary(s: dict[str, Any], method: str) -> None:
+    print(f"smoothed with {method}:")
+    print(f"  distance            {s['distance_m']:.2f} m in {s['duration_s']:.1f} s")
+    print(
+        f"  markers             {s['markers_used']} used, {s['markers_rejected']} rejected, "
+        f"{s['markers_total']} in total"
+    )
+    rej = s.get("rejected_updates") or {}
+    print("  rejected updates    " + (", ".join(f"{k} {v}" for k, v in rej.items()) or "none"))
+    print(f"  odometer scale      {s['odometer_scale']:.5f}")
+    print("  gyro bias           " + " ".join(f"{x:+.2f}" for x in s["gyro_bias_deg_h"]) + " deg/h")
+    print("  accel bias          " + " ".join(f"{x:+.3f}" for x in s["accel_bias_mg"]) + " mg")
+    print(f"  max sigma between markers (horizontal) {s['max_sigma_h_between_markers_m']:.3f} m")
+    print(f"  max marker residual {s['max_marker_residual_m']:.3f} m")
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .pipeline import replay_bag
+
+    cfg = _load_config(args)
+    result, report = replay_bag(
+        args.input, args.out, config=cfg, markers_csv=args.markers, topics=_topics(args)
+    )
+    for w in report.warnings:
+        print(f"pipe-nav: warning: {w}", file=sys.stderr)
+    if not args.quiet:
+        d = result.diagnostics
+        print(f"replayed {len(result.estimates)} estimates -> {args.out}")
+        rej = {k: v for k, v in d.items() if str(k).startswith(("rejected_", "late_")) and v}
+        print("  rejected/late: " + (", ".join(f"{k} {v}" for k, v in rej.items()) or "none"))
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .io import write_centreline_csv, write_markers_csv, write_sensor_bag
+    from .io.atomic import check_not_input
+    from .sim import simulate
+
+    out = Path(args.out)
+    run = simulate(args.scenario, seed=args.seed)
+    truth_csv = out.with_name(out.stem + ".truth.csv")
+    markers_csv = out.with_name(out.stem + ".markers.csv")
+    for p in (out, truth_csv, markers_csv):
+        check_not_input(str(p), [])
+    write_sensor_bag(str(out), run.log)
+    write_centreline_csv(str(truth_csv), run.truth, run.datum)
+    write_markers_csv(str(markers_csv), run.log.markers)
+    if not args.quiet:
+        print(f"simulated {args.scenario} (seed {args.seed}): {len(run.log.imu)} IMU samples")
+        print(f"  bag    {out}\n  truth  {truth_csv}\n  survey {markers_csv}")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from .evaluation import score
+    from .io import read_centreline_csv, read_markers_csv
+
+    est, datum = read_centreline_csv(args.centreline)
+    truth, tdatum = read_centreline_csv(args.truth)
+    markers = read_markers_csv(args.markers) if args.markers else None
+    sc = score(est, truth, markers, datum=datum or tdatum)
+    data = {
+        k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+        for k, v in vars(sc).items()
+    }
+    if args.json:
+        print(json.dumps(data, indent=2))
+    else:
+        for k, v in data.items():
+            print(f"{k:28s} {v}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import main as bench_main
+
+    return bench_main(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="pipe-nav", description="Pipeline pig navigation (ROS-free core)."
+    )
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("smooth", help="smooth a recorded bag into a centreline")
+    p.add_argument("input", help="bag: a .mcap file or a rosbag2 directory")
+    p.add_argument(
+        "--out", required=True, help="output .mcap, or a folder (ending in /) for all outputs"
+    )
+    p.add_argument("--csv", help="centreline CSV")
+    p.add_argument("--geojson", help="centreline GeoJSON")
+    p.add_argument("--kml", help="centreline KML")
+    p.add_argument("--plot", help="report PNG")
+    p.add_argument("--method", default="rts", choices=["rts", "two-filter", "forward"])
+    p.add_argument("--iterations", type=int, default=2, help="re-linearization passes (default 2)")
+    p.add_argument("--spacing", type=float, default=0.5, help="CSV row spacing, m of chainage")
+    _add_common(p)
+    p.set_defaults(func=cmd_smooth)
+
+    p = sub.add_parser("replay", help="run the online estimator over a bag as ekf_node does")
+    p.add_argument("input")
+    p.add_argument("--out", required=True, help="output .mcap with /pipe_nav/odometry")
+    _add_common(p)
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("simulate", help="simulate a pig run into a bag plus its truth")
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="output .mcap (truth and survey CSVs beside it)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("evaluate", help="score a centreline CSV against a truth CSV")
+    p.add_argument("centreline")
+    p.add_argument("--truth", required=True, help="truth in the centreline CSV format")
+    p.add_argument("--markers", help="marker CSV (for the between-markers figures)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("bench", help="accuracy (and speed) benchmark on simulated runs")
+    p.add_argument("--quick", action="store_true", help="fewer scenarios and seeds")
+    p.add_argument("--speed", action="store_true", help="also run the speed benchmark")
+    p.add_argument("--out", default="BENCHMARKS.md", help="Markdown table")
+    p.add_argument("--json", default="bench_out/benchmarks.json", help="JSON results")
+    p.add_argument("--scenarios", nargs="*", help="subset of scenarios")
+    p.set_defaults(func=cmd_bench)
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("pipe-nav: interrupted", file=sys.stderr)
+        return 130
+    except (CliError, ConfigError, ValueError, OSError, KeyError) as exc:
+        print(f"pipe-nav: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_ERROR
+    except Exception as exc:  # BagError and anything unexpected: one line, never a traceback
+        kind = "" if type(exc).__name__ == "BagError" else f"{type(exc).__name__}: "
+        print(f"pipe-nav: error: {kind}{_one_line(exc)}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0]
 
 
 if __name__ == "__main__":

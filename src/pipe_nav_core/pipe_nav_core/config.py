@@ -50,6 +50,7 @@ class NavConfig:
     imu_grade: str = "industrial"
     imu_overrides: Mapping[str, float] = field(default_factory=dict)
     imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_error_states: bool = True  # estimate gyro scale factors and misalignments (9 states)
     filter_rate_hz: float = 10.0
     reorder_window_s: float = 0.5
 

@@ -112,7 +112,8 @@ class Navigator:
     biases, odometer scale and boresight replace the static-alignment values (the offline
     smoother's re-linearization pass); epoch_times: force the epoch ends to the first IMU
     samples at or after these times instead of filter_rate_hz and marker passages (the backward
-    filter uses the forward filter's epochs).
+    filter uses the forward filter's epochs); odometer_exclude: (N, 2) time intervals whose
+    odometer speed is not used (slips found by a previous smoothing pass).
     """
 
     def __init__(
@@ -124,16 +125,20 @@ class Navigator:
         reverse: bool = False,
         initial: NavState | None = None,
         epoch_times: Array | None = None,
+        odometer_exclude: Array | None = None,
     ) -> None:
         config.validate()
         self.cfg = config
-        self.layout = Layout(config.mode)
+        self.layout = Layout(config.mode, config.gyro_error_states)
         self.imu_spec = config.imu_spec()
         self.r_base_imu = mount_rotation(config.imu_mount_rpy)
         self.earth_sign = -1.0 if reverse else 1.0
         self.survey = markers_sorted(survey)
         self.record = record
         self.initial = initial
+        self.odometer_exclude = (
+            np.zeros((0, 2)) if odometer_exclude is None else np.asarray(odometer_exclude, float)
+        )
         self.epoch_times = None if epoch_times is None else np.sort(np.asarray(epoch_times, float))
         self.lever_arm = np.asarray(config.odometer_lever_arm, dtype=np.float64)
         self.hard_iron = np.asarray(config.mag_hard_iron, dtype=np.float64)
@@ -385,12 +390,12 @@ class Navigator:
                 azimuth = alignment.mag_azimuth(m_mean, roll, pitch, cfg.mag_declination)
                 az_sigma = cfg.mag_heading_sigma
         if self.initial is not None:
-            _, _, azimuth = att.euler_from_dcm(self.initial.c_nb)
+            roll, pitch, azimuth = (float(x) for x in att.euler_from_dcm(self.initial.c_nb))
         c = att.dcm_from_euler(roll, pitch, azimuth)
         if self._mag_ref is not None:
             m_n = c @ self._mag.field[mag_sel].mean(axis=0)
             self._mag_ref = (self._mag_ref[0], float(np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))))
-        bg = alignment.gyro_bias_at_rest(g_mean, c, lat)
+        bg = alignment.gyro_bias_at_rest(g_mean, c, lat, self.earth_sign)
         s = NavState(
             t=float(t[idx[-1]]),
             lat=lat,
@@ -404,6 +409,7 @@ class Navigator:
         if self.initial is not None:
             s.bg, s.ba = self.initial.bg.copy(), self.initial.ba.copy()
             s.k, s.bore = self.initial.k, self.initial.bore.copy()
+            s.gm = self.initial.gm.copy()
         s.distance = 0.0
         self.state = s
         self.kf = ErrorStateKF(
@@ -452,6 +458,10 @@ class Navigator:
         P[lay.pos, lay.pos] = np.diag(np.maximum(np.square(sig), cfg.initial_position_sigma**2))
         P[lay.k, lay.k] = cfg.odometer_scale_sigma**2
         P[lay.bore, lay.bore] = np.eye(2) * cfg.boresight_sigma**2
+        if lay.gm is not None:
+            gm_var = np.full((3, 3), imu.gyro_misalignment**2)
+            np.fill_diagonal(gm_var, imu.gyro_scale_factor**2)
+            P[lay.gm, lay.gm] = np.diag(np.maximum(gm_var.reshape(9), 1e-12))
         return P
 
     def _next_epoch_end(self) -> int | None:
@@ -543,21 +553,27 @@ class Navigator:
             s = new
 
         if lay.has_vel and has_odo:
-            c_end = s.c_nb
             lever_rate = float(np.cross(blk.omega_b, self.lever_arm)[0])
-            apply(
-                meas.odometer_velocity(
+            sigma_speed = math.hypot(
+                cfg.odometer_speed_sigma, 0.5 * cfg.pipe_diameter * w_yz * (not lever_known)
+            )
+
+            def odo() -> meas.Measurement:
+                return meas.odometer_velocity(
                     s,
                     lay,
                     speed=speed,
-                    vel_b_offset=blk.mean_vel_b - c_end.T @ s.vel_n,
+                    vel_b_offset=blk.mean_vel_b - s.c_nb.T @ s.vel_n,
                     lever_rate=lever_rate,
-                    sigma_speed=math.hypot(
-                        cfg.odometer_speed_sigma, 0.5 * cfg.pipe_diameter * w_yz * (not lever_known)
-                    ),
+                    sigma_speed=sigma_speed,
                     sigma_nhc=cfg.nhc_sigma,
                 )
-            )
+
+            apply(odo().rows([1, 2], "nhc"))
+            if self._odometer_excluded(s0.t, t[-1]):
+                self._counts["odometer_excluded"] += 1
+            else:
+                apply(odo().rows([0], "odometer"))
         if stopped:
             if lay.has_vel:
                 apply(meas.zero_velocity(s, lay, cfg.zupt_sigma))
@@ -585,6 +601,10 @@ class Navigator:
         self._counts["epochs"] += 1
         self._drop_processed(end)
         self._emit(status="static" if stopped else "moving", omega=blk.omega_b)
+
+    def _odometer_excluded(self, t0: float, t1: float) -> bool:
+        ex = self.odometer_exclude
+        return bool(len(ex)) and bool(np.any((ex[:, 0] < t1) & (ex[:, 1] > t0)))
 
     def _tilt_update(self, s: NavState, blk: BlockResult, T: float, apply) -> None:  # noqa: ANN001
         cfg = self.cfg

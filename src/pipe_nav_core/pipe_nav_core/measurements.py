@@ -34,6 +34,10 @@ class Measurement:
     H: Array
     R: Array
 
+    def rows(self, idx: list[int], name: str) -> Measurement:
+        """The measurement restricted to some of its components, renamed."""
+        return Measurement(name, self.residual[idx], self.H[idx], self.R[np.ix_(idx, idx)])
+
 
 def odometer_velocity(
     s: NavState,

@@ -46,6 +46,7 @@ class BlockResult:
     T: block duration, s. sum_c_dt: sum of C_nb dt (3, 3), s. dv_f: sum of C_nb (f - ba) dt (3,),
     m/s ENU. dp: ENU displacement over the block (3,), m. omega_b: mean bias-corrected body rate
     (3,), rad/s. mean_vel_b: mean body-frame velocity (3,), m/s. w_in: omega_in^n used (3,), rad/s.
+    sum_c_w_dt (3, 9): sum of C_nb[:, i] omega_j dt, the coupling of the gyro error matrix.
     DR only: dp_dk (3,) = d dp / d k; dp_dbore (3, 2); path (total |distance|, m).
     """
 
@@ -66,6 +67,7 @@ class BlockResult:
     dp_dk: Array
     dp_dbore: Array
     path: float
+    sum_c_w_dt: Array
 
 
 def _attitudes(
@@ -73,7 +75,10 @@ def _attitudes(
 ) -> tuple[Array, Array, Array, Array]:
     """Attitudes at the sample times, the previous-sample attitudes, raw and coned increments."""
     dt = np.diff(np.concatenate([[s.t], t]))
-    dtheta = (gyro - s.bg) * dt[:, None]
+    rate = gyro - s.bg
+    if np.any(s.gm):
+        rate = np.linalg.solve(np.eye(3) + s.gm, rate.T).T
+    dtheta = rate * dt[:, None]
     rv = att.coning_increments(dtheta, carry.dtheta)
     q_body = att.quat_cumprod(s.q_nb, att.quat_from_rotvec(rv))
     q_nav = att.quat_from_rotvec(-np.outer(t - s.t, w_in))
@@ -140,6 +145,7 @@ def ins_block(
         dp_dk=np.zeros(3),
         dp_dbore=np.zeros((3, 2)),
         path=float(np.abs(np.linalg.norm(dp_i, axis=1)).sum()),
+        sum_c_w_dt=np.einsum("kai,kj->aij", c_mid, dtheta).reshape(3, 9),
     )
     return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())
 
@@ -202,6 +208,7 @@ def dr_block(
         dp_dk=(cu * ds[:, None]).sum(axis=0),
         dp_dbore=(1.0 + s.k) * np.einsum("mij,jk,m->ik", c_mid, du, ds),
         path=float(np.abs(ds_c).sum()),
+        sum_c_w_dt=np.einsum("kai,kj->aij", c_mid, dtheta).reshape(3, 9),
     )
     dvel = (accel - s.ba) * dt[:, None]
     return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())

@@ -30,6 +30,8 @@ def integrated_system_matrix(
     a, p = layout.att, layout.pos
     A[a, a] = -skew(blk.w_in) * T
     A[a, layout.bg] = -blk.sum_c_dt
+    if layout.gm is not None:
+        A[a, layout.gm] = -blk.sum_c_w_dt
     if layout.vel is not None:
         v = layout.vel
         rm, rn = earth.radii(s.lat)
@@ -80,6 +82,8 @@ def continuous_noise(
     q[layout.ba] = 2.0 * imu.accel_bias_instability**2 / imu.accel_bias_corr_time * T
     q[layout.k] = scale_rw**2 * T
     q[layout.bore] = 1e-8**2 * T
+    if layout.gm is not None:
+        q[layout.gm] = 1e-9**2 * T
     Q = np.diag(q)
     if layout.vel is None:
         u, _ = odometer_axis(s.bore)

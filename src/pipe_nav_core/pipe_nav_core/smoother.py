@@ -6,9 +6,11 @@ Methods (``method``):
 - ``rts``: Rauch-Tung-Striebel over the recorded forward filter;
 - ``two-filter``: the forward filter fused with a filter run on the time-reversed data
   (seed 001 RTS-FC, seed 004).
-``iterations`` > 1 re-runs the forward filter from the smoothed initial attitude, biases,
-odometer scale and boresight, so that the linearization is about a trajectory close to the
-truth (an iterated smoother).
+Passes repeat (up to ``iterations``) from the smoothed initial attitude, biases, odometer
+scale and boresight of the previous pass, so that the linearization is about a trajectory
+close to the truth (an iterated smoother), until the smoothed correction of the initial
+attitude falls below CONVERGED_RAD; odometer epochs that disagree with the previous pass's
+smoothed path (wheel slip) are left out of the next pass.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from .types import (
 
 Array = NDArray[np.float64]
 METHODS = ("forward", "rts", "two-filter")
+CONVERGED_RAD = 1e-4  # rad: initial-attitude correction below which another pass is not needed
 
 
 @dataclass
@@ -100,6 +103,7 @@ def run_forward(
     initial: NavState | None = None,
     reverse: bool = False,
     epoch_times: Array | None = None,
+    odometer_exclude: Array | None = None,
 ) -> Navigator:
     """One recorded filter pass over a time-sorted log."""
     nav = Navigator(
@@ -109,6 +113,7 @@ def run_forward(
         reverse=reverse,
         initial=initial,
         epoch_times=epoch_times,
+        odometer_exclude=odometer_exclude,
     )
     nav.run(log)
     nav.poll()
@@ -122,7 +127,7 @@ def smooth_log(
     config: NavConfig,
     *,
     method: str = "rts",
-    iterations: int = 2,
+    iterations: int = 5,
     progress: Callable[[str], None] | None = None,
 ) -> SmoothResult:
     """Smooth a whole time-sorted log (IMU in imu_link as recorded) and return the centreline."""
@@ -131,11 +136,12 @@ def smooth_log(
     if len(log.imu) < 10:
         raise ValueError("the log has fewer than 10 IMU samples")
     say = progress or (lambda _msg: None)
-    layout = Layout(config.mode)
+    layout = Layout(config.mode, config.gyro_error_states)
     initial: NavState | None = None
+    exclude: Array | None = None
     for it in range(max(1, iterations)):
         say(f"forward filter (pass {it + 1})")
-        nav = run_forward(log, config, initial=initial)
+        nav = run_forward(log, config, initial=initial, odometer_exclude=exclude)
         rec = nav.recording
         assert rec is not None
         if method == "forward":
@@ -148,6 +154,19 @@ def smooth_log(
             say("backward filter")
             e, P_s = _two_filter(log, config, rec, layout)
         initial = rec.states[0].inject(e[0], layout)
+        passes = it + 1
+        new_exclude = (
+            find_slips(rec, _centreline(rec, e, P_s, layout), config) if layout.has_vel else None
+        )
+        same_slips = (
+            exclude is not None and new_exclude is not None and np.array_equal(exclude, new_exclude)
+        )
+        if method == "forward" or (
+            float(np.linalg.norm(e[0][layout.att])) < CONVERGED_RAD
+            and (same_slips or new_exclude is None)
+        ):
+            break
+        exclude = new_exclude
     datum = nav.datum or Datum(rec.states[0].lat, rec.states[0].lon, rec.states[0].h)
     say("centreline")
     centre = _centreline(rec, e, P_s, layout)
@@ -156,7 +175,35 @@ def smooth_log(
     forward = _forward_trajectory(rec, layout)
     result = SmoothResult(centre, forward, datum, markers, residuals, final_state=nav.state)
     result.summary = summarize(result, nav)
+    result.summary["passes"] = passes
     return result
+
+
+def find_slips(
+    rec: Recording, centre: Trajectory, config: NavConfig, n_sigma: float = 4.0
+) -> Array:
+    """Epochs whose calibrated odometer distance disagrees with the smoothed path length by more
+    than n_sigma odometer sigmas (wheel slip or spin), widened by one epoch on each side, as
+    (N, 2) time intervals in s."""
+    enu = earth.geodetic_to_enu(
+        centre.lat, centre.lon, centre.h, centre.lat[0], centre.lon[0], centre.h[0]
+    )
+    step = np.linalg.norm(np.diff(enu, axis=0, prepend=enu[:1]), axis=1)
+    k = np.concatenate(rec.s_epoch)
+    n_ep = len(rec.t)
+    path = np.bincount(k, weights=step, minlength=n_ep)
+    s_odo = np.concatenate(rec.s_odo)
+    d_odo = np.diff(s_odo, prepend=s_odo[:1])
+    scale = 1.0 + np.array([st.k for st in rec.states])
+    odo = np.bincount(k, weights=d_odo, minlength=n_ep) * scale
+    t = np.asarray(rec.t)
+    T = np.diff(t, prepend=t[:1])
+    bad = np.abs(np.abs(odo) - path) > n_sigma * config.odometer_speed_sigma * np.maximum(T, 1e-9)
+    bad[0] = False
+    bad = bad | np.r_[bad[1:], False] | np.r_[False, bad[:-1]]
+    idx = np.nonzero(bad)[0]
+    idx = idx[idx > 0]
+    return np.stack([t[idx - 1], t[idx]], axis=-1) if len(idx) else np.zeros((0, 2))
 
 
 def _two_filter(

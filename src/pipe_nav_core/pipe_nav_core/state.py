@@ -8,7 +8,9 @@ Error state (truth minus estimate), navigation frame ENU:
 - ``bg`` (3): gyro bias error, rad/s (body); ``ba`` (3): accelerometer bias error, m/s^2 (body);
 - ``k`` (1): odometer scale-factor error: true distance = (1 + k) * measured;
 - ``bore`` (2): odometer boresight (yaw, pitch), rad: the odometer axis in base_link is
-  u = normalize([1, yaw, pitch]).
+  u = normalize([1, yaw, pitch]);
+- ``gm`` (9, optional): gyro scale-factor and misalignment matrix M, row-major, where the gyro
+  measures (I + M) omega + bias (matters when the pig rolls through whole turns).
 """
 
 from __future__ import annotations
@@ -27,14 +29,14 @@ Array = NDArray[np.float64]
 class Layout:
     """Index slices of the error state for one mechanization mode ("ins" or "dr")."""
 
-    def __init__(self, mode: str) -> None:
+    def __init__(self, mode: str, gyro_errors: bool = False) -> None:
         self.mode = mode
-        names = (
-            ["att", "vel", "pos", "bg", "ba", "k", "bore"]
-            if mode == "ins"
-            else ["att", "pos", "bg", "ba", "k", "bore"]
-        )
-        sizes = {"att": 3, "vel": 3, "pos": 3, "bg": 3, "ba": 3, "k": 1, "bore": 2}
+        names = ["att", "vel", "pos", "bg", "ba", "k", "bore"]
+        if mode != "ins":
+            names.remove("vel")
+        if gyro_errors:
+            names.append("gm")
+        sizes = {"att": 3, "vel": 3, "pos": 3, "bg": 3, "ba": 3, "k": 1, "bore": 2, "gm": 9}
         start = 0
         self.slices: dict[str, slice] = {}
         for name in names:
@@ -48,6 +50,7 @@ class Layout:
         self.ba = self.slices["ba"]
         self.k = self.slices["k"]
         self.bore = self.slices["bore"]
+        self.gm = self.slices.get("gm")
 
     @property
     def has_vel(self) -> bool:
@@ -70,7 +73,8 @@ class NavState:
 
     lat, lon rad; h m (WGS84 ellipsoidal); vel_n (3,) m/s ENU; q_nb (4,) [x,y,z,w] base_link->ENU;
     bg (3,) rad/s and ba (3,) m/s^2 sensor biases in base_link; k odometer scale error;
-    bore (2,) rad odometer boresight; distance m calibrated chainage.
+    bore (2,) rad odometer boresight; distance m calibrated chainage; gm (3, 3) gyro
+    scale-factor/misalignment matrix M (gyro = (I + M) omega + bg).
     """
 
     t: float
@@ -84,10 +88,13 @@ class NavState:
     k: float = 0.0
     bore: Array = None  # type: ignore[assignment]
     distance: float = 0.0
+    gm: Array = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         if self.bore is None:
             self.bore = np.zeros(2)
+        if self.gm is None:
+            self.gm = np.zeros((3, 3))
 
     def copy(self) -> NavState:
         return replace(
@@ -97,6 +104,7 @@ class NavState:
             bg=self.bg.copy(),
             ba=self.ba.copy(),
             bore=self.bore.copy(),
+            gm=self.gm.copy(),
         )
 
     @property
@@ -116,6 +124,8 @@ class NavState:
         s.ba = s.ba + dx[layout.ba]
         s.k = float(s.k + dx[layout.k][0])
         s.bore = s.bore + dx[layout.bore]
+        if layout.gm is not None:
+            s.gm = s.gm + dx[layout.gm].reshape(3, 3)
         return s
 
     def difference(self, other: NavState, layout: Layout) -> Array:
@@ -135,4 +145,6 @@ class NavState:
         dx[layout.ba] = self.ba - other.ba
         dx[layout.k] = self.k - other.k
         dx[layout.bore] = self.bore - other.bore
+        if layout.gm is not None:
+            dx[layout.gm] = (self.gm - other.gm).reshape(9)
         return dx

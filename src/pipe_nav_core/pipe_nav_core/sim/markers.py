@@ -1,0 +1,54 @@
+"""Above-ground markers: passage times and surveyed positions.
+
+The pig passes marker k at the first time its centreline chainage reaches the marker's chainage;
+the launch trap (chainage 0) is "passed" when the pig starts moving and the receive trap (end of
+the pipe) when it arrives. The recorded time has an error N(0, time_sigma) and the surveyed
+position an error N(0, sigma) per ENU axis about the true centreline point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import earth
+from ..types import Marker
+from .geometry import PipeGeometry
+from .motion import PigMotion
+
+FloatArray = NDArray[np.float64]
+
+
+def marker_name(k: int) -> str:
+    """Name (bag frame_id) of the k-th marker: agm_00, agm_01, ..."""
+    return f"agm_{k:02d}"
+
+
+def make_markers(
+    geometry: PipeGeometry,
+    motion: PigMotion,
+    chainages: FloatArray,
+    time_sigma: float,
+    sigma_h: float,
+    sigma_v: float,
+    rng: np.random.Generator,
+) -> tuple[list[Marker], list[Marker]]:
+    """(noisy markers as recorded, true markers) at the given chainages (m, increasing).
+
+    time_sigma: s; sigma_h, sigma_v: m survey one-sigma (east/north, up). Both lists carry
+    sigma_enu = (sigma_h, sigma_h, sigma_v).
+    """
+    ch = np.asarray(chainages, dtype=np.float64).reshape(-1)
+    t_true = motion.time_at_chainage(ch)
+    lat, lon, h = geometry.position(ch)
+    sig = (float(sigma_h), float(sigma_h), float(sigma_v))
+    dt = rng.standard_normal(len(ch)) * time_sigma
+    d_enu = rng.standard_normal((len(ch), 3)) * np.array(sig)[None, :]
+    noisy: list[Marker] = []
+    true: list[Marker] = []
+    for k in range(len(ch)):
+        name = marker_name(k)
+        true.append(Marker(name, float(t_true[k]), float(lat[k]), float(lon[k]), float(h[k]), sig))
+        la, lo, hh = earth.enu_to_geodetic(d_enu[k], float(lat[k]), float(lon[k]), float(h[k]))
+        noisy.append(Marker(name, float(t_true[k] + dt[k]), float(la), float(lo), float(hh), sig))
+    return noisy, true
