@@ -338,10 +338,13 @@ class Navigator:
             self._process_epoch(end)
 
     def _odometer_at(self, t: Array) -> Array:
+        """Odometer distance (m) interpolated at times t (sorted), from the buffered samples."""
         o = self._odo
         if len(o) == 0:
             return np.zeros_like(t)
-        return np.interp(t, o.t, o.distance)
+        i0 = max(int(np.searchsorted(o.t, t[0])) - 1, 0)
+        i1 = int(np.searchsorted(o.t, t[-1])) + 1
+        return np.interp(t, o.t[i0:i1], o.distance[i0:i1])
 
     def _try_align(self) -> bool:
         t = self._imu_t
@@ -630,10 +633,9 @@ class Navigator:
 
     def _mag_update(self, s: NavState, blk: BlockResult, apply) -> None:  # noqa: ANN001
         cfg = self.cfg
-        sel = (self._mag.t > blk.t[-1] - blk.T + 1e-9) & (self._mag.t <= blk.t[-1])
-        if not sel.any() or self._mag_ref is None:
+        i = int(np.searchsorted(self._mag.t, blk.t[-1], side="right")) - 1
+        if i < 0 or self._mag.t[i] <= blk.t[-1] - blk.T + 1e-9 or self._mag_ref is None:
             return
-        i = np.nonzero(sel)[0][-1]
         m_b = self._mag.field[i]
         j = min(int(np.searchsorted(blk.t, self._mag.t[i])), len(blk.t) - 1)
         # attitude at the sample, moved by the corrections applied since the block end
@@ -680,20 +682,17 @@ class Navigator:
     def _drop_processed(self, end: int | None = None) -> None:
         s = self.state
         assert s is not None
-        keep = self._imu_t > s.t
-        self._imu_t, self._imu_g, self._imu_a = (
-            self._imu_t[keep],
-            self._imu_g[keep],
-            self._imu_a[keep],
-        )
+        i = int(np.searchsorted(self._imu_t, s.t, side="right"))
+        # slices are views: O(1) per epoch whatever the length of the log
+        self._imu_t, self._imu_g, self._imu_a = self._imu_t[i:], self._imu_g[i:], self._imu_a[i:]
         o = self._odo
-        if len(o) > 2:
-            i = max(int(np.searchsorted(o.t, s.t)) - 1, 0)
-            if i > 0:
-                self._odo = o.slice(slice(i, None))
+        i = max(int(np.searchsorted(o.t, s.t)) - 1, 0)
+        if i > 0:
+            self._odo = o.slice(slice(i, None))
         mg = self._mag
-        if len(mg):
-            self._mag = mg.slice(mg.t > s.t - 1.0)
+        i = int(np.searchsorted(mg.t, s.t - 1.0, side="right"))
+        if i > 0:
+            self._mag = mg.slice(slice(i, None))
 
     def _emit(self, status: str = "static", omega: Array | None = None) -> None:
         s, kf, lay = self.state, self.kf, self.layout

@@ -137,8 +137,10 @@ def smooth_log(
         raise ValueError("the log has fewer than 10 IMU samples")
     say = progress or (lambda _msg: None)
     layout = Layout(config.mode, config.gyro_error_states)
+    markers = markers_sorted(log.markers)
     initial: NavState | None = None
     exclude: Array | None = None
+    best: tuple[tuple[int, float], SmoothResult] | None = None
     for it in range(max(1, iterations)):
         say(f"forward filter (pass {it + 1})")
         nav = run_forward(log, config, initial=initial, odometer_exclude=exclude)
@@ -153,30 +155,40 @@ def smooth_log(
         else:
             say("backward filter")
             e, P_s = _two_filter(log, config, rec, layout)
-        initial = rec.states[0].inject(e[0], layout)
-        passes = it + 1
-        new_exclude = (
-            find_slips(rec, _centreline(rec, e, P_s, layout), config) if layout.has_vel else None
+        centre = _centreline(rec, e, P_s, layout)
+        datum = nav.datum or Datum(rec.states[0].lat, rec.states[0].lon, rec.states[0].h)
+        result = SmoothResult(
+            centre,
+            _forward_trajectory(rec, layout),
+            datum,
+            markers,
+            marker_residuals(centre, markers),
+            final_state=nav.state,
         )
+        result.summary = summarize(result, nav)
+        result.summary["passes"] = it + 1
+        # a pass is better when it rejects fewer markers, then when it fits them more closely
+        quality = (
+            int(result.summary["markers_rejected"]),
+            float(result.summary["max_marker_residual_m"]),
+        )
+        if best is None or quality < best[0]:
+            best = (quality, result)
+        if method == "forward":
+            break
+        initial = rec.states[0].inject(e[0], layout)
+        new_exclude = find_slips(rec, centre, config) if layout.has_vel else None
         same_slips = (
             exclude is not None and new_exclude is not None and np.array_equal(exclude, new_exclude)
         )
-        if method == "forward" or (
-            float(np.linalg.norm(e[0][layout.att])) < CONVERGED_RAD
-            and (same_slips or new_exclude is None)
+        if float(np.linalg.norm(e[0][layout.att])) < CONVERGED_RAD and (
+            same_slips or new_exclude is None
         ):
             break
         exclude = new_exclude
-    datum = nav.datum or Datum(rec.states[0].lat, rec.states[0].lon, rec.states[0].h)
-    say("centreline")
-    centre = _centreline(rec, e, P_s, layout)
-    markers = markers_sorted(log.markers)
-    residuals = marker_residuals(centre, markers)
-    forward = _forward_trajectory(rec, layout)
-    result = SmoothResult(centre, forward, datum, markers, residuals, final_state=nav.state)
-    result.summary = summarize(result, nav)
-    result.summary["passes"] = passes
-    return result
+    assert best is not None
+    best[1].summary["passes_run"] = it + 1
+    return best[1]
 
 
 def find_slips(

@@ -1,0 +1,87 @@
+"""File input and output of the ROS-free core (INTERFACES.md): ROS 2 bags (MCAP), marker and
+centreline CSV, GeoJSON and KML; ROS message conversion lives in :mod:`.rosmsg`.
+
+Modules: :mod:`.topics` (names, BagError, BagReport), :mod:`.stamps` (exact ns <-> s),
+:mod:`.cdr` (vectorized CDR), :mod:`.mcapread` / :mod:`.mcapwrite` (MCAP records),
+:mod:`.bagread`, :mod:`.bagwrite`, :mod:`.rosmsg`, :mod:`.markers_csv`, :mod:`.centreline`,
+:mod:`.gis`, :mod:`.atomic`.
+"""
+
+from __future__ import annotations
+
+from .atomic import (
+    OutputIsInputError,
+    atomic_path,
+    atomic_write,
+    check_not_input,
+    ensure_not_input,
+)
+from .bagread import (
+    BagInfo,
+    TopicInfo,
+    bag_files,
+    bag_info,
+    bag_time_range,
+    concat_logs,
+    iter_bag,
+    read_bag,
+)
+from .bagwrite import write_output_bag, write_rosbag2_metadata, write_sensor_bag
+from .centreline import (
+    CENTRELINE_COLUMNS,
+    CENTRELINE_HEADER,
+    CentrelineCsvError,
+    interpolate_trajectory,
+    read_centreline_csv,
+    resample_by_chainage,
+    write_centreline_csv,
+)
+from .gis import write_geojson, write_kml
+from .markers_csv import (
+    MARKER_COLUMNS,
+    MarkerCsvError,
+    merge_markers,
+    read_markers_csv,
+    write_markers_csv,
+)
+from .topics import BagError, BagReport, TopicNames
+
+# Refuse-to-overwrite helper under the name used in the design notes.
+refuse_input_overwrite = ensure_not_input
+
+__all__ = [
+    "CENTRELINE_COLUMNS",
+    "CENTRELINE_HEADER",
+    "MARKER_COLUMNS",
+    "BagError",
+    "BagInfo",
+    "BagReport",
+    "CentrelineCsvError",
+    "MarkerCsvError",
+    "OutputIsInputError",
+    "TopicInfo",
+    "TopicNames",
+    "atomic_path",
+    "atomic_write",
+    "bag_files",
+    "bag_info",
+    "bag_time_range",
+    "check_not_input",
+    "concat_logs",
+    "ensure_not_input",
+    "interpolate_trajectory",
+    "iter_bag",
+    "merge_markers",
+    "read_bag",
+    "read_centreline_csv",
+    "read_markers_csv",
+    "refuse_input_overwrite",
+    "resample_by_chainage",
+    "write_centreline_csv",
+    "write_geojson",
+    "write_kml",
+    "write_markers_csv",
+    "write_output_bag",
+    "write_rosbag2_metadata",
+    "write_sensor_bag",
+]

@@ -1,0 +1,111 @@
+"""Atomic file output and protection of input files.
+
+:func:`atomic_write` writes to a temporary file in the destination directory and renames it
+over the destination only when the block finishes without an exception, so a reader never
+sees a half-written file and a failure leaves the old file (if any) untouched.
+:func:`ensure_not_input` refuses to write onto one of the inputs (same file, a hard or soft
+link to it, or a file inside an input bag directory).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO, Any
+
+
+class OutputIsInputError(ValueError):
+    """The requested output path would overwrite an input."""
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def ensure_not_input(
+    output: str | os.PathLike[str], inputs: Iterable[str | os.PathLike[str]]
+) -> None:
+    """Raise OutputIsInputError if ``output`` is one of ``inputs`` (same file by samefile or
+    realpath) or lies inside an input directory (a rosbag2 directory)."""
+    out = Path(output)
+    out_real = Path(os.path.realpath(out))
+    for inp in inputs:
+        p = Path(inp)
+        if p.is_dir():
+            in_real = Path(os.path.realpath(p))
+            if out_real == in_real or in_real in out_real.parents:
+                raise OutputIsInputError(
+                    f"{out}: refusing to write inside the input bag directory {p}"
+                )
+            continue
+        same_file = out.exists() and p.exists() and _same(out, p)
+        if same_file or out_real == Path(os.path.realpath(p)):
+            raise OutputIsInputError(f"{out}: refusing to overwrite the input file {p}")
+
+
+check_not_input = ensure_not_input  # alias used by the pipeline and the CLI
+
+
+def _tmp_name(target: Path) -> Path:
+    return target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` for tools that want a file name; on success it is
+    renamed onto ``path``, on an exception it is removed. The file may or may not have been
+    created by the caller."""
+    target = Path(path)
+    tmp = _tmp_name(target)
+    try:
+        yield tmp
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+@contextlib.contextmanager
+def atomic_write(
+    path: str | os.PathLike[str],
+    mode: str = "w",
+    *,
+    encoding: str | None = "utf-8",
+    newline: str | None = None,
+) -> Iterator[IO[Any]]:
+    """Open a temporary file beside ``path`` for writing (``mode`` 'w' text or 'wb' binary);
+    when the block ends normally the data are flushed to disk and the file replaces ``path``
+    (os.replace, atomic on POSIX); on any exception the temporary file is deleted and ``path``
+    is left as it was. New files get the usual permissions (0666 minus umask)."""
+    if mode not in ("w", "wb"):
+        raise ValueError("atomic_write mode must be 'w' or 'wb'")
+    target = Path(path)
+    tmp = _tmp_name(target)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        if mode == "wb":
+            f: IO[Any] = os.fdopen(fd, "wb")
+        else:
+            f = os.fdopen(fd, "w", encoding=encoding, newline=newline)
+    except BaseException:
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    try:
+        with f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise

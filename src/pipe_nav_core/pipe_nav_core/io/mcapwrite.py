@@ -1,0 +1,348 @@
+"""Low-level MCAP writing: a fast, chunked, indexed writer for pre-serialized message streams.
+
+Each topic is a *stream*: time-sorted log times (ns) and a callback that serializes a range of
+its messages into ready MCAP Message records (see :func:`message_records`). The writer merges
+the streams in log-time order, cuts ~``chunk_size`` chunks, compresses them and writes a full
+MCAP file the way rosbag2's MCAP storage does: profile ``ros2``, Schema and Channel records
+first, chunks each followed by their MessageIndex records, DataEnd, then a summary (schemas,
+channels, statistics, chunk indexes, summary offsets) and the footer, with CRCs. Nothing is
+done per message in Python except assembling the chunk (a list join).
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import BinaryIO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .mcapread import (
+    MAGIC,
+    MESSAGE_HEADER_SIZE,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_CHUNK_INDEX,
+    OP_DATA_END,
+    OP_FOOTER,
+    OP_HEADER,
+    OP_MESSAGE,
+    OP_MESSAGE_INDEX,
+    OP_SCHEMA,
+    OP_STATISTICS,
+    OP_SUMMARY_OFFSET,
+)
+
+DEFAULT_CHUNK_SIZE = 4 << 20  # bytes of uncompressed records per chunk
+
+
+def _s(text: str) -> bytes:
+    raw = text.encode("utf-8")
+    return struct.pack("<I", len(raw)) + raw
+
+
+def _b(raw: bytes) -> bytes:
+    return struct.pack("<I", len(raw)) + raw
+
+
+def _record(op: int, content: bytes) -> bytes:
+    return struct.pack("<BQ", op, len(content)) + content
+
+
+def _string_map(d: dict[str, str]) -> bytes:
+    body = b"".join(_s(k) + _s(v) for k, v in d.items())
+    return _b(body)
+
+
+def message_records(
+    payloads: NDArray[np.uint8], channel_id: int, log_times: NDArray[np.int64], seq0: int = 0
+) -> NDArray[np.uint8]:
+    """Fill the MCAP Message record header into rows ``payloads[:, :31]`` in place.
+
+    payloads: (n, 31 + payload_size) uint8 whose columns 31: hold the CDR payloads; log_times:
+    (n,) ns used as both log_time and publish_time. Returns payloads.
+    """
+    n, width = payloads.shape
+    payloads[:, 0] = OP_MESSAGE
+    payloads[:, 1:9] = np.array([width - 9], dtype="<u8").view(np.uint8)
+    payloads[:, 9:11] = np.array([channel_id], dtype="<u2").view(np.uint8)
+    payloads[:, 11:15] = (
+        (np.arange(n, dtype=np.int64) + seq0).astype("<u4").view(np.uint8).reshape(n, 4)
+    )
+    lt = np.ascontiguousarray(log_times, dtype="<u8").view(np.uint8).reshape(n, 8)
+    payloads[:, 15:23] = lt
+    payloads[:, 23:31] = lt
+    return payloads
+
+
+def variable_records(channel_id: int, log_times: Sequence[int], payloads: Sequence[bytes]) -> bytes:
+    """Message records for a few variable-size payloads (concatenated)."""
+    out = []
+    for i, (t, p) in enumerate(zip(log_times, payloads, strict=True)):
+        out.append(
+            struct.pack("<BQHIQQ", OP_MESSAGE, 22 + len(p), channel_id, i, int(t), int(t)) + p
+        )
+    return b"".join(out)
+
+
+@dataclass
+class Stream:
+    """Messages of one channel: log_times (n,) int64 ns non-decreasing; sizes (n,) int64 record
+    sizes (31 + payload); encode(a, b) -> bytes-like of the records of messages a..b-1."""
+
+    channel_id: int
+    log_times: NDArray[np.int64]
+    sizes: NDArray[np.int64]
+    encode: Callable[[int, int], object]
+
+    @staticmethod
+    def fixed(
+        channel_id: int,
+        log_times: NDArray[np.int64],
+        record_size: int,
+        encode: Callable[[int, int], object],
+    ) -> Stream:
+        lt = np.asarray(log_times, dtype=np.int64)
+        return Stream(channel_id, lt, np.full(len(lt), record_size, dtype=np.int64), encode)
+
+    @staticmethod
+    def variable(channel_id: int, log_times: Sequence[int], payloads: Sequence[bytes]) -> Stream:
+        lt = np.asarray(log_times, dtype=np.int64)
+        recs = variable_records(channel_id, [int(x) for x in lt], payloads)
+        sizes = np.array([MESSAGE_HEADER_SIZE + len(p) for p in payloads], dtype=np.int64)
+        starts = np.concatenate([[0], np.cumsum(sizes)])
+
+        def enc(a: int, b: int) -> object:
+            return memoryview(recs)[int(starts[a]) : int(starts[b])]
+
+        return Stream(channel_id, lt, sizes, enc)
+
+
+def _compressor(compression: str) -> Callable[[bytes], bytes]:
+    if compression == "":
+        return lambda data: data
+    if compression == "zstd":
+        try:
+            import zstandard
+
+            return zstandard.ZstdCompressor(level=1).compress
+        except ImportError:  # pragma: no cover - depends on the environment
+            from backports import zstd  # type: ignore[import-not-found]
+
+            return lambda data: zstd.compress(data, level=1)
+    if compression == "lz4":
+        import lz4.frame
+
+        return lambda data: lz4.frame.compress(data)
+    raise ValueError(f"unsupported compression {compression!r}")
+
+
+class McapWriter:
+    """Writes one MCAP file to an open binary file object (see the module docstring).
+
+    Call :meth:`add_schema`, :meth:`add_channel`, then :meth:`write_streams` (once), then
+    :meth:`finish`.
+    """
+
+    def __init__(
+        self,
+        f: BinaryIO,
+        *,
+        profile: str = "ros2",
+        library: str = "pipe_nav_core",
+        compression: str = "zstd",
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+    ) -> None:
+        self.f = f
+        self.compression = compression
+        self.compress = _compressor(compression)
+        self.chunk_size = int(chunk_size)
+        self.pos = 0
+        self.crc = 0
+        self.schemas: list[bytes] = []
+        self.channels: list[bytes] = []
+        self.chunk_indexes: list[bytes] = []
+        self.channel_counts: dict[int, int] = {}
+        self.start_time: int | None = None
+        self.end_time: int | None = None
+        self.message_count = 0
+        self._write(MAGIC)
+        self._write(_record(OP_HEADER, _s(profile) + _s(library)))
+
+    def _write(self, data: bytes | memoryview) -> None:
+        self.f.write(data)
+        self.crc = zlib.crc32(data, self.crc)
+        self.pos += len(data)
+
+    def add_schema(self, sid: int, name: str, encoding: str, data: str) -> int:
+        rec = _record(OP_SCHEMA, struct.pack("<H", sid) + _s(name) + _s(encoding) + _s(data))
+        self.schemas.append(rec)
+        self._write(rec)
+        return sid
+
+    def add_channel(
+        self, cid: int, schema_id: int, topic: str, message_encoding: str, metadata: dict[str, str]
+    ) -> int:
+        rec = _record(
+            OP_CHANNEL,
+            struct.pack("<HH", cid, schema_id)
+            + _s(topic)
+            + _s(message_encoding)
+            + _string_map(metadata),
+        )
+        self.channels.append(rec)
+        self.channel_counts.setdefault(cid, 0)
+        self._write(rec)
+        return cid
+
+    def write_streams(self, streams: Sequence[Stream]) -> None:
+        """Merge the streams in log-time order (ties: stream order) and write them in chunks."""
+        streams = [s for s in streams if len(s.log_times)]
+        if not streams:
+            return
+        t_all = np.concatenate([s.log_times for s in streams])
+        k_all = np.concatenate([np.full(len(s.log_times), k) for k, s in enumerate(streams)])
+        i_all = np.concatenate([np.arange(len(s.log_times)) for s in streams])
+        size_all = np.concatenate([s.sizes for s in streams])
+        order = np.lexsort((k_all, t_all))
+        t_m, k_m, i_m, size_m = t_all[order], k_all[order], i_all[order], size_all[order]
+        del t_all, k_all, i_all, size_all, order
+        cum = np.cumsum(size_m) - size_m
+        chunk_of = cum // self.chunk_size
+        bounds = np.flatnonzero(np.diff(chunk_of)) + 1
+        edges = np.concatenate([[0], bounds, [len(t_m)]])
+        for a, b in zip(edges[:-1].tolist(), edges[1:].tolist(), strict=True):
+            self._write_chunk(streams, t_m[a:b], k_m[a:b], i_m[a:b], size_m[a:b])
+
+    def _write_chunk(
+        self,
+        streams: Sequence[Stream],
+        t: NDArray[np.int64],
+        k: NDArray[np.int64],
+        i: NDArray[np.int64],
+        size: NDArray[np.int64],
+    ) -> None:
+        # Serialize each stream's (contiguous) share of this chunk.
+        regions: list[memoryview] = []
+        region_of = np.zeros(len(streams), dtype=np.int64)
+        first_of = np.zeros(len(streams), dtype=np.int64)
+        base = np.zeros(len(streams) + 1, dtype=np.int64)
+        present = np.unique(k)
+        for j, kk in enumerate(present.tolist()):
+            sel = i[k == kk]
+            a, b = int(sel[0]), int(sel[-1]) + 1
+            raw = streams[kk].encode(a, b)
+            mv = memoryview(raw).cast("B") if not isinstance(raw, memoryview) else raw.cast("B")
+            regions.append(mv)
+            region_of[kk] = j
+            first_of[kk] = a
+            base[j + 1] = base[j] + len(mv)
+        # Offset of every message within its stream region.
+        src_start = np.empty(len(t), dtype=np.int64)
+        for kk in present.tolist():
+            m = k == kk
+            sz = size[m]
+            src_start[m] = base[region_of[kk]] + np.cumsum(sz) - sz
+        whole = memoryview(b"".join(regions)) if len(regions) > 1 else regions[0]
+        # Consecutive messages of one stream are contiguous in its region: copy runs.
+        first = np.concatenate([[0], np.flatnonzero(np.diff(k)) + 1])
+        last = np.concatenate([first[1:] - 1, [len(k) - 1]])
+        run_a = src_start[first].tolist()
+        run_b = (src_start[last] + size[last]).tolist()
+        records = b"".join([whole[s:e] for s, e in zip(run_a, run_b, strict=True)])
+        dst = np.cumsum(size) - size
+
+        usize = len(records)
+        crc = zlib.crc32(records)
+        data = self.compress(records)
+        start_t, end_t = int(t.min()), int(t.max())
+        content = (
+            struct.pack("<QQQI", start_t, end_t, usize, crc)
+            + _s(self.compression)
+            + struct.pack("<Q", len(data))
+        )
+        chunk_start = self.pos
+        self._write(struct.pack("<BQ", OP_CHUNK, len(content) + len(data)))
+        self._write(content)
+        self._write(data)
+        chunk_len = self.pos - chunk_start
+
+        index_offsets: dict[int, int] = {}
+        mi_start = self.pos
+        cids = np.array([streams[kk].channel_id for kk in range(len(streams))], dtype=np.int64)
+        chan = cids[k]
+        for cid in np.unique(chan).tolist():
+            m = chan == cid
+            pairs = np.empty((int(m.sum()), 2), dtype="<u8")
+            pairs[:, 0] = t[m]
+            pairs[:, 1] = dst[m]
+            body = struct.pack("<HI", cid, pairs.nbytes) + pairs.tobytes()
+            index_offsets[cid] = self.pos
+            self._write(_record(OP_MESSAGE_INDEX, body))
+            self.channel_counts[cid] = self.channel_counts.get(cid, 0) + int(m.sum())
+        mi_len = self.pos - mi_start
+
+        mi_map = b"".join(struct.pack("<HQ", c, o) for c, o in index_offsets.items())
+        self.chunk_indexes.append(
+            _record(
+                OP_CHUNK_INDEX,
+                struct.pack("<QQQQ", start_t, end_t, chunk_start, chunk_len)
+                + _b(mi_map)
+                + struct.pack("<Q", mi_len)
+                + _s(self.compression)
+                + struct.pack("<QQ", len(data), usize),
+            )
+        )
+        self.message_count += len(t)
+        self.start_time = start_t if self.start_time is None else min(self.start_time, start_t)
+        self.end_time = end_t if self.end_time is None else max(self.end_time, end_t)
+
+    def finish(self) -> None:
+        """Write DataEnd, the summary section, the footer and the closing magic."""
+        self._write(_record(OP_DATA_END, struct.pack("<I", self.crc)))
+        summary_start = self.pos
+        scrc = 0
+        groups: list[tuple[int, int, int]] = []
+
+        def put(op: int, recs: list[bytes]) -> None:
+            nonlocal scrc
+            if not recs:
+                return
+            start = self.pos
+            for r in recs:
+                self._write(r)
+                scrc = zlib.crc32(r, scrc)
+            groups.append((op, start, self.pos - start))
+
+        put(OP_SCHEMA, self.schemas)
+        put(OP_CHANNEL, self.channels)
+        counts = b"".join(struct.pack("<HQ", c, n) for c, n in sorted(self.channel_counts.items()))
+        stats = _record(
+            OP_STATISTICS,
+            struct.pack(
+                "<QHIIIIQQ",
+                self.message_count,
+                len(self.schemas),
+                len(self.channels),
+                0,
+                0,
+                len(self.chunk_indexes),
+                self.start_time or 0,
+                self.end_time or 0,
+            )
+            + _b(counts),
+        )
+        put(OP_STATISTICS, [stats])
+        put(OP_CHUNK_INDEX, self.chunk_indexes)
+        summary_offset_start = self.pos
+        offs = [_record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, s, n)) for op, s, n in groups]
+        for r in offs:
+            self._write(r)
+            scrc = zlib.crc32(r, scrc)
+        footer_head = struct.pack("<BQQQ", OP_FOOTER, 20, summary_start, summary_offset_start)
+        scrc = zlib.crc32(footer_head, scrc)
+        self._write(footer_head + struct.pack("<I", scrc))
+        self._write(MAGIC)

@@ -1,0 +1,235 @@
+"""The PNG report plot of a centreline (headless: matplotlib's Agg canvas, no pyplot state).
+
+Four panels: plan view (east/north in ``map``, equal aspect, markers labelled), elevation
+profile along the chainage with the +-3 sigma band of ``up``, the one-sigma horizontal and
+vertical position uncertainty along the chainage, and the residual (estimate minus survey, ENU
+components) at each marker with the estimate's 3-sigma error bars.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .earth import geodetic_to_enu
+from .io.atomic import atomic_write
+from .io.centreline import interpolate_trajectory
+from .types import Datum, Marker, Trajectory
+
+_MAX_POINTS = 20000
+_COLORS = {"e": "tab:blue", "n": "tab:orange", "u": "tab:green"}
+
+
+def _decimate(n: int) -> NDArray[np.int64]:
+    if n <= _MAX_POINTS:
+        return np.arange(n)
+    idx = np.linspace(0, n - 1, _MAX_POINTS).round().astype(np.int64)
+    return np.unique(idx)
+
+
+def marker_residuals_enu(
+    traj: Trajectory, datum: Datum, markers: Sequence[Marker]
+) -> NDArray[np.float64]:
+    """(M, 3) estimate minus survey at each marker, ENU metres: the trajectory interpolated at
+    the passage time minus the surveyed position (both in the datum's ENU frame)."""
+    if not markers or len(traj.t) == 0:
+        return np.zeros((0, 3))
+    t = np.array([m.t for m in markers])
+    est = interpolate_trajectory(traj, t)
+    e_est = geodetic_to_enu(est.lat, est.lon, est.h, datum.lat, datum.lon, datum.alt)
+    e_srv = geodetic_to_enu(
+        np.array([m.lat for m in markers]),
+        np.array([m.lon for m in markers]),
+        np.array([m.alt for m in markers]),
+        datum.lat,
+        datum.lon,
+        datum.alt,
+    )
+    return np.asarray(e_est - e_srv, dtype=np.float64).reshape(-1, 3)
+
+
+def plot_report(
+    png_path: str | os.PathLike[str],
+    traj: Trajectory,
+    datum: Datum,
+    markers: Sequence[Marker] = (),
+    marker_residuals: ArrayLike | None = None,
+    title: str = "",
+) -> None:
+    """Write the four-panel report PNG (see the module docstring) atomically to ``png_path``.
+
+    traj: the centreline (any sampling; long ones are decimated for drawing); datum: origin of
+    the ENU frame; markers: surveyed markers (their passage times place them on the chainage);
+    marker_residuals: (M, 3) estimate minus survey, ENU m, one row per marker -- computed from
+    traj when None.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    markers = list(markers)
+    n = len(traj.t)
+    enu = (
+        np.asarray(
+            geodetic_to_enu(traj.lat, traj.lon, traj.h, datum.lat, datum.lon, datum.alt)
+        ).reshape(n, 3)
+        if n
+        else np.zeros((0, 3))
+    )
+    dist = np.asarray(traj.distance, dtype=np.float64).reshape(n)
+    sig = (
+        np.asarray(traj.sigma_enu, dtype=np.float64).reshape(n, 3)
+        if traj.sigma_enu is not None
+        else None
+    )
+    idx = _decimate(n)
+    if markers:
+        m_enu = np.asarray(
+            geodetic_to_enu(
+                np.array([m.lat for m in markers]),
+                np.array([m.lon for m in markers]),
+                np.array([m.alt for m in markers]),
+                datum.lat,
+                datum.lon,
+                datum.alt,
+            )
+        ).reshape(-1, 3)
+        m_dist = np.interp([m.t for m in markers], traj.t, dist) if n else np.zeros(len(markers))
+    else:
+        m_enu = np.zeros((0, 3))
+        m_dist = np.zeros(0)
+    if marker_residuals is None:
+        res = marker_residuals_enu(traj, datum, markers)
+    else:
+        res = np.asarray(marker_residuals, dtype=np.float64).reshape(-1, 3)
+
+    extent = float(np.ptp(enu[:, :2])) if n else 0.0
+    scale, unit = (1000.0, "km") if extent > 5000.0 else (1.0, "m")
+    dscale, dunit = (1000.0, "km") if (n and np.nanmax(np.abs(dist)) > 5000.0) else (1.0, "m")
+
+    fig = Figure(figsize=(14, 10), dpi=110, layout="constrained")
+    FigureCanvasAgg(fig)
+    axs = fig.subplots(2, 2)
+    fig.suptitle(title or "PipeNav centreline report", fontsize=14)
+
+    # 1. plan view
+    ax = axs[0, 0]
+    if n:
+        ax.plot(
+            enu[idx, 0] / scale, enu[idx, 1] / scale, "-", color="k", lw=1.2, label="centreline"
+        )
+        ax.plot(enu[0, 0] / scale, enu[0, 1] / scale, "o", color="tab:green", label="start")
+        ax.plot(enu[-1, 0] / scale, enu[-1, 1] / scale, "s", color="tab:red", label="end")
+    if len(m_enu):
+        ax.plot(
+            m_enu[:, 0] / scale,
+            m_enu[:, 1] / scale,
+            "^",
+            color="tab:purple",
+            ms=7,
+            label="markers (survey)",
+        )
+        if len(markers) <= 40:
+            for m, p in zip(markers, m_enu, strict=True):
+                ax.annotate(
+                    m.name,
+                    (p[0] / scale, p[1] / scale),
+                    textcoords="offset points",
+                    xytext=(4, 4),
+                    fontsize=7,
+                    color="tab:purple",
+                )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(f"east [{unit}]")
+    ax.set_ylabel(f"north [{unit}]")
+    ax.set_title("Plan view (map frame, ENU about the datum)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+
+    # 2. elevation profile with 3-sigma band
+    ax = axs[0, 1]
+    if n:
+        d = dist[idx] / dscale
+        up = enu[idx, 2]
+        if sig is not None:
+            s3 = 3.0 * sig[idx, 2]
+            ax.fill_between(
+                d, up - s3, up + s3, color="tab:green", alpha=0.25, label="+-3 sigma (up)"
+            )
+        ax.plot(d, up, "-", color="k", lw=1.2, label="up")
+    if len(m_enu):
+        ax.plot(
+            m_dist / dscale, m_enu[:, 2], "^", color="tab:purple", ms=7, label="markers (survey)"
+        )
+    ax.set_xlabel(f"chainage [{dunit}]")
+    ax.set_ylabel("up [m]")
+    ax.set_title("Elevation profile")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+
+    # 3. sigma along chainage
+    ax = axs[1, 0]
+    if n and sig is not None:
+        d = dist[idx] / dscale
+        ax.plot(
+            d,
+            np.hypot(sig[idx, 0], sig[idx, 1]),
+            "-",
+            color="tab:blue",
+            label="horizontal (sqrt(sE^2 + sN^2))",
+        )
+        ax.plot(d, sig[idx, 2], "-", color="tab:green", label="vertical (sU)")
+        for md in m_dist:
+            ax.axvline(md / dscale, color="tab:purple", alpha=0.25, lw=0.8)
+        ax.legend(loc="best", fontsize=8)
+    else:
+        ax.text(
+            0.5,
+            0.5,
+            "no uncertainty in this trajectory",
+            ha="center",
+            va="center",
+            transform=ax.transAxes,
+        )
+    ax.set_xlabel(f"chainage [{dunit}]")
+    ax.set_ylabel("1 sigma [m]")
+    ax.set_title("Position uncertainty (1 sigma); markers as vertical lines")
+    ax.grid(True, alpha=0.3)
+
+    # 4. residuals at markers
+    ax = axs[1, 1]
+    if len(res):
+        k = np.arange(len(res))
+        errs = None
+        if sig is not None and n and markers and len(markers) == len(res):
+            est = interpolate_trajectory(traj, [m.t for m in markers])
+            errs = 3.0 * np.asarray(est.sigma_enu).reshape(-1, 3)
+        big = np.nanmax(np.abs(res)) if np.isfinite(res).any() else 0.0
+        rs, ru = (100.0, "cm") if big < 1.0 else (1.0, "m")
+        for j, (c, off) in enumerate(zip("enu", (-0.2, 0.0, 0.2), strict=True)):
+            ax.errorbar(
+                k + off,
+                res[:, j] * rs,
+                yerr=None if errs is None else errs[:, j] * rs,
+                fmt="o",
+                ms=5,
+                capsize=2,
+                color=_COLORS[c],
+                label=f"{c.upper()}" + (" (+-3 sigma est.)" if errs is not None else ""),
+            )
+        ax.axhline(0.0, color="k", lw=0.8)
+        names = [m.name for m in markers] if len(markers) == len(res) else [str(i) for i in k]
+        step = max(1, len(k) // 30)
+        ax.set_xticks(k[::step])
+        ax.set_xticklabels(names[::step], rotation=60, ha="right", fontsize=7)
+        ax.set_ylabel(f"estimate - survey [{ru}]")
+        ax.legend(loc="best", fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no markers", ha="center", va="center", transform=ax.transAxes)
+    ax.set_title("Residual at markers (estimate minus survey, ENU)")
+    ax.grid(True, alpha=0.3)
+
+    with atomic_write(png_path, "wb") as f:
+        fig.savefig(f, format="png")
