@@ -22,6 +22,7 @@ from typing import Any
 from .config import ConfigError, NavConfig
 
 EXIT_ERROR = 2
+SIM_EPOCH = 1780272000.0  # 2026-06-01T00:00:00Z: simulated bags carry realistic stamps
 
 
 class CliError(Exception):
@@ -200,12 +201,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from .io import write_centreline_csv, write_markers_csv, write_sensor_bag
     from .io.atomic import check_not_input
-    from .sim import simulate
+    from .sim import get_scenario, simulate
 
     out = Path(args.out)
-    run = simulate(args.scenario, seed=args.seed)
+    scenario = dataclasses.replace(get_scenario(args.scenario), t0=float(args.t0))
+    run = simulate(scenario, seed=args.seed)
     truth_csv = out.with_name(out.stem + ".truth.csv")
     markers_csv = out.with_name(out.stem + ".markers.csv")
     for p in (out, truth_csv, markers_csv):
@@ -276,6 +280,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", required=True)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output .mcap (truth and survey CSVs beside it)")
+    p.add_argument(
+        "--t0",
+        type=float,
+        default=SIM_EPOCH,
+        help="UNIX time of the first sample, s (default 2026-06-01)",
+    )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_simulate)
 

@@ -1,0 +1,226 @@
+"""``pipe-nav bench``: accuracy of every estimator variant on simulated versions of the papers'
+experiments, beside the figures the papers published (shared/seeds/README.md).
+
+Each scenario is simulated for several seeds (reproducible), smoothed with each method, and
+scored against the simulator's truth. Results go to a Markdown table (BENCHMARKS.md, with the
+command that made it) and to JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .config import NavConfig
+from .evaluation import sag_depth, score
+from .io.atomic import atomic_write
+from .sim import simulate
+from .smoother import METHODS, smooth_log
+
+
+@dataclass(frozen=True)
+class BenchCase:
+    """One scenario of the benchmark: what it mirrors, the paper's figure and our target."""
+
+    scenario: str
+    source: str
+    description: str
+    paper: str
+    target: str
+    max_h: float | None = None  # m, target on the max horizontal error
+    max_v: float | None = None  # m, target on the max vertical error
+    ratio: float | None = None  # target on the between-marker ratio 1:N
+    sag_m: float | None = None  # m, true sag depth whose estimate must be within 1 cm
+
+
+CASES = [
+    BenchCase(
+        "drag180",
+        "seed 001",
+        "180 m drag test, 0.1 m bore, consumer MEMS, markers at both ends",
+        "7.9 m max (north)",
+        "max h < 0.5 m",
+        max_h=0.5,
+    ),
+    BenchCase(
+        "sag104",
+        "seed 000",
+        "103.8 m pipe, 0.2 m sag, industrial MEMS, markers 103.8 m apart",
+        "5 cm repeatability",
+        "max h, v < 2 cm; sag depth within 1 cm",
+        max_h=0.02,
+        max_v=0.02,
+        sag_m=0.2,
+    ),
+    BenchCase(
+        "sag104_deep",
+        "seed 000",
+        "the same pipe with a 0.415 m sag",
+        "5 cm repeatability",
+        "max h, v < 2 cm; sag depth within 1 cm",
+        max_h=0.02,
+        max_v=0.02,
+        sag_m=0.415,
+    ),
+    BenchCase(
+        "undulation90",
+        "seed 002",
+        "90 m test pipe with 2 m vertical undulation, consumer MEMS",
+        "0.27 m h, 0.24 m v max",
+        "max h, v < 5 cm",
+        max_h=0.05,
+        max_v=0.05,
+    ),
+    BenchCase(
+        "field10k",
+        "seed 003",
+        "10 km field line, 219 mm, tactical MEMS (HG4930), markers every 1 km",
+        "about 1:1000 (best published pig figure 1:2500)",
+        "better than 1:4000",
+        ratio=4000.0,
+    ),
+    BenchCase(
+        "field10k_sparse",
+        "seed 003",
+        "the same line with markers every 2.5 km",
+        "about 1:1000",
+        "better than 1:4000",
+        ratio=4000.0,
+    ),
+]
+QUICK = ("sag104", "sag104_deep", "undulation90", "drag180")
+
+
+def run_case(case: BenchCase, seed: int, methods: list[str]) -> list[dict[str, object]]:
+    """Simulate one seed of a case and score each method."""
+    run = simulate(case.scenario, seed=seed)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    rows = []
+    for method in methods:
+        t0 = time.perf_counter()
+        res = smooth_log(run.log, cfg, method=method)
+        elapsed = time.perf_counter() - t0
+        s = score(res.centreline, run.truth, run.log.markers, datum=res.datum)
+        row: dict[str, object] = {
+            "scenario": case.scenario,
+            "seed": seed,
+            "method": method,
+            "max_h": s.max_h,
+            "rms_h": s.rms_h,
+            "max_v": s.max_v,
+            "rms_v": s.rms_v,
+            "ratio": s.ratio_between_markers,
+            "inside_3sigma": s.inside_3sigma,
+            "seconds": elapsed,
+            "x_real_time": float(run.log.imu.t[-1] - run.log.imu.t[0]) / elapsed,
+            "passes": res.summary.get("passes"),
+        }
+        if case.sag_m is not None:
+            row["sag_error"] = sag_depth(res.centreline, datum=res.datum) - sag_depth(
+                run.truth, datum=res.datum
+            )
+        rows.append(row)
+    return rows
+
+
+def _agg(rows: list[dict[str, object]], key: str, fn) -> float:  # noqa: ANN001
+    vals = [float(r[key]) for r in rows if r.get(key) is not None]  # type: ignore[arg-type]
+    return float(fn(vals)) if vals else math.nan
+
+
+def verdict(case: BenchCase, rows: list[dict[str, object]]) -> str:
+    """'met' or 'not met' for the case's target, judged on the worst seed."""
+    ok = True
+    if case.max_h is not None:
+        ok &= _agg(rows, "max_h", max) < case.max_h
+    if case.max_v is not None:
+        ok &= _agg(rows, "max_v", max) < case.max_v
+    if case.ratio is not None:
+        ok &= _agg(rows, "ratio", min) > case.ratio
+    if case.sag_m is not None:
+        ok &= _agg(rows, "sag_error", lambda v: max(abs(x) for x in v)) < 0.01
+    return "met" if ok else "NOT met"
+
+
+def markdown(results: dict[str, list[dict[str, object]]], command: str, seeds: list[int]) -> str:
+    """The results table: one row per scenario and method, worst and mean over the seeds."""
+    lines = [
+        "# Benchmarks",
+        "",
+        "Accuracy of the estimator on simulated versions of the source papers' experiments",
+        f"(shared/seeds/README.md), seeds {', '.join(map(str, seeds))}. Produced by:",
+        "",
+        "```",
+        command,
+        "```",
+        "",
+        f"Machine: {platform.machine()}, Python {platform.python_version()}.",
+        "Errors are against the simulator's truth; max = worst sample of the worst seed,",
+        "RMS = mean over seeds; 1:N = marker spacing / max horizontal error between markers",
+        "(worst seed); in 3σ = share of samples whose horizontal and vertical errors lie inside",
+        "3 sigma (mean over seeds).",
+        "",
+        "| scenario (mirrors) | paper | method | max h [m] | RMS h [m] | max v [m] | RMS v [m] "
+        "| 1:N | in 3σ | sag err [cm] | target | verdict | x real time |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for case in CASES:
+        rows_all = results.get(case.scenario)
+        if not rows_all:
+            continue
+        for method in METHODS:
+            rows = [r for r in rows_all if r["method"] == method]
+            if not rows:
+                continue
+            sag = (
+                f"{100 * _agg(rows, 'sag_error', lambda v: max(v, key=abs)):+.1f}"
+                if case.sag_m is not None
+                else ""
+            )
+            lines.append(
+                f"| {case.scenario} ({case.source}) | {case.paper} | {method} "
+                f"| {_agg(rows, 'max_h', max):.3f} | {_agg(rows, 'rms_h', np.mean):.3f} "
+                f"| {_agg(rows, 'max_v', max):.3f} | {_agg(rows, 'rms_v', np.mean):.3f} "
+                f"| {_agg(rows, 'ratio', min):.0f} "
+                f"| {100 * _agg(rows, 'inside_3sigma', np.mean):.0f} % "
+                f"| {sag} | {case.target} | {verdict(case, rows) if method != 'forward' else ''} "
+                f"| {_agg(rows, 'x_real_time', np.mean):.0f} |"
+            )
+    lines += ["", "Scenarios:", ""]
+    lines += [f"- `{c.scenario}`: {c.description}." for c in CASES if c.scenario in results]
+    return "\n".join(lines) + "\n"
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry of ``pipe-nav bench``."""
+    names = args.scenarios or ([c for c in QUICK] if args.quick else [c.scenario for c in CASES])
+    unknown = set(names) - {c.scenario for c in CASES}
+    if unknown:
+        raise ValueError(f"unknown benchmark scenario(s): {', '.join(sorted(unknown))}")
+    seeds = list(range(1, 2 if args.quick else 4))
+    methods = list(METHODS)
+    results: dict[str, list[dict[str, object]]] = {}
+    for case in (c for c in CASES if c.scenario in names):
+        results[case.scenario] = []
+        for seed in seeds:
+            print(f"pipe-nav bench: {case.scenario} seed {seed}", file=sys.stderr, flush=True)
+            results[case.scenario] += run_case(case, seed, methods)
+    command = "pipe-nav bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else "pipe-nav bench"
+    md = markdown(results, command.strip(), seeds)
+    with atomic_write(args.out) as f:
+        f.write(md)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        payload = {"cases": [asdict(c) for c in CASES if c.scenario in results], "results": results}
+        with atomic_write(args.json) as f:
+            json.dump(payload, f, indent=1, default=float)
+    print(md)
+    return 0

@@ -1,0 +1,138 @@
+"""Replay a recorded bag through ekf_node on simulated time, optionally recording the output.
+
+    ros2 launch pipe_nav_ros replay.launch.py bag:=run.mcap
+    ros2 launch pipe_nav_ros replay.launch.py bag:=run.mcap record:=true output:=run_ekf
+
+``ros2 bag play <bag> --clock`` publishes the input topics and /clock; ekf_node runs with
+use_sim_time:=true; with record:=true, ``ros2 bag record -s mcap -o <output>`` records
+/pipe_nav/odometry, /pipe_nav/datum and /diagnostics into the rosbag2 directory <output>
+(default: <bag name>_ekf beside the bag). When the bag has played, ekf_node's ~/finish service
+flushes the last estimates and, with shutdown_when_done:=true, the launch ends (closing the
+recording). The ROS-free equivalent is ``pipe-nav replay IN.mcap --out OUT.mcap``.
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import (
+    DeclareLaunchArgument,
+    ExecuteProcess,
+    LogInfo,
+    OpaqueFunction,
+    RegisterEventHandler,
+    Shutdown,
+    TimerAction,
+)
+from launch.event_handlers import OnProcessExit
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+PACKAGE = "pipe_nav_ros"
+INPUT_TOPICS = ["/imu/data", "/odom/wheel", "/imu/mag", "/markers"]
+RECORDED_TOPICS = ["/pipe_nav/odometry", "/pipe_nav/datum", "/diagnostics"]
+
+
+def _arg(context, name):
+    return LaunchConfiguration(name).perform(context)
+
+
+def _truthy(text):
+    return text.strip().lower() in ("1", "true", "yes", "on")
+
+
+def default_output(bag):
+    """<bag name without .mcap>_ekf beside the bag."""
+    bag = os.path.abspath(bag.rstrip(os.sep))
+    stem = os.path.basename(bag)
+    if stem.endswith(".mcap"):
+        stem = stem[: -len(".mcap")]
+    return os.path.join(os.path.dirname(bag), stem + "_ekf")
+
+
+def _actions(context):
+    bag = _arg(context, "bag")
+    if not bag:
+        raise RuntimeError("replay.launch.py needs bag:=<input .mcap file or bag directory>")
+    delay = float(_arg(context, "delay"))
+    play_cmd = [
+        "ros2",
+        "bag",
+        "play",
+        bag,
+        "--clock",
+        "--rate",
+        _arg(context, "rate"),
+        "--disable-keyboard-controls",
+    ]
+    if delay > 0:
+        play_cmd += ["--delay", str(delay)]
+    play_cmd += ["--topics"] + INPUT_TOPICS
+    play = ExecuteProcess(cmd=play_cmd, name="bag_play", output="screen")
+
+    ekf = Node(
+        package=PACKAGE,
+        executable="ekf_node",
+        name="ekf_node",
+        output="screen",
+        parameters=[
+            _arg(context, "ekf_params"),
+            {"use_sim_time": True, "publish_tf": _truthy(_arg(context, "publish_tf"))},
+        ],
+    )
+    actions = [ekf]
+    if _truthy(_arg(context, "record")):
+        output = _arg(context, "output") or default_output(bag)
+        if os.path.exists(output):
+            raise RuntimeError(f"output {output} already exists; choose another output:=")
+        actions.append(
+            ExecuteProcess(
+                cmd=["ros2", "bag", "record", "-s", "mcap", "-o", output] + RECORDED_TOPICS,
+                name="bag_record",
+                output="screen",
+            )
+        )
+        actions.append(LogInfo(msg=f"recording {' '.join(RECORDED_TOPICS)} into {output}"))
+    finish = ExecuteProcess(
+        cmd=["ros2", "service", "call", "/ekf_node/finish", "std_srvs/srv/Trigger"],
+        name="ekf_finish",
+        output="screen",
+    )
+    # handlers before the processes they watch
+    actions.append(
+        RegisterEventHandler(
+            OnProcessExit(
+                target_action=play,
+                on_exit=[LogInfo(msg="bag played; flushing ekf_node"), finish],
+            )
+        )
+    )
+    if _truthy(_arg(context, "shutdown_when_done")):
+        actions.append(
+            RegisterEventHandler(
+                OnProcessExit(
+                    target_action=finish,
+                    on_exit=[TimerAction(period=2.0, actions=[Shutdown(reason="bag replayed")])],
+                )
+            )
+        )
+    actions.append(play)
+    return actions
+
+
+def generate_launch_description():
+    share = get_package_share_directory(PACKAGE)
+    arguments = [
+        ("bag", "", "input bag: .mcap file or rosbag2 directory (required)"),
+        ("record", "false", "record the output topics with ros2 bag record"),
+        ("output", "", "record: output bag directory (default <bag name>_ekf)"),
+        ("rate", "1.0", "playback rate factor"),
+        ("delay", "3.0", "seconds before playback starts (lets ekf_node and the recorder start)"),
+        ("publish_tf", "true", "ekf_node broadcasts TF map -> base_link"),
+        ("shutdown_when_done", "true", "end the launch once the bag has played and ekf flushed"),
+        ("ekf_params", os.path.join(share, "config", "ekf.yaml"), "ekf_node parameter file"),
+    ]
+    return LaunchDescription(
+        [DeclareLaunchArgument(n, default_value=d, description=h) for n, d, h in arguments]
+        + [OpaqueFunction(function=_actions)]
+    )

@@ -1,0 +1,116 @@
+"""rclpy helpers shared by the nodes: QoS profiles, parameter declaration, the main loop."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import rclpy
+from pipe_nav_core.config import ConfigError
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.logging import get_logger
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+from .params import ParamSpec
+
+
+def sensor_qos(depth: int) -> QoSProfile:
+    """Sensor-data QoS (best effort, volatile) with a deeper history than the stock profile's 5,
+    so a 1 kHz IMU survives a slow callback. A best-effort subscription matches reliable and
+    best-effort publishers alike (drivers, ``ros2 bag play``)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=qos_profile_sensor_data.reliability,
+        durability=qos_profile_sensor_data.durability,
+    )
+
+
+def latched_qos(depth: int = 1) -> QoSProfile:
+    """Reliable + transient local: late-joining subscribers get the last ``depth`` messages."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+def markers_subscription_qos() -> QoSProfile:
+    """Reliable + volatile, deep: matches a reliable publisher whether it is volatile or
+    transient local (the odometer driver, ``ros2 bag play`` of a recorded /markers)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=100,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def declare(node: Node, specs: Sequence[ParamSpec], read_only: bool = False) -> dict[str, Any]:
+    """Declare the parameters of ``specs`` on ``node`` and return their values (None = unset).
+
+    Parameters are declared with dynamic typing: the values are checked and converted by
+    :mod:`pipe_nav_ros.params` (which accepts ``10`` for a double, and names the parameter in
+    its error), not by rclpy's static typing which would refuse the node with a type error.
+    """
+    values: dict[str, Any] = {}
+    for spec in specs:
+        descriptor = ParameterDescriptor(
+            description=spec.description, dynamic_typing=True, read_only=read_only
+        )
+        param = node.declare_parameter(spec.name, spec.default, descriptor)
+        values[spec.name] = param.value
+    return values
+
+
+def current_values(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+    """The current values of already declared parameters (None = unset)."""
+    return {spec.name: node.get_parameter(spec.name).value for spec in specs}
+
+
+class PipeNavNode(Node):
+    """A node the main loop can ask to stop: set ``exit_code`` to end :func:`run_node`."""
+
+    exit_code: int | None = None
+
+    def close(self) -> None:
+        """Release resources (threads, ports) before the node is destroyed."""
+
+
+def run_node(
+    factory: Callable[[], PipeNavNode], name: str, args: Sequence[str] | None = None
+) -> int:
+    """Init rclpy, build the node, spin until shutdown or ``node.exit_code``; the exit status.
+
+    A ConfigError raised while building the node (an invalid parameter) is logged as an error
+    and gives exit status 2, so ``ros2 run`` and launch show a clear message and a failure.
+    """
+    rclpy.init(args=list(args) if args is not None else None)
+    node: PipeNavNode | None = None
+    try:
+        try:
+            node = factory()
+        except ConfigError as exc:
+            get_logger(name).error(f"invalid parameters, not starting: {exc}")
+            return 2
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and node.exit_code is None:
+            executor.spin_once(timeout_sec=0.2)
+        return node.exit_code or 0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,154 @@
+"""The work of smoother_node, without rclpy: run ``smooth_bag`` and make the output messages.
+
+:class:`SmootherJob` runs :func:`pipe_nav_core.pipeline.smooth_bag` (the same function as
+``pipe-nav smooth``: it writes the output MCAP and the optional CSV / GeoJSON / KML / plot),
+records its progress for the logs and /diagnostics, and builds the nav_msgs/Path and the datum
+NavSatFix to publish latched. The node runs it in a thread and publishes what it returns.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Mapping
+from typing import Any
+
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.io import rosmsg
+
+OK, WARN, ERROR = 0, 1, 2
+DIAGNOSTIC_NAME = "pipe_nav: smoother_node"
+RUNNING, DONE, FAILED = "running", "done", "failed"
+
+
+class SmootherJob:
+    """One smoothing run.
+
+    settings: :func:`pipe_nav_ros.params.smoother_node_settings` values; config: the estimator
+    settings; types: message classes (rclpy_types() or rosbags').
+    """
+
+    def __init__(self, settings: Mapping[str, Any], config: NavConfig, types: Any) -> None:
+        self.settings = dict(settings)
+        self.config = config
+        self.types = types
+        self.state = RUNNING
+        self.error = ""
+        self.result: Any = None
+        self.report: Any = None
+        self.rows: Any = None
+        self.warnings: list[str] = []
+        self.fraction: float | None = None
+        self.stage = "starting"
+        self.started = time.monotonic()
+        self.finished: float | None = None
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------------ running
+    def progress(self, *args: Any, **kwargs: Any) -> None:
+        """Progress callback given to smooth_bag (it reports stage texts); a fraction in [0, 1]
+        or (done, total) is understood too."""
+        values = list(args) + list(kwargs.values())
+        numbers = [v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
+        texts = [v for v in values if isinstance(v, str)]
+        with self._lock:
+            if len(numbers) >= 2 and numbers[1] > 0:
+                self.fraction = min(max(numbers[0] / numbers[1], 0.0), 1.0)
+            elif len(numbers) == 1 and 0.0 <= numbers[0] <= 1.0:
+                self.fraction = float(numbers[0])
+            if texts:
+                self.stage = texts[0]
+
+    def run(self) -> None:
+        """Smooth the bag (blocking); afterwards ``state`` is DONE or FAILED (``error``)."""
+        s = self.settings
+        try:
+            from pipe_nav_core.pipeline import Outputs, centreline_rows, smooth_bag
+
+            outputs = Outputs(
+                bag=s["output"],
+                csv=s["csv"] or None,
+                geojson=s["geojson"] or None,
+                kml=s["kml"] or None,
+                plot=s["plot"] or None,
+            )
+            result, report = smooth_bag(
+                s["bag"],
+                outputs,
+                config=self.config,
+                method=s["method"],
+                iterations=s["iterations"],
+                markers_csv=s["markers_csv"] or None,
+                spacing=s["spacing"],
+                progress=self.progress,
+            )
+            # the path published is the one written to the output bag
+            rows = centreline_rows(result, s["spacing"])
+        except Exception as exc:  # noqa: BLE001 - reported as the job's failure, not a crash
+            with self._lock:
+                self.error = f"{type(exc).__name__}: {exc}"
+                self.state = FAILED
+                self.finished = time.monotonic()
+            return
+        with self._lock:
+            self.result, self.report, self.rows = result, report, rows
+            self.warnings = list(getattr(report, "warnings", []))
+            self.state = DONE
+            self.fraction = 1.0
+            self.stage = "done"
+            self.finished = time.monotonic()
+
+    def start(self) -> threading.Thread:
+        """Run in a daemon thread."""
+        thread = threading.Thread(target=self.run, name="smooth_bag", daemon=True)
+        thread.start()
+        return thread
+
+    # ------------------------------------------------------------------ output
+    def messages(self) -> tuple[Any, Any]:
+        """(nav_msgs/Path in map, datum NavSatFix) of a finished run."""
+        if self.state != DONE or self.result is None:
+            raise RuntimeError("the smoothing run has not finished successfully")
+        traj, datum = self.rows, self.result.datum
+        path = rosmsg.path_to_msg(self.types, traj, datum)
+        t0 = float(traj.t[0]) if len(traj.t) else 0.0
+        return path, rosmsg.datum_to_msg(self.types, datum, t0)
+
+    def health(self) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) for /diagnostics and the progress log."""
+        with self._lock:
+            state, fraction, stage, error = self.state, self.fraction, self.stage, self.error
+            end = self.finished
+        elapsed = (end if end is not None else time.monotonic()) - self.started
+        values: dict[str, Any] = {
+            "state": state,
+            "stage": stage,
+            "progress": "?" if fraction is None else f"{100.0 * fraction:.1f} %",
+            "elapsed_s": round(elapsed, 1),
+            "bag": self.settings["bag"],
+            "output": self.settings["output"],
+            "method": self.settings["method"],
+        }
+        if state == FAILED:
+            return ERROR, f"smoothing failed: {error}", values
+        if state == DONE:
+            summary = getattr(self.result, "summary", None) or {}
+            for key, value in dict(summary).items():
+                values[f"summary.{key}"] = value
+            n = len(self.rows.t)
+            level = WARN if self.warnings else OK
+            values["warnings"] = "; ".join(self.warnings)
+            return (
+                level,
+                f"done: {n} centreline samples written to {self.settings['output']}",
+                values,
+            )
+        pct = "" if fraction is None else f" {100.0 * fraction:.0f} %"
+        return OK, f"smoothing{pct} ({stage})", values
+
+    def diagnostics(self, stamp: float) -> Any:
+        """diagnostic_msgs/DiagnosticArray of the job (stamp: s, ROS clock)."""
+        level, message, values = self.health()
+        return rosmsg.diagnostics_to_msg(
+            self.types, stamp, DIAGNOSTIC_NAME, level, message, values, hardware_id="pipe_nav"
+        )

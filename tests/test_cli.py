@@ -1,0 +1,173 @@
+"""The pipe-nav command line on the bundled sample bag: outputs, formats, accuracy, bad input."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pipe_nav_core.cli import main
+from pipe_nav_core.evaluation import score
+from pipe_nav_core.io import CENTRELINE_HEADER, read_centreline_csv
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "bags" / "sample.mcap"
+TRUTH = ROOT / "bags" / "sample.truth.csv"
+SURVEY = ROOT / "bags" / "sample.markers.csv"
+
+
+def _sha(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def smoothed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("smooth")
+    before = _sha(SAMPLE)
+    assert main(["smooth", str(SAMPLE), "--out", f"{out}/", "--quiet"]) == 0
+    assert _sha(SAMPLE) == before, "the input bag was modified"
+    return out
+
+
+def test_smooth_writes_every_product(smoothed: Path):
+    names = sorted(p.name for p in smoothed.iterdir())
+    assert names == [
+        "sample_centerline.csv",
+        "sample_centerline.geojson",
+        "sample_centerline.kml",
+        "sample_report.png",
+        "sample_smoothed.mcap",
+    ]
+    assert (smoothed / "sample_report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    gj = json.loads((smoothed / "sample_centerline.geojson").read_text())
+    line = next(f for f in gj["features"] if f["geometry"]["type"] == "LineString")
+    lon, lat, _ = line["geometry"]["coordinates"][0]
+    assert 116.3 < lon < 116.5 and 39.8 < lat < 40.0  # [lon, lat] order, degrees
+
+
+def test_centreline_csv_format_and_accuracy(smoothed: Path):
+    path = smoothed / "sample_centerline.csv"
+    with path.open() as f:
+        header = f.readline().strip()
+    assert header == (
+        "time_s,distance_m,latitude_deg,longitude_deg,altitude_m,east_m,north_m,up_m,"
+        "roll_deg,pitch_deg,azimuth_deg,sigma_east_m,sigma_north_m,sigma_up_m"
+    )
+    assert header == CENTRELINE_HEADER
+    rows = list(csv.DictReader(path.open()))
+    d = np.array([float(r["distance_m"]) for r in rows])
+    t = np.array([float(r["time_s"]) for r in rows])
+    assert np.all(np.diff(t) > 0)
+    # one row per 0.5 m of chainage plus one per marker
+    n_markers = sum(1 for _ in SURVEY.open()) - 1
+    assert abs(len(rows) - (d[-1] / 0.5 + 1 + n_markers)) <= n_markers + 2
+    est, _ = read_centreline_csv(path)
+    truth, datum = read_centreline_csv(TRUTH)
+    s = score(est, truth, datum=datum)
+    assert s.max_h < 0.15 and s.max_v < 0.15, s
+
+
+def test_output_bag_decodes_with_rosbags(smoothed: Path):
+    from rosbags.highlevel import AnyReader
+
+    out = smoothed / "sample_smoothed.mcap"
+    from pipe_nav_core.io import write_rosbag2_metadata
+
+    work = smoothed / "as_dir"
+    work.mkdir()
+    shutil.copy(out, work / out.name)
+    write_rosbag2_metadata(work / out.name)
+    with AnyReader([work]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types["/pipe_nav/path"] == "nav_msgs/msg/Path"
+        assert types["/pipe_nav/datum"] == "sensor_msgs/msg/NavSatFix"
+        assert types["/pipe_nav/odometry"] == "nav_msgs/msg/Odometry"
+        seen = set()
+        for conn, _, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == "/pipe_nav/path" and "path" not in seen:
+                assert msg.header.frame_id == "map"
+                assert len(msg.poses) > 500
+                assert msg.poses[0].header.frame_id == "map"
+                seen.add("path")
+            elif conn.topic == "/pipe_nav/odometry" and "odom" not in seen:
+                assert msg.header.frame_id == "map" and msg.child_frame_id == "base_link"
+                seen.add("odom")
+        assert seen == {"path", "odom"}
+
+
+def test_replay_writes_odometry(tmp_path: Path):
+    out = tmp_path / "replay.mcap"
+    assert main(["replay", str(SAMPLE), "--out", str(out), "--quiet"]) == 0
+    from pipe_nav_core.io import bag_info
+
+    info = bag_info(out)
+    odo = info.topics["/pipe_nav/odometry"]
+    assert odo.count > 1000  # one per 0.1 s filter epoch over a 190 s run
+
+
+def _run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "pipe_nav_core.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"", b"this is not a bag at all", b"\x89MCAP0\r\n" + b"\x00" * 40],
+)
+def test_bad_input_gives_one_line_error(tmp_path: Path, content: bytes):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(content)
+    r = _run_cli("smooth", str(bad), "--out", str(tmp_path / "o.mcap"))
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr
+    lines = [x for x in r.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1 and lines[0].startswith("pipe-nav: error:"), r.stderr
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_missing_input_and_bad_setting(tmp_path: Path):
+    r = _run_cli("smooth", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
+    assert r.returncode != 0 and "Traceback" not in r.stderr and "nope.mcap" in r.stderr
+    r = _run_cli("smooth", str(SAMPLE), "--out", str(tmp_path / "o.mcap"), "--set", "mode=warp")
+    assert r.returncode != 0 and "mode" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_refuses_to_overwrite_the_input(tmp_path: Path):
+    copy = tmp_path / "in.mcap"
+    shutil.copy(SAMPLE, copy)
+    before = _sha(copy)
+    r = _run_cli("smooth", str(copy), "--out", str(copy))
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert _sha(copy) == before
+
+
+def test_simulate_then_evaluate(tmp_path: Path):
+    out = tmp_path / "run.mcap"
+    assert (
+        main(["simulate", "--scenario", "sag104", "--seed", "4", "--out", str(out), "--quiet"]) == 0
+    )
+    assert (
+        out.exists()
+        and (tmp_path / "run.truth.csv").exists()
+        and (tmp_path / "run.markers.csv").exists()
+    )
+    r = _run_cli(
+        "evaluate",
+        str(tmp_path / "run.truth.csv"),
+        "--truth",
+        str(tmp_path / "run.truth.csv"),
+        "--json",
+    )
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["max_h"] == pytest.approx(0.0, abs=1e-6)
