@@ -171,3 +171,22 @@ def test_simulate_then_evaluate(tmp_path: Path):
     )
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["max_h"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_survey_csv_without_passage_times(tmp_path: Path):
+    """A survey known before the run has no passage times: read as NaN, kept in file order;
+    merged with a bag, each survey row takes the passage time of the bag's marker of the same
+    name; a row no bag marker times is ignored with a warning."""
+    from pipe_nav_core.io import read_markers_csv
+
+    lines = SURVEY.read_text().splitlines()
+    survey = tmp_path / "survey.csv"
+    rows = [lines[0]] + [",".join([r.split(",")[0], ""] + r.split(",")[2:]) for r in lines[1:]]
+    rows.append("agm_99,,39.9,116.4,45.0,0.02,0.02")
+    survey.write_text("\n".join(rows) + "\n")
+    ms = read_markers_csv(survey)
+    assert [m.name for m in ms] == [r.split(",")[0] for r in lines[1:]] + ["agm_99"]
+    assert all(np.isnan(m.t) for m in ms)
+    r = _run_cli("smooth", str(SAMPLE), "--out", str(tmp_path / "o.mcap"), "--markers", str(survey))
+    assert r.returncode == 0, r.stderr
+    assert "without a passage time" in r.stderr

@@ -235,7 +235,11 @@ def markdown(results: dict[str, list[dict[str, object]]], command: str, seeds: l
 
 def main(args: argparse.Namespace) -> int:
     """Entry of ``pipe-nav bench``."""
-    names = args.scenarios or ([c for c in QUICK] if args.quick else [c.scenario for c in CASES])
+    command = ("pipe-nav bench " + " ".join(sys.argv[2:])).strip()
+    if getattr(args, "speed_only", False):
+        names: list[str] = []
+    else:
+        names = args.scenarios or (list(QUICK) if args.quick else [c.scenario for c in CASES])
     unknown = set(names) - {c.scenario for c in CASES}
     if unknown:
         raise ValueError(f"unknown benchmark scenario(s): {', '.join(sorted(unknown))}")
@@ -247,13 +251,22 @@ def main(args: argparse.Namespace) -> int:
         for seed in seeds:
             print(f"pipe-nav bench: {case.scenario} seed {seed}", file=sys.stderr, flush=True)
             results[case.scenario] += run_case(case, seed, methods)
-    command = "pipe-nav bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else "pipe-nav bench"
-    md = markdown(results, command.strip(), seeds)
+    md = markdown(results, command, seeds) if results else "# Benchmarks\n\n"
+    payload: dict[str, object] = {
+        "cases": [asdict(c) for c in CASES if c.scenario in results],
+        "results": results,
+    }
+    if getattr(args, "speed", False) or getattr(args, "speed_only", False):
+        from . import speed
+
+        print("pipe-nav bench: speed", file=sys.stderr, flush=True)
+        sp = speed.run(length_km=getattr(args, "length_km", 10.0))
+        md += "\n" + speed.markdown(sp, command)
+        payload["speed"] = sp
     with atomic_write(args.out) as f:
         f.write(md)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        payload = {"cases": [asdict(c) for c in CASES if c.scenario in results], "results": results}
         with atomic_write(args.json) as f:
             json.dump(payload, f, indent=1, default=float)
     print(md)

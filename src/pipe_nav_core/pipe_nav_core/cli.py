@@ -299,6 +299,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="accuracy (and speed) benchmark on simulated runs")
     p.add_argument("--quick", action="store_true", help="fewer scenarios and seeds")
     p.add_argument("--speed", action="store_true", help="also run the speed benchmark")
+    p.add_argument("--speed-only", action="store_true", help="only the speed benchmark")
+    p.add_argument("--length-km", type=float, default=10.0, help="field run length for --speed")
     p.add_argument("--out", default="BENCHMARKS.md", help="Markdown table")
     p.add_argument("--json", default="bench_out/benchmarks.json", help="JSON results")
     p.add_argument("--scenarios", nargs="*", help="subset of scenarios")

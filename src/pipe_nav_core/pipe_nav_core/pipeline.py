@@ -7,6 +7,7 @@ refuses to write over it.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -69,6 +70,12 @@ def load_log(
     log, report = read_bag(bag, topics)
     if markers_csv is not None:
         log.markers = merge_markers(log.markers, read_markers_csv(markers_csv))
+    untimed = [m.name for m in log.markers if not math.isfinite(m.t)]
+    if untimed:
+        report.warnings.append(
+            f"{len(untimed)} marker(s) without a passage time ignored: {', '.join(untimed[:5])}"
+        )
+        log.markers = [m for m in log.markers if math.isfinite(m.t)]
     return log, report
 
 

@@ -12,6 +12,7 @@ Conventions (see INTERFACES.md):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -146,8 +147,9 @@ class SensorLog:
 
 
 def markers_sorted(markers: Sequence[Marker]) -> list[Marker]:
-    """Markers in passage-time order."""
-    return sorted(markers, key=lambda m: m.t)
+    """Markers in passage-time order; markers without a passage time (NaN: surveyed, not yet
+    passed) follow in their given order."""
+    return sorted(markers, key=lambda m: (math.isnan(m.t), 0.0 if math.isnan(m.t) else m.t))
 
 
 @dataclass

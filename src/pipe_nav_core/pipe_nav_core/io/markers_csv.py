@@ -11,11 +11,12 @@ with '#' are skipped.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import os
 from collections.abc import Iterable, Sequence
 
-from ..types import Marker
+from ..types import Marker, markers_sorted
 from .atomic import atomic_write
 from .rosmsg import DEFAULT_MARKER_SIGMA_M
 
@@ -49,7 +50,9 @@ def _num(path: str, line: int, col: str, text: str, default: float | None = None
 
 
 def read_markers_csv(path: str | os.PathLike[str]) -> list[Marker]:
-    """Markers from a CSV file (see the module docstring), sorted by passage time.
+    """Markers from a CSV file (see the module docstring), sorted by passage time. An empty
+    time_s is a surveyed marker whose passage is not known yet (NaN; such markers keep the
+    file's order, after the timed ones): they serve as a survey, not as position fixes.
     Latitude/longitude are converted to radians. Raises MarkerCsvError on bad content."""
     p = os.fspath(path)
     try:
@@ -97,14 +100,14 @@ def read_markers_csv(path: str | os.PathLike[str]) -> list[Marker]:
         out.append(
             Marker(
                 name=name,
-                t=_num(p, line, "time_s", cell("time_s")),
+                t=_num(p, line, "time_s", cell("time_s"), math.nan),
                 lat=math.radians(lat),
                 lon=math.radians(lon),
                 alt=_num(p, line, "altitude_m", cell("altitude_m")),
                 sigma_enu=(sh, sh, sv),
             )
         )
-    return sorted(out, key=lambda m: m.t)
+    return markers_sorted(out)
 
 
 def write_markers_csv(path: str | os.PathLike[str], markers: Iterable[Marker]) -> None:
@@ -113,12 +116,12 @@ def write_markers_csv(path: str | os.PathLike[str], markers: Iterable[Marker]) -
     with atomic_write(path, "w", newline="") as f:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(MARKER_COLUMNS)
-        for m in sorted(markers, key=lambda m: m.t):
+        for m in markers_sorted(list(markers)):
             se, sn, su = m.sigma_enu
             w.writerow(
                 [
                     m.name,
-                    f"{m.t:.9f}",
+                    f"{m.t:.9f}" if math.isfinite(m.t) else "",
                     f"{math.degrees(m.lat):.9f}",
                     f"{math.degrees(m.lon):.9f}",
                     f"{m.alt:.4f}",
@@ -130,7 +133,15 @@ def write_markers_csv(path: str | os.PathLike[str], markers: Iterable[Marker]) -
 
 def merge_markers(bag_markers: Sequence[Marker], csv_markers: Sequence[Marker]) -> list[Marker]:
     """The bag's markers with the CSV's added: a CSV marker replaces every bag marker of the
-    same name, others are added. Sorted by passage time."""
+    same name, others are added. A CSV marker without a passage time (a survey row) takes the
+    time of the bag's marker of the same name. Sorted by passage time."""
+    bag_time = {m.name: m.t for m in bag_markers}
+    csv_fixed = [
+        dataclasses.replace(m, t=bag_time[m.name])
+        if math.isnan(m.t) and m.name in bag_time
+        else m
+        for m in csv_markers
+    ]
     replaced = {m.name for m in csv_markers}
     kept = [m for m in bag_markers if m.name not in replaced]
-    return sorted([*kept, *csv_markers], key=lambda m: m.t)
+    return markers_sorted([*kept, *csv_fixed])
