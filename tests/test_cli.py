@@ -110,6 +110,19 @@ def test_replay_writes_odometry(tmp_path: Path):
     info = bag_info(out)
     odo = info.topics["/pipe_nav/odometry"]
     assert odo.count > 1000  # one per 0.1 s filter epoch over a 190 s run
+    # the full 6x6 pose covariance, as ekf_node publishes it (position/attitude correlations)
+    from rosbags.highlevel import AnyReader
+
+    from pipe_nav_core.io import write_rosbag2_metadata
+
+    write_rosbag2_metadata(out)
+    with AnyReader([tmp_path]) as reader:
+        conn = next(c for c in reader.connections if c.topic == "/pipe_nav/odometry")
+        msgs = [reader.deserialize(raw, conn.msgtype) for _, _, raw in reader.messages([conn])]
+    cov = np.array(msgs[len(msgs) // 2].pose.covariance).reshape(6, 6)
+    np.testing.assert_allclose(cov, cov.T)
+    assert np.all(np.diag(cov) > 0)
+    assert np.abs(cov[:3, 3:]).max() > 0  # cross terms are there
 
 
 def _run_cli(*args: str) -> subprocess.CompletedProcess[str]:

@@ -199,6 +199,7 @@ def estimates_to_trajectory(estimates: Sequence[NavEstimate]) -> Trajectory:
         distance=np.array([e.distance for e in estimates]),
         sigma_enu=np.sqrt(np.maximum(var[:, :3], 0.0)),
         sigma_att=np.sqrt(np.maximum(var[:, 3:], 0.0)),
+        cov_pose=cov,
     )
 
 

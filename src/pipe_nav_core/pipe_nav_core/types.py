@@ -160,7 +160,9 @@ class Trajectory:
     quat_nb: (N, 4) [x, y, z, w] rotating base_link into ENU; distance: (N,) m along the pipe
     centreline (truth) or calibrated odometer chainage (estimate);
     sigma_enu: optional (N, 3) one-sigma position uncertainty, m;
-    sigma_att: optional (N, 3) one-sigma attitude uncertainty about E, N, U axes, rad.
+    sigma_att: optional (N, 3) one-sigma attitude uncertainty about E, N, U axes, rad;
+    cov_pose: optional (N, 6, 6) full pose covariance over [E, N, U (m), rotation about E, N,
+    U (rad)] (what nav_msgs/Odometry carries), when known.
     """
 
     t: FloatArray
@@ -172,6 +174,7 @@ class Trajectory:
     distance: FloatArray
     sigma_enu: FloatArray | None = None
     sigma_att: FloatArray | None = None
+    cov_pose: FloatArray | None = None
 
     def __len__(self) -> int:
         return len(self.t)

@@ -280,9 +280,11 @@ def _write(
 
 
 def _pose_covariances(traj: Trajectory) -> NDArray[np.float64]:
-    """(N, 36) pose covariance: position from sigma_enu, rotation (about E, N, U = map x, y, z)
-    from sigma_att; zeros where unknown."""
+    """(N, 36) pose covariance: the full cov_pose when the trajectory has it, else position from
+    sigma_enu and rotation (about E, N, U = map x, y, z) from sigma_att; zeros where unknown."""
     n = len(traj.t)
+    if traj.cov_pose is not None:
+        return np.asarray(traj.cov_pose, dtype=np.float64).reshape(n, 36)
     cov = np.zeros((n, 6, 6))
     idx = np.arange(3)
     if traj.sigma_enu is not None:
