@@ -111,9 +111,8 @@ def test_replay_writes_odometry(tmp_path: Path):
     odo = info.topics["/pipe_nav/odometry"]
     assert odo.count > 1000  # one per 0.1 s filter epoch over a 190 s run
     # the full 6x6 pose covariance, as ekf_node publishes it (position/attitude correlations)
-    from rosbags.highlevel import AnyReader
-
     from pipe_nav_core.io import write_rosbag2_metadata
+    from rosbags.highlevel import AnyReader
 
     write_rosbag2_metadata(out)
     with AnyReader([tmp_path]) as reader:
