@@ -93,6 +93,7 @@ CASES = [
         "about 1:1000 (best published pig figure 1:2500)",
         "better than 1:4000",
         ratio=4000.0,
+        seeds=1,
     ),
     BenchCase(
         "field10k_sparse",
@@ -101,6 +102,7 @@ CASES = [
         "about 1:1000",
         "better than 1:4000",
         ratio=4000.0,
+        seeds=1,
     ),
 ]
 BASELINE = "cf-baseline"
