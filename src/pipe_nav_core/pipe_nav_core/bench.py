@@ -206,7 +206,8 @@ def markdown(results: dict[str, list[dict[str, object]]], command: str, max_seed
         "# Benchmarks",
         "",
         "Accuracy of the estimator on simulated versions of the source papers' experiments",
-        f"(shared/seeds/README.md), seeds 1 to {max_seeds} (the 10 km lines: seed 1). Produced by:",
+        f"(shared/seeds/README.md), {'seed 1' if max_seeds == 1 else f'seeds 1 to {max_seeds}'}"
+        " (the 10 km lines: seed 1). Produced by:",
         "",
         "```",
         command,
