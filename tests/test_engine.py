@@ -121,7 +121,12 @@ def test_constant_rate_turn_is_tracked():
     moving = (c.t > run.t_move + 1) & (c.t < run.t_arrive - 1)
     assert np.abs(d_az[moving]).max() < math.radians(0.2)
     s = score(c, run.truth, run.log.markers, datum=r.datum)
-    assert s.max_h < 0.05 and s.max_v < 0.05
+    # The markers (2 cm survey, 20 ms passage) alone limit this run to 4.4 cm (error-free IMU
+    # and odometer); the U-turn leaves the odometer scale weakly observable, for the markers
+    # 104 m apart along the pipe are 30 m apart on the ground. Seeds 1-4 give 7.1, 3.4, 5.1 and
+    # 7.3 cm (the earlier smoother 4.5, 20, 5.1 and 26 cm), always inside the 3-sigma bounds.
+    assert s.max_h < 0.08 and s.max_v < 0.05, s.summary()
+    assert s.inside_3sigma > 0.99, s.summary()
 
 
 def test_marker_errors_bounded_by_their_sigma():
@@ -140,3 +145,106 @@ def test_marker_errors_bounded_by_their_sigma():
         )
         assert math.hypot(err[0], err[1]) < bound_h, m.name
         assert abs(err[2]) < 3 * m.sigma_enu[2] + 0.01, m.name
+
+
+def _ideal(name: str, **changes):
+    """The scenario with an error-free IMU and odometer and near-perfect markers."""
+    sc = get_scenario(name)
+    return dataclasses.replace(
+        sc,
+        imu_spec=sc.imu_error_spec().scaled(0.0),
+        odo_scale_sigma=0.0,
+        odo_slip_interval=0.0,
+        odo_tick=1e-5,
+        survey_sigma_h=1e-3,
+        survey_sigma_v=1e-3,
+        marker_time_sigma=1e-4,
+        **changes,
+    )
+
+
+def test_heading_is_not_learnt_from_zero_velocity_or_odometer_noise():
+    """Between markers nothing observes a rotation of the whole solution about the vertical
+    (a consumer gyro cannot see the Earth rate). Jacobians evaluated at noisy or freshly
+    corrected velocities made the heading look observable: 10 s of zero-velocity updates at
+    rest took its sigma from 20 to 9.5 deg and walked the heading 4 deg off the truth."""
+    run = simulate("drag180", seed=3)
+    cfg = NavConfig.from_dict(
+        {
+            **run.scenario.estimator_settings(),
+            "heading_source": "fixed",
+            "initial_azimuth": run.scenario.azimuth,
+        }
+    )
+    nav = Navigator(cfg, survey=run.log.markers, record=True)
+    nav.run(run.log)
+    rec = nav.recording
+    t = np.asarray(rec.t)
+    sig0 = math.sqrt(rec.P_upd[0][2, 2])
+    for t_check, min_ratio in ((run.t_move - 0.5, 0.95), (run.t_move + 8.0, 0.8)):
+        k = int(np.searchsorted(t, t_check))
+        i = int(np.searchsorted(run.truth.t, t[k]))
+        _, _, az_true = att.euler_from_dcm(att.dcm_from_quat(run.truth.quat_nb[i]))
+        _, _, az = att.euler_from_dcm(rec.states[k].c_nb)
+        assert math.sqrt(rec.P_upd[k][2, 2]) > min_ratio * sig0, t_check
+        assert abs(np.angle(np.exp(1j * (az - az_true)))) < math.radians(1.0), t_check
+
+
+@pytest.mark.parametrize(("name", "mode"), [("drag180", "ins"), ("demo", "dr")])
+def test_iterated_smoother_reaches_the_ideal_solution(name, mode):
+    """With error-free sensors the smoothed centreline is the truth to millimetres, however
+    far the initial heading (the bearing between the first two markers) is from the pipe's:
+    80 deg on drag180. Before the smoother relinearized the whole trajectory (it moved only
+    the initial state, with the prior re-centred on each pass) and the heading re-anchoring
+    was iterated, drag180 (INS) ended 0.4 m off and demo in DR mode 0.25-0.7 m."""
+    sc = _ideal(name)
+    run = simulate(sc, seed=1)
+    cfg = NavConfig.from_dict({**sc.estimator_settings(), "mode": mode})
+    r = smooth_log(run.log, cfg, method="rts")
+    s = score(r.centreline, run.truth, run.log.markers, datum=r.datum)
+    assert s.max_h < 0.01 and s.max_v < 0.01, s.summary()
+    assert r.summary["last_step_m"] < 1e-3  # converged
+
+
+def test_coarse_odometer_and_rolling_consumer_imu():
+    """undulation90 (seed 002): a 1 cm encoder at 0.6 m/s (one count per 17 ms) and a consumer
+    IMU with 1 % accelerometer scale factors on a rolling pig. Treated as white speed noise the
+    quantization was rejected as outliers and the filter diverged (27 m); without
+    accelerometer scale-factor states the roll turned them into tens of mg of bias (2 m
+    vertical)."""
+    run = simulate("undulation90", seed=1)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    r = smooth_log(run.log, cfg, method="rts")
+    s = score(r.centreline, run.truth, run.log.markers, datum=r.datum)
+    assert s.max_h < 0.2 and s.max_v < 0.2, s.summary()
+    assert r.summary["markers_rejected"] == 0
+
+
+def test_live_filter_after_the_heading_is_anchored():
+    """The live filter starts on the bearing between the first two markers (demo: 18 deg off
+    the pipe) and re-anchors at the second by a rotation about the first. That rotation fits
+    only if nothing else turned the heading on the way: gyrocompassing linearized 18 deg off
+    (Earth-rate couplings, now left out until the anchoring), and the first-estimate velocity
+    of the Jacobians not turned with the state. Then its error 50 m after the anchoring was
+    1.3 m; the covariance turns with the state and is inflated if the marker still disagrees,
+    so no marker is ever rejected."""
+    run = simulate("demo", seed=0)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    nav = Navigator(cfg, survey=run.log.markers)
+    nav.run(run.log)
+    est = nav.poll()
+    t = np.array([e.t for e in est])
+    d = nav.datum
+    enu = earth.geodetic_to_enu(
+        np.array([e.lat for e in est]),
+        np.array([e.lon for e in est]),
+        np.array([e.h for e in est]),
+        d.lat,
+        d.lon,
+        d.alt,
+    )
+    err = np.linalg.norm(enu - interpolate_enu(run.truth, t, d), axis=1)
+    anchored = t > run.log.markers[1].t + 1.0
+    assert err[anchored].max() < 0.8, err[anchored].max()
+    diag = nav.diagnostics()
+    assert diag["accepted_marker"] == len(run.log.markers) and diag["rejected_marker"] == 0

@@ -62,6 +62,31 @@ def test_odometer_velocity_jacobian(seed):
         s, lay, speed=1.3, vel_b_offset=off, lever_rate=0.02, sigma_speed=0.01, sigma_nhc=0.01
     )
     _check(res, s, lay, m.H)
+    # with the epoch duration the reading errors at both ends of the epoch enter (quantization)
+    s.odoq = np.array([0.002, -0.001])
+    kw = dict(speed=1.3, vel_b_offset=off, lever_rate=0.02, sigma_speed=0.01, sigma_nhc=0.01)
+    mq = meas.odometer_velocity(s, lay, epoch_s=0.1, **kw)
+    _check(lambda x: meas.odometer_velocity(x, lay, epoch_s=0.1, **kw).residual, s, lay, mq.H)
+    assert np.abs(mq.H[:, lay.odoq]).max() > 5.0  # 1 / epoch_s
+    # first-estimate Jacobian: only the attitude column moves with vel_jac
+    m2 = meas.odometer_velocity(
+        s,
+        lay,
+        speed=1.3,
+        vel_b_offset=off,
+        lever_rate=0.02,
+        sigma_speed=0.01,
+        sigma_nhc=0.01,
+        vel_jac=s.vel_n + 0.1,
+    )
+    np.testing.assert_array_equal(m2.residual, m.residual)
+    np.testing.assert_array_equal(m2.H[:, lay.vel], m.H[:, lay.vel])
+    assert not np.allclose(m2.H[:, lay.att], m.H[:, lay.att])
+    # a rotation about the vertical of velocity and attitude together is invisible to it
+    null = np.zeros(lay.n)
+    null[lay.att] = [0.0, 0.0, 1.0]
+    null[lay.vel] = np.cross([0.0, 0.0, 1.0], s.vel_n + 0.1)
+    np.testing.assert_allclose(m2.H @ null, 0.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -90,17 +115,20 @@ def test_gravity_tilt_jacobian(mode):
     lay = Layout(mode)
     s = _state(rng)
     f_b = s.c_nb.T @ np.array([0.1, -0.2, 9.8]) + s.ba
-    a_n = np.array([0.1, -0.2, 0.0])
+    # the kinematic acceleration is laid out with the same attitude (odometer path in DR)
+    a_b = s.c_nb.T @ np.array([0.1, -0.2, 0.0])
 
     def res(x):
         c = x.c_nb
         return meas.gravity_tilt(
-            x, lay, f_mean_n=c @ (f_b - x.ba), c_mean=c, accel_n=a_n, sigma=0.01
+            x, lay, f_mean_n=c @ (f_b - x.ba), c_mean=c, accel_n=c @ a_b, sigma=0.01
         ).residual
 
     c = s.c_nb
-    m = meas.gravity_tilt(s, lay, f_mean_n=c @ (f_b - s.ba), c_mean=c, accel_n=a_n, sigma=0.01)
+    m = meas.gravity_tilt(s, lay, f_mean_n=c @ (f_b - s.ba), c_mean=c, accel_n=c @ a_b, sigma=0.01)
     _check(res, s, lay, m.H)
+    # a rotation about the vertical changes nothing the tilt update sees
+    assert np.allclose(m.H[2, lay.att], 0.0) and np.allclose(m.H[:, lay.att][:, 2], 0.0)
 
 
 @pytest.mark.parametrize("mode", MODES)

@@ -51,12 +51,16 @@ class NavConfig:
     imu_overrides: Mapping[str, float] = field(default_factory=dict)
     imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_error_states: bool = True  # estimate gyro scale factors and misalignments (9 states)
+    accel_error_states: bool = True  # the same for the accelerometers (9 states)
     filter_rate_hz: float = 10.0
     reorder_window_s: float = 0.5
 
     # Odometer (wheel on the pipe wall)
-    odometer_speed_sigma: float = 0.02  # m/s, white noise of the mean speed over one filter epoch
-    nhc_sigma: float = 0.02  # m/s, lateral and vertical body velocity (non-holonomic constraint)
+    odometer_speed_sigma: float = 0.005  # m/s, white noise of the mean speed over one filter epoch
+    nhc_sigma: float = 0.005  # m/s, lateral and vertical body velocity (non-holonomic constraint)
+    # m per count of the wheel encoder; 0 = the smallest step seen in the readings. The reading
+    # errors at both ends of an epoch are states (quantization does not accumulate).
+    odometer_resolution: float = 0.0
     odometer_scale_sigma: float = 0.02  # initial one-sigma of the scale-factor error (fraction)
     odometer_scale_rw: float = 1e-6  # 1/sqrt(s), random walk of the scale factor
     boresight_sigma: float = 0.01  # rad, initial one-sigma of odometer/IMU misalignment
@@ -177,6 +181,7 @@ class NavConfig:
                 raise ConfigError(f"{name} must be a positive number, not {v!r}")
         non_negative = (
             "reorder_window_s",
+            "odometer_resolution",
             "odometer_scale_rw",
             "stop_speed_threshold",
             "stop_gyro_threshold",

@@ -27,10 +27,10 @@ from . import alignment, earth
 from . import attitude as att
 from . import measurements as meas
 from .config import NavConfig
-from .kalman import ErrorStateKF
+from .kalman import ErrorStateKF, chi2_threshold
 from .mechanization import BlockResult, Carry, dr_block, ins_block
 from .process import continuous_noise, discretize, integrated_system_matrix
-from .state import Layout, NavState
+from .state import NavState, layout_for
 from .stream import ReorderBuffer
 from .types import (
     Datum,
@@ -76,18 +76,26 @@ class NavEstimate:
 class Recording:
     """What the smoothers need from a forward pass.
 
-    Per epoch k (k = 0 is the alignment): t, the state after the update (NavState), the
-    predicted and updated covariances, Phi from k-1 to k, and dx = x_upd (-) x_pred.
+    Per epoch k (k = 0 is the alignment): t; the filter's estimate after the update
+    (``states``); the linearization point ``lin`` (the estimate itself for the ordinary EKF,
+    the reference state when the filter runs about a reference trajectory); the filter's mean
+    error state relative to it ``x_upd`` (zero for the EKF); the predicted and updated
+    covariances; Phi from k-1 to k; ``dx`` = updated minus predicted mean error state (what an
+    RTS smoother carries back); ``end_offset`` = lin (-) the nominal at the end of the block
+    (the correction that moves the per-sample nominal onto the linearization point).
     Per IMU sample: t, raw odometer distance (m), nominal lat, lon, h, q_nb and the epoch
-    whose block the sample belongs to.
+    whose block the sample belongs to (the block of epoch k starts at lin[k - 1]).
     """
 
     t: list[float] = field(default_factory=list)
     states: list[NavState] = field(default_factory=list)
+    lin: list[NavState] = field(default_factory=list)
+    x_upd: list[Array] = field(default_factory=list)
     P_pred: list[Array] = field(default_factory=list)
     P_upd: list[Array] = field(default_factory=list)
     phi: list[Array] = field(default_factory=list)
     dx: list[Array] = field(default_factory=list)
+    end_offset: list[Array] = field(default_factory=list)
     s_t: list[Array] = field(default_factory=list)
     s_odo: list[Array] = field(default_factory=list)
     s_lat: list[Array] = field(default_factory=list)
@@ -113,7 +121,21 @@ class Navigator:
     smoother's re-linearization pass); epoch_times: force the epoch ends to the first IMU
     samples at or after these times instead of filter_rate_hz and marker passages (the backward
     filter uses the forward filter's epochs); odometer_exclude: (N, 2) time intervals whose
-    odometer speed is not used (slips found by a previous smoothing pass).
+    odometer speed is not used (slips found by a previous smoothing pass); reference: a
+    trajectory (one NavState per epoch, from the alignment on, at the epoch times of an earlier
+    pass of this engine over the same data) about which every Jacobian, transition and
+    measurement residual is linearized instead of about the filter's own estimate; the prior
+    stays the static alignment's and the filter carries its mean error relative to the
+    reference. Smoothing such a pass and feeding the result back as the next reference is one
+    Gauss-Newton step of the batch problem (iterated smoother, :mod:`pipe_nav_core.smoother`);
+    initial_azimuth: rad, replaces the initial heading of the configured source (the smoother
+    iterates the re-anchoring at the second marker with it).
+
+    Jacobians that couple attitude and velocity are evaluated at a first-estimate velocity
+    (the predicted one, zero when stopped, or the reference's) so that a rotation of the whole
+    solution about the vertical stays unobservable between markers, as it is: evaluating them
+    at the freshly corrected velocity makes an EKF believe it learns its heading from odometer
+    and zero-velocity noise.
     """
 
     def __init__(
@@ -126,10 +148,12 @@ class Navigator:
         initial: NavState | None = None,
         epoch_times: Array | None = None,
         odometer_exclude: Array | None = None,
+        reference: Sequence[NavState] | None = None,
+        initial_azimuth: float | None = None,
     ) -> None:
         config.validate()
         self.cfg = config
-        self.layout = Layout(config.mode, config.gyro_error_states)
+        self.layout = layout_for(config)
         self.imu_spec = config.imu_spec()
         self.r_base_imu = mount_rotation(config.imu_mount_rpy)
         self.earth_sign = -1.0 if reverse else 1.0
@@ -140,6 +164,10 @@ class Navigator:
             np.zeros((0, 2)) if odometer_exclude is None else np.asarray(odometer_exclude, float)
         )
         self.epoch_times = None if epoch_times is None else np.sort(np.asarray(epoch_times, float))
+        self.reference = list(reference) if reference is not None else None
+        self._azimuth_override = initial_azimuth
+        if self.reference is not None:
+            self.epoch_times = np.array([r.t for r in self.reference])
         self.lever_arm = np.asarray(config.odometer_lever_arm, dtype=np.float64)
         self.hard_iron = np.asarray(config.mag_hard_iron, dtype=np.float64)
         self.reset()
@@ -162,11 +190,18 @@ class Navigator:
         self._counts: dict[str, int] = defaultdict(int)
         self._first_marker: Marker | None = self.survey[0] if self.survey else None
         self._markers_seen: list[Marker] = []
-        self._anchored = self.cfg.heading_source != "markers"
+        self._anchored = self.cfg.heading_source != "markers" or self.reference is not None
+        self.reanchor_rad = 0.0
+        self.initial_azimuth: float | None = None
+        self._epoch = 0
+        self._v_jac = np.zeros(3)
         self._prev_speed = 0.0
         self._prev_vel_mean: Array | None = None
         self._mag_ref: tuple[float, float] | None = None
         self._odo_start: float | None = None
+        self._odo_quantum = self.cfg.odometer_resolution
+        self._odo_last: float | None = None
+        self._odo_learnt_t = -math.inf
         self._s_epoch_start = 0.0
         self._static_epochs = 0
         self.recording = Recording() if self.record else None
@@ -325,6 +360,30 @@ class Navigator:
         self._horizon = horizon
         self._advance()
 
+    @property
+    def odometer_resolution(self) -> float:
+        """Encoder resolution (m per count) in use: configured or learnt so far (0 = none)."""
+        return self._odo_quantum
+
+    def _odometer_resolution(self, t_now: float) -> float:
+        """Encoder resolution used in the noise model (m), floored at 0.1 mm: configured, or
+        the smallest nonzero step of the readings up to t_now (s) (the same whatever the
+        batching of the input)."""
+        if self.cfg.odometer_resolution <= 0.0:
+            o = self._odo
+            sel = (o.t > self._odo_learnt_t) & (o.t <= t_now)
+            if sel.any():
+                dist = o.distance[sel]
+                prev = [] if self._odo_last is None else [self._odo_last]
+                d = np.abs(np.diff(np.r_[prev, dist]))
+                self._odo_last = float(dist[-1])
+                self._odo_learnt_t = float(o.t[sel][-1])
+                steps = d[d > 1e-9]
+                if len(steps):
+                    q = float(steps.min())
+                    self._odo_quantum = q if self._odo_quantum <= 0.0 else min(self._odo_quantum, q)
+        return max(self._odo_quantum, 1e-4)
+
     # ----------------------------------------------------------------- processing
     def _advance(self) -> None:
         while True:
@@ -394,6 +453,8 @@ class Navigator:
                 az_sigma = cfg.mag_heading_sigma
         if self.initial is not None:
             roll, pitch, azimuth = (float(x) for x in att.euler_from_dcm(self.initial.c_nb))
+        if self._azimuth_override is not None:
+            azimuth = float(self._azimuth_override)
         c = att.dcm_from_euler(roll, pitch, azimuth)
         if self._mag_ref is not None:
             m_n = c @ self._mag.field[mag_sel].mean(axis=0)
@@ -413,22 +474,37 @@ class Navigator:
             s.bg, s.ba = self.initial.bg.copy(), self.initial.ba.copy()
             s.k, s.bore = self.initial.k, self.initial.bore.copy()
             s.gm = self.initial.gm.copy()
+            s.am = self.initial.am.copy()
         s.distance = 0.0
+        self.initial_azimuth = float(azimuth)
+        P0 = self._initial_covariance(s, t_static, az_sigma)
+        lin = s
+        if self.reference is not None:
+            # the prior stays the alignment's; only the linearization point moves
+            lin = self.reference[0].copy()
+            if abs(lin.t - s.t) > 1e-6:
+                raise ValueError("the reference trajectory does not start at the alignment epoch")
+            lin.distance = 0.0
+            self.kf = ErrorStateKF(P0, cfg.gate_probability, s.difference(lin, lay))
+            s = lin.inject(self.kf.x, lay)
+        else:
+            self.kf = ErrorStateKF(P0, cfg.gate_probability)
         self.state = s
-        self.kf = ErrorStateKF(
-            self._initial_covariance(s, t_static, az_sigma), cfg.gate_probability
-        )
         self._carry = Carry.zero()
         self._s_epoch_start = float(self._odometer_at(np.array([s.t]))[0])
         self._counts["aligned_at_ms"] = int(round(s.t * 1000))
         if self.recording is not None:
-            self._record_epoch(None, self.kf.P, None, np.zeros(lay.n), None, [])
+            zero = np.zeros(lay.n)
+            self._record_epoch(
+                None, None, zero, None, [], lin=lin, x_upd=self.kf.x, end_offset=zero
+            )
         self._drop_processed()
         self._emit()
 
     def _initial_covariance(self, s: NavState, t_static: float, az_sigma: float) -> Array:
         """P0 with the couplings static alignment creates: levelled tilt absorbs the horizontal
-        accelerometer bias, and the gyro bias absorbs the Earth rate error of the heading."""
+        accelerometer error at rest (bias, and scale factor and misalignment times gravity),
+        and the gyro bias absorbs the Earth rate error of the heading."""
         cfg, lay, imu = self.cfg, self.layout, self.imu_spec
         n = lay.n
         P = np.zeros((n, n))
@@ -436,31 +512,48 @@ class Navigator:
         g = earth.gravity(s.lat, s.h)
         ba_var = imu.accel_turn_on_bias**2 + imu.accel_bias_instability**2
         bg_var = imu.gyro_turn_on_bias**2 + imu.gyro_bias_instability**2
-        P[lay.ba, lay.ba] = np.eye(3) * ba_var
-        J = np.zeros((3, 3))  # phi = J dba (+ levelling noise)
+        # accelerometer error sources and their equivalent body bias at rest: b = B src
+        src = np.arange(lay.ba.start, lay.ba.stop)
+        var = [ba_var] * 3
+        B = np.eye(3)
+        if lay.am is not None:
+            f_rest = c.T @ np.array([0.0, 0.0, g])
+            src = np.r_[src, np.arange(lay.am.start, lay.am.stop)]
+            am_var = np.full((3, 3), imu.accel_misalignment**2)
+            np.fill_diagonal(am_var, imu.accel_scale_factor**2)
+            var += list(np.maximum(am_var.reshape(9), 1e-12))
+            B = np.hstack([B, np.kron(np.eye(3), f_rest[None, :])])
+        P_src = np.diag(var)
+        P[np.ix_(src, src)] = P_src
+        J = np.zeros((3, 3))  # phi = J b (+ levelling noise)
         J[0] = -c[1] / g
         J[1] = c[0] / g
         tilt_var = cfg.initial_tilt_sigma**2 + imu.accel_vrw**2 / max(t_static, 0.1) / g**2
-        P_att = J @ P[lay.ba, lay.ba] @ J.T + np.diag([tilt_var, tilt_var, az_sigma**2])
+        JB = J @ B
+        P_att = JB @ P_src @ JB.T + np.diag([tilt_var, tilt_var, az_sigma**2])
         P[lay.att, lay.att] = P_att
-        P[lay.att, lay.ba] = J @ P[lay.ba, lay.ba]
-        P[lay.ba, lay.att] = P[lay.att, lay.ba].T
+        P[lay.att, src] = JB @ P_src
+        P[src, lay.att] = P[lay.att, src].T
         if self.initial is not None or t_static < 0.5:
             P[lay.bg, lay.bg] = np.eye(3) * bg_var
         else:
             G = -c.T @ att.skew(self.earth_sign * earth.earth_rate_n(s.lat))
+            if not self._anchored:
+                G[:, 2] = 0.0  # see _process_epoch: no gyrocompassing before the anchoring
             noise = imu.gyro_arw**2 / t_static + imu.gyro_bias_instability**2
             P[lay.bg, lay.bg] = G @ P_att @ G.T + np.eye(3) * noise
             P[lay.bg, lay.att] = G @ P_att
             P[lay.att, lay.bg] = P[lay.bg, lay.att].T
-            P[lay.bg, lay.ba] = G @ P[lay.att, lay.ba]
-            P[lay.ba, lay.bg] = P[lay.bg, lay.ba].T
+            P[lay.bg, src] = G @ P[lay.att, src]
+            P[src, lay.bg] = P[lay.bg, src].T
         if lay.vel is not None:
             P[lay.vel, lay.vel] = np.eye(3) * cfg.zupt_sigma**2
         sig = self._first_marker.sigma_enu if self._first_marker else (1e3, 1e3, 1e3)
         P[lay.pos, lay.pos] = np.diag(np.maximum(np.square(sig), cfg.initial_position_sigma**2))
         P[lay.k, lay.k] = cfg.odometer_scale_sigma**2
         P[lay.bore, lay.bore] = np.eye(2) * cfg.boresight_sigma**2
+        if lay.odoq is not None:
+            P[lay.odoq, lay.odoq] = np.eye(2) * self._odometer_resolution(s.t) ** 2 / 12.0
         if lay.gm is not None:
             gm_var = np.full((3, 3), imu.gyro_misalignment**2)
             np.fill_diagonal(gm_var, imu.gyro_scale_factor**2)
@@ -496,9 +589,14 @@ class Navigator:
 
     def _process_epoch(self, end: int) -> None:
         cfg, lay = self.cfg, self.layout
-        s0 = self.state
         kf = self.kf
-        assert s0 is not None and kf is not None
+        assert self.state is not None and kf is not None
+        ref = self.reference
+        k_ep = self._epoch + 1
+        if ref is not None and k_ep >= len(ref):
+            raise ValueError("the data run past the end of the reference trajectory")
+        # linearization point at the block start: the reference, or the filter's own estimate
+        s0 = ref[k_ep - 1] if ref is not None else self.state
         t = self._imu_t[: end + 1]
         g = self._imu_g[: end + 1]
         a = self._imu_a[: end + 1]
@@ -517,7 +615,31 @@ class Navigator:
         w_yz = float(np.hypot(blk.omega_b[1], blk.omega_b[2]))
         lever_known = bool(np.any(self.lever_arm))
         bend_sigma = 0.0 if lever_known else 0.5 * cfg.pipe_diameter * w_yz * T
-        A = integrated_system_matrix(s0, blk, lay, self.earth_sign)
+        gyro_mean = np.average(g, axis=0, weights=np.diff(np.r_[s0.t, t]))
+        stopped = (
+            has_odo
+            and abs(speed) < cfg.stop_speed_threshold
+            and abs(self._prev_speed) < cfg.stop_speed_threshold
+            and float(np.linalg.norm(gyro_mean - s1.bg)) < cfg.stop_gyro_threshold
+        )
+        # the linearization point at the block end, and the velocity at which the Jacobians
+        # that couple attitude and velocity are evaluated (first estimate; zero when stopped)
+        s_lin = ref[k_ep] if ref is not None else s1
+        v_jac = np.zeros(3) if stopped else s_lin.vel_n.copy()
+        dv_f = None
+        if lay.has_vel:
+            # specific-force increment consistent with the Jacobian velocities at both ends:
+            # dv_f + (v_jac(end) - v_nominal(end)) - (v_jac(start) - v_nominal(start))
+            dv_f = blk.dv_f + (v_jac - s1.vel_n) - (self._v_jac - s0.vel_n)
+        # Before the second marker anchors a heading taken from the markers, that heading can
+        # be tens of degrees off: the Earth rate's dependence on it (gyrocompassing, real but
+        # weak with a MEMS gyro) is then linearized too far from the truth and turns the
+        # heading during the leg, so that the re-anchoring rotation no longer fits the path.
+        # Until then the heading is left to the gyros alone.
+        free = not self._anchored
+        A = integrated_system_matrix(
+            s0, blk, lay, self.earth_sign, at_rest=stopped, dv_f=dv_f, heading_free=free
+        )
         Q = continuous_noise(
             s0,
             blk,
@@ -527,80 +649,94 @@ class Navigator:
             dr_along_sigma=cfg.odometer_distance_sigma,
             dr_lateral_sigma=cfg.dr_lateral_sigma,
             bend_sigma=bend_sigma,
+            odometer_resolution=self._odometer_resolution(float(t[-1])),
         )
-        phi, qd = discretize(A, Q)
-        kf.predict(phi, qd)
-        P_pred = kf.P.copy() if self.recording is not None else None
+        phi, qd = discretize(A, Q, lay)
+        offset = s1.difference(s_lin, lay) if ref is not None else None
+        kf.predict(phi, qd, offset)
         s1.distance = s0.distance + (1.0 + s0.k) * float(ds.sum())
         s_pred = s1.copy()
-        gyro_mean = np.average(g, axis=0, weights=np.diff(np.r_[s0.t, t]))
-        stopped = (
-            has_odo
-            and abs(speed) < cfg.stop_speed_threshold
-            and abs(self._prev_speed) < cfg.stop_speed_threshold
-            and float(np.linalg.norm(gyro_mean - s1.bg)) < cfg.stop_gyro_threshold
-        )
-        self._static_epochs = self._static_epochs + 1 if stopped else 0
-        s = s1
+        s = s_lin.copy() if ref is not None else s1
+        due = [m for m in self._markers if m.t <= t[-1]]
+        for m in due:
+            self._markers.remove(m)
+        due = [m for m in due if not self._late_marker(m, s)]
+        for m in due:
+            s, rz = self._before_marker(m, s)
+            v_jac = rz @ v_jac  # the first-estimate velocity turns with the re-anchored state
+        x_pred = kf.x.copy()
+        P_pred = kf.P.copy() if self.recording is not None else None
 
+        # Every update of the epoch is linearized at s (the prediction, or the reference); the
+        # filter's mean error carries the corrections from one to the next (kalman.py), and
+        # the ordinary EKF injects them into its nominal once, at the end of the epoch.
         def apply(m: meas.Measurement | None) -> None:
-            nonlocal s
-            if m is None:
-                return
-            dx = kf.update(m)
-            if dx is not None:
-                s = s.inject(dx, lay)
-
-        def set_state(new: NavState) -> None:
-            nonlocal s
-            s = new
+            if m is not None:
+                kf.update(m)
 
         if lay.has_vel and has_odo:
-            lever_rate = float(np.cross(blk.omega_b, self.lever_arm)[0])
+            w, d = blk.omega_b, self.lever_arm
+            lever_rate = float(w[1] * d[2] - w[2] * d[1])  # (omega x d)_x
             sigma_speed = math.hypot(
                 cfg.odometer_speed_sigma, 0.5 * cfg.pipe_diameter * w_yz * (not lever_known)
             )
-
-            def odo() -> meas.Measurement:
-                return meas.odometer_velocity(
-                    s,
-                    lay,
-                    speed=speed,
-                    vel_b_offset=blk.mean_vel_b - s.c_nb.T @ s.vel_n,
-                    lever_rate=lever_rate,
-                    sigma_speed=sigma_speed,
-                    sigma_nhc=cfg.nhc_sigma,
-                )
-
-            apply(odo().rows([1, 2], "nhc"))
+            odo = meas.odometer_velocity(
+                s,
+                lay,
+                speed=speed,
+                vel_b_offset=blk.mean_vel_b - s1.c_nb.T @ s1.vel_n,
+                lever_rate=lever_rate,
+                sigma_speed=sigma_speed,
+                sigma_nhc=cfg.nhc_sigma,
+                vel_jac=v_jac,
+                epoch_s=T,
+            )
+            apply(odo.rows([1, 2], "nhc"))
             if self._odometer_excluded(s0.t, t[-1]):
                 self._counts["odometer_excluded"] += 1
             else:
-                apply(odo().rows([0], "odometer"))
+                apply(odo.rows([0], "odometer"))
         if stopped:
             if lay.has_vel:
                 apply(meas.zero_velocity(s, lay, cfg.zupt_sigma))
             zaru_sigma = math.sqrt(self.imu_spec.gyro_arw**2 / T + cfg.zaru_sigma**2)
-            apply(
-                meas.zero_rate(
-                    s, lay, gyro_mean=gyro_mean, sigma=zaru_sigma, earth_sign=self.earth_sign
-                )
+            zaru = meas.zero_rate(
+                s, lay, gyro_mean=gyro_mean, sigma=zaru_sigma, earth_sign=self.earth_sign
             )
+            if free:
+                zaru.H[:, lay.att.start + 2] = 0.0
+            apply(zaru)
         if cfg.tilt_enabled() and has_odo:
             self._tilt_update(s, blk, T, apply)
         if cfg.mag_update:
             self._mag_update(s, blk, apply)
-        for m in [m for m in self._markers if m.t <= t[-1]]:
-            self._markers.remove(m)
-            self._marker_update(m, apply, lambda: s, set_state)
+        for m in due:
+            mm = meas.marker_fix(s, lay, m, time_sigma=cfg.marker_time_sigma)
+            if self.recording is not None:
+                self.recording.marker_residuals[m.name] = mm.residual.copy()
+            apply(mm)
 
+        if ref is not None:
+            est = s_lin.inject(kf.x, lay)
+            est.distance = s_lin.distance
+            dx_rec = kf.x - x_pred
+            end_offset = s_lin.difference(s1, lay)
+        else:
+            est = s.inject(kf.x, lay)
+            kf.reset_mean()
+            dx_rec = est.difference(s_pred, lay)
+            end_offset = dx_rec
         self._prev_speed = speed
         self._prev_vel_mean = blk.dp / T
-        self.state = s
+        self._v_jac = v_jac
+        self._epoch = k_ep
+        self.state = est
         self._carry = carry
         self._s_epoch_start = float(s_odo[-1])
         if self.recording is not None:
-            self._record_epoch(s_pred, P_pred, phi, s.difference(s_pred, lay), blk, s_odo)
+            self._record_epoch(
+                P_pred, phi, dx_rec, blk, s_odo, lin=s_lin, x_upd=kf.x, end_offset=end_offset
+            )
         self._counts["epochs"] += 1
         self._drop_processed(end)
         self._emit(status="static" if stopped else "moving", omega=blk.omega_b)
@@ -628,6 +764,7 @@ class Navigator:
                 c_mean=blk.sum_c_dt / T,
                 accel_n=accel_n,
                 sigma=cfg.tilt_sigma,
+                c_f_mean=blk.sum_c_f_dt / T,
             )
         )
 
@@ -661,22 +798,48 @@ class Navigator:
             )
         )
 
-    def _marker_update(self, m: Marker, apply, get, set_) -> None:  # noqa: ANN001
-        s = get()
+    def _late_marker(self, m: Marker, s: NavState) -> bool:
         if m.t < s.t - 2.0:
             self._counts["late_marker_dropped"] += 1
-            return
+            return True
+        return False
+
+    def _before_marker(self, m: Marker, s: NavState) -> tuple[NavState, Array]:
+        """What a marker passage does before the epoch's updates: the heading re-anchoring at
+        the second marker (heading from the markers), and the recovery of a filter that has
+        lost itself. A surveyed marker is the ground truth of this problem; when it disagrees
+        with the prediction beyond the gate, the filter, not the marker, is wrong (accepted
+        slips, a poor linearization): the predicted covariance is inflated until the marker is
+        consistent (treated as extra process noise of this epoch, so that the smoother's
+        record stays coherent) instead of rejecting the marker and diverging for good.
+        Returns the state and the rotation applied to it (3, 3) (identity without
+        re-anchoring)."""
+        kf, lay = self.kf, self.layout
+        assert kf is not None
+        rz = np.eye(3)
         first = self._first_marker
         if not self._anchored and first is not None and m.name != first.name:
-            new, d_az = alignment.reanchor_heading(s, first, m)
-            set_(new)
+            s, d_az = alignment.reanchor_heading(s, first, m)
+            # the error state rotates with the nominal: nav-frame blocks of P turn with it
+            rot = np.eye(lay.n)
+            rz = att.dcm_from_rotvec(np.array([0.0, 0.0, -d_az]))
+            for sl in (lay.att, lay.vel, lay.pos):
+                if sl is not None:
+                    rot[sl, sl] = rz
+            kf.P = rot @ kf.P @ rot.T
+            kf.x = rot @ kf.x
             self._anchored = True
+            self.reanchor_rad = d_az
             self._counts["heading_reanchor_mdeg"] = int(round(math.degrees(d_az) * 1000))
-            s = new
-        mm = meas.marker_fix(s, self.layout, m, time_sigma=self.cfg.marker_time_sigma)
-        if self.recording is not None:
-            self.recording.marker_residuals[m.name] = mm.residual.copy()
-        apply(mm)
+        mm = meas.marker_fix(s, lay, m, time_sigma=self.cfg.marker_time_sigma)
+        r = mm.residual - mm.H @ kf.x
+        S = mm.H @ kf.P @ mm.H.T + mm.R
+        nis = float(r @ np.linalg.solve(S, r))
+        limit = chi2_threshold(self.cfg.gate_probability, len(r))
+        if np.isfinite(nis) and nis > limit:
+            kf.P = kf.P * (nis / len(r))
+            self._counts["marker_covariance_inflations"] += 1
+        return s, rz
 
     # ----------------------------------------------------------------- bookkeeping
     def _drop_processed(self, end: int | None = None) -> None:
@@ -722,22 +885,28 @@ class Navigator:
 
     def _record_epoch(
         self,
-        s_pred: NavState | None,
         P_pred: Array | None,
         phi: Array | None,
         dx: Array,
         blk: BlockResult | None,
         s_odo: Array | list,
+        *,
+        lin: NavState,
+        x_upd: Array,
+        end_offset: Array,
     ) -> None:
         rec = self.recording
         assert rec is not None and self.state is not None and self.kf is not None
         n = self.layout.n
         rec.t.append(self.state.t)
         rec.states.append(self.state.copy())
+        rec.lin.append(lin.copy() if self.reference is not None else rec.states[-1])
+        rec.x_upd.append(x_upd.copy())
         rec.P_upd.append(self.kf.P.copy())
         rec.P_pred.append(self.kf.P.copy() if P_pred is None else P_pred)
         rec.phi.append(np.eye(n) if phi is None else phi)
         rec.dx.append(dx)
+        rec.end_offset.append(end_offset)
         k = len(rec.t) - 1
         if blk is not None:
             rec.s_t.append(blk.t.copy())

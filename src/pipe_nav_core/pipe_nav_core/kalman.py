@@ -46,20 +46,36 @@ class UpdateStats:
 
 
 class ErrorStateKF:
-    """Covariance P of the error state and the update step; the caller applies dx to its state."""
+    """Mean x and covariance P of the error state dx = truth (-) linearization point.
 
-    def __init__(self, P0: Array, gate_probability: float) -> None:
+    The usual error-state EKF keeps x at zero: the caller injects every correction into its
+    nominal state and calls :meth:`reset_mean` (it relinearizes after each update). A filter
+    linearized about a fixed reference trajectory (the iterated smoother's passes) keeps x
+    instead: its estimate is reference (+) x.
+    """
+
+    def __init__(self, P0: Array, gate_probability: float, x0: Array | None = None) -> None:
         self.P = np.array(P0, dtype=np.float64)
+        self.x = np.zeros(self.P.shape[0]) if x0 is None else np.array(x0, dtype=np.float64)
         self.gate_probability = gate_probability
         self.stats = UpdateStats()
 
-    def predict(self, phi: Array, qd: Array) -> None:
+    def predict(self, phi: Array, qd: Array, offset: Array | None = None) -> None:
+        """x <- phi x + offset (offset: the nominal transition's miss of the new linearization
+        point, zero when the nominal is propagated itself); P <- phi P phi^T + qd."""
+        self.x = phi @ self.x if offset is None else phi @ self.x + offset
         P = phi @ self.P @ phi.T + qd
         self.P = 0.5 * (P + P.T)
 
+    def reset_mean(self) -> None:
+        """The caller has injected x into its nominal state."""
+        self.x[:] = 0.0
+
     def update(self, m: Measurement, *, gate: bool = True) -> Array | None:
-        """Apply one measurement; returns the error-state correction dx, or None if rejected."""
-        H, r, R = m.H, m.residual, m.R
+        """Apply one measurement (residual evaluated at the linearization point); returns the
+        correction added to x, or None if rejected by the innovation gate."""
+        H, R = m.H, m.R
+        r = m.residual - H @ self.x
         PHt = self.P @ H.T
         S = H @ PHt + R
         try:
@@ -74,6 +90,7 @@ class ErrorStateKF:
             return None
         K = np.linalg.solve(S, PHt.T).T
         dx = K @ r
+        self.x = self.x + dx
         I_KH = np.eye(self.P.shape[0]) - K @ H
         P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
         self.P = 0.5 * (P + P.T)

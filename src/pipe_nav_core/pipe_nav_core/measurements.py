@@ -18,8 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import earth
-from .attitude import skew
-from .state import Layout, NavState, odometer_axis
+from .state import Layout, NavState, odometer_axis, skew3
 from .types import Marker
 
 Array = NDArray[np.float64]
@@ -48,6 +47,8 @@ def odometer_velocity(
     lever_rate: float,
     sigma_speed: float,
     sigma_nhc: float,
+    vel_jac: Array | None = None,
+    epoch_s: float = 0.0,
 ) -> Measurement:
     """Odometer speed with the non-holonomic constraint (INS mode), body frame, m/s.
 
@@ -55,17 +56,30 @@ def odometer_velocity(
     speed is the raw mean odometer speed (distance increment / epoch duration), lever_rate the
     mean (omega x d)_x of the wheel contact point, vel_b_offset the difference between the
     block's mean body velocity and C_bn v_n at the epoch end (so that H refers to the end).
+    vel_jac: ENU velocity (m/s) at which the attitude column of H is evaluated (default s.vel_n);
+    the engine passes its first estimate so that a rotation of the whole solution about the
+    vertical stays unobservable, as it truly is (first-estimate Jacobian).
+    epoch_s: the epoch duration (s) over which speed was measured; with it and a layout that
+    has odometer reading errors (odoq, m), speed is corrected by -(odoq_end - odoq_start) /
+    epoch_s (the quantization of the readings at both ends of the epoch).
     """
     c = s.c_nb
     u, du = odometer_axis(s.bore)
+    q = layout.odoq is not None and epoch_s > 0.0
+    if q:
+        speed = speed - (s.odoq[1] - s.odoq[0]) / epoch_s
     v_centre = (1.0 + s.k) * speed - lever_rate
     h = c.T @ s.vel_n + vel_b_offset - u * v_centre
     H = np.zeros((3, layout.n))
     assert layout.vel is not None
     H[:, layout.vel] = c.T
-    H[:, layout.att] = c.T @ skew(s.vel_n)
+    H[:, layout.att] = c.T @ skew3(s.vel_n if vel_jac is None else vel_jac)
     H[:, layout.k] = (-u * speed)[:, None]
     H[:, layout.bore] = -v_centre * du
+    if q:
+        assert layout.odoq is not None
+        H[:, layout.odoq.start] = -u * (1.0 + s.k) / epoch_s
+        H[:, layout.odoq.start + 1] = u * (1.0 + s.k) / epoch_s
     R = np.diag([sigma_speed**2, sigma_nhc**2, sigma_nhc**2])
     return Measurement("odometer", -h, H, R)
 
@@ -88,7 +102,7 @@ def zero_rate(
     h = gyro_mean - s.bg - c.T @ w_ie
     H = np.zeros((3, layout.n))
     H[:, layout.bg] = -np.eye(3)
-    H[:, layout.att] = -c.T @ skew(w_ie)
+    H[:, layout.att] = -c.T @ skew3(w_ie)
     return Measurement("zaru", -h, H, np.eye(3) * sigma**2)
 
 
@@ -100,18 +114,26 @@ def gravity_tilt(
     c_mean: Array,
     accel_n: Array,
     sigma: float,
+    c_f_mean: Array | None = None,
 ) -> Measurement:
     """Gravity tilt (seed 001 eq. 11-13): the mean specific force rotated into ENU equals the
     kinematic acceleration plus the reaction to gravity, m/s^2.
 
     f_mean_n: mean C_nb (f - ba) over the epoch; c_mean: mean C_nb over the epoch; accel_n: the
-    kinematic acceleration from the odometer and attitude (ENU).
+    kinematic acceleration from the odometer and attitude (ENU). An attitude error rotates
+    both the specific force and the kinematic acceleration (the odometer's path is laid out
+    with the same attitude), so only their difference, the gravity reaction, sees it: the
+    update constrains the tilt and, rightly, never the heading. c_f_mean (3, 9): mean of
+    C_nb[:, i] f_j over the epoch, the coupling of the accelerometer error matrix (when the
+    layout has it).
     """
     g = earth.gravity(s.lat, s.h)
     h = f_mean_n - accel_n - np.array([0.0, 0.0, g])
     H = np.zeros((3, layout.n))
-    H[:, layout.att] = -skew(f_mean_n)
+    H[:, layout.att] = -skew3(f_mean_n - accel_n)
     H[:, layout.ba] = -c_mean
+    if layout.am is not None and c_f_mean is not None:
+        H[:, layout.am] = -c_f_mean
     return Measurement("tilt", -h, H, np.eye(3) * sigma**2)
 
 
@@ -134,7 +156,7 @@ def magnetic_heading(
     h = np.array([np.angle(np.exp(1j * (az - declination)))])
     g = np.array([m[1], -m[0], 0.0]) / rho2
     H = np.zeros((1, layout.n))
-    H[0, layout.att] = -g @ skew(m)
+    H[0, layout.att] = -g @ skew3(m)
     return Measurement("mag", -h, H, np.array([[sigma**2]]))
 
 

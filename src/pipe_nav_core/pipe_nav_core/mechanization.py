@@ -46,7 +46,8 @@ class BlockResult:
     T: block duration, s. sum_c_dt: sum of C_nb dt (3, 3), s. dv_f: sum of C_nb (f - ba) dt (3,),
     m/s ENU. dp: ENU displacement over the block (3,), m. omega_b: mean bias-corrected body rate
     (3,), rad/s. mean_vel_b: mean body-frame velocity (3,), m/s. w_in: omega_in^n used (3,), rad/s.
-    sum_c_w_dt (3, 9): sum of C_nb[:, i] omega_j dt, the coupling of the gyro error matrix.
+    sum_c_w_dt (3, 9): sum of C_nb[:, i] omega_j dt, the coupling of the gyro error matrix;
+    sum_c_f_dt (3, 9): sum of C_nb[:, i] f_j dt, the coupling of the accelerometer error matrix.
     DR only: dp_dk (3,) = d dp / d k; dp_dbore (3, 2); path (total |distance|, m).
     """
 
@@ -68,6 +69,56 @@ class BlockResult:
     dp_dbore: Array
     path: float
     sum_c_w_dt: Array
+    sum_c_f_dt: Array
+
+
+def _dcm(q: Array) -> Array:
+    """Rotation matrices (M, 3, 3) of unit quaternions (M, 4) [x, y, z, w] (as
+    attitude.dcm_from_quat, filled in place: this runs once per filter epoch)."""
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    c = np.empty((len(q), 3, 3))
+    c[:, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    c[:, 0, 1] = 2.0 * (x * y - w * z)
+    c[:, 0, 2] = 2.0 * (x * z + w * y)
+    c[:, 1, 0] = 2.0 * (x * y + w * z)
+    c[:, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    c[:, 1, 2] = 2.0 * (y * z - w * x)
+    c[:, 2, 0] = 2.0 * (x * z - w * y)
+    c[:, 2, 1] = 2.0 * (y * z + w * x)
+    c[:, 2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return c
+
+
+def _cross(a: Array, b: Array) -> Array:
+    """Row-wise cross product of (M, 3) arrays (np.cross costs tens of microseconds a call)."""
+    c = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    c[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    c[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    c[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return c
+
+
+def _qmul(p: Array, q: Array) -> Array:
+    """Hamilton product p * q of (M, 4) or (4,) scalar-last quaternions (as attitude.quat_mul)."""
+    px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    r = np.empty(np.broadcast_shapes(p.shape, q.shape))
+    r[..., 0] = pw * qx + px * qw + py * qz - pz * qy
+    r[..., 1] = pw * qy - px * qz + py * qw + pz * qx
+    r[..., 2] = pw * qz + px * qy - py * qx + pz * qw
+    r[..., 3] = pw * qw - px * qx - py * qy - pz * qz
+    return r
+
+
+def _cumprod(q0: Array, dq: Array) -> Array:
+    """q0 * dq[0] * ... * dq[i] for every i (as attitude.quat_cumprod: log-depth prefix scan)."""
+    acc = np.array(dq, dtype=np.float64)
+    n = acc.shape[0]
+    step = 1
+    while step < n:
+        acc[step:] = _qmul(acc[:-step].copy(), acc[step:])
+        step *= 2
+    return _qmul(np.asarray(q0, dtype=np.float64), acc)
 
 
 def _attitudes(
@@ -79,10 +130,11 @@ def _attitudes(
     if np.any(s.gm):
         rate = np.linalg.solve(np.eye(3) + s.gm, rate.T).T
     dtheta = rate * dt[:, None]
-    rv = att.coning_increments(dtheta, carry.dtheta)
-    q_body = att.quat_cumprod(s.q_nb, att.quat_from_rotvec(rv))
+    before = np.vstack([carry.dtheta[None, :], dtheta[:-1]])
+    rv = dtheta + _cross(before, dtheta) / 12.0  # two-sample coning correction
+    q_body = _cumprod(s.q_nb, att.quat_from_rotvec(rv))
     q_nav = att.quat_from_rotvec(-np.outer(t - s.t, w_in))
-    q = att.quat_mul(q_nav, q_body)
+    q = _qmul(q_nav, q_body)
     q_prev = np.vstack([s.q_nb[None, :], q[:-1]])
     return q, q_prev, dtheta, dt
 
@@ -95,15 +147,16 @@ def ins_block(
     w_en = earth.transport_rate_n(s.lat, s.h, s.vel_n)
     w_in = w_ie + w_en
     q, q_prev, dtheta, dt = _attitudes(s, t, gyro, carry, w_in)
-    dvel = (accel - s.ba) * dt[:, None]
+    dvel = _specific_force(s, accel) * dt[:, None]
     th_before = np.vstack([carry.dtheta[None, :], dtheta[:-1]])
     dv_before = np.vstack([carry.dvel[None, :], dvel[:-1]])
     dv_b = (
         dvel
-        + 0.5 * np.cross(dtheta, dvel)
-        + (np.cross(th_before, dvel) + np.cross(dv_before, dtheta)) / 12.0
+        + 0.5 * _cross(dtheta, dvel)
+        + (_cross(th_before, dvel) + _cross(dv_before, dtheta)) / 12.0
     )
-    c_prev = att.dcm_from_quat(q_prev)
+    c_all = _dcm(np.vstack([s.q_nb[None, :], q]))
+    c_prev, c = c_all[:-1], c_all[1:]
     dv_f_n = np.einsum("mij,mj->mi", c_prev, dv_b)
     g = earth.gravity_n(s.lat, s.h)
     cor = g - np.cross(2.0 * w_ie + w_en, s.vel_n)
@@ -116,7 +169,6 @@ def ins_block(
     lon = s.lon + p[:, 0] / ((rn + s.h) * np.cos(s.lat))
     h = s.h + p[:, 2]
     T = float(t[-1] - s.t)
-    c = att.dcm_from_quat(q)
     c_mid = 0.5 * (c + c_prev)
     sum_c_dt = np.einsum("mij,m->ij", c_mid, dt)
     vel_mid = 0.5 * (vel_prev + vel)
@@ -124,6 +176,7 @@ def ins_block(
     dv_f = dv_f_n.sum(axis=0)
     new = s.copy()
     new.t = float(t[-1])
+    new.odoq = np.array([s.odoq[1], 0.0])  # the end of this epoch starts the next one
     new.q_nb = att.quat_normalize(q[-1])
     new.vel_n = vel[-1].copy()
     new.lat, new.lon, new.h = float(lat[-1]), float(lon[-1]), float(h[-1])
@@ -146,8 +199,17 @@ def ins_block(
         dp_dbore=np.zeros((3, 2)),
         path=float(np.abs(np.linalg.norm(dp_i, axis=1)).sum()),
         sum_c_w_dt=np.einsum("kai,kj->aij", c_mid, dtheta).reshape(3, 9),
+        sum_c_f_dt=np.einsum("kai,kj->aij", c_prev, dvel).reshape(3, 9),
     )
     return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())
+
+
+def _specific_force(s: NavState, accel: Array) -> Array:
+    """Specific force (M, 3) m/s^2 from raw accelerometer samples: (I + N)^-1 (accel - ba)."""
+    f = accel - s.ba
+    if np.any(s.am):
+        f = np.linalg.solve(np.eye(3) + s.am, f.T).T
+    return f
 
 
 def dr_block(
@@ -170,10 +232,10 @@ def dr_block(
     w_in = w_ie + earth.transport_rate_n(s.lat, s.h, vel_guess)
     q, q_prev, dtheta, dt = _attitudes(s, t, gyro, carry, w_in)
     u, du = odometer_axis(s.bore)
-    lever_x = np.cross(dtheta, lever_arm)[:, 0]  # (omega x d)_x dt
+    lever_x = dtheta[:, 1] * lever_arm[2] - dtheta[:, 2] * lever_arm[1]  # (omega x d)_x dt
     ds_c = (1.0 + s.k) * ds - lever_x
-    c_prev = att.dcm_from_quat(q_prev)
-    c = att.dcm_from_quat(q)
+    c_all = _dcm(np.vstack([s.q_nb[None, :], q]))
+    c_prev, c = c_all[:-1], c_all[1:]
     c_mid = 0.5 * (c + c_prev)
     cu = c_mid @ u  # (M, 3) odometer axis in ENU
     dp_i = cu * ds_c[:, None]
@@ -184,7 +246,8 @@ def dr_block(
     h = s.h + p[:, 2]
     T = float(t[-1] - s.t)
     vel = dp_i / dt[:, None]
-    dv_f_n = np.einsum("mij,mj->mi", c_mid, (accel - s.ba)) * dt[:, None]
+    f_b = _specific_force(s, accel)
+    dv_f_n = np.einsum("mij,mj->mi", c_mid, f_b) * dt[:, None]
     new = s.copy()
     new.t = float(t[-1])
     new.q_nb = att.quat_normalize(q[-1])
@@ -209,6 +272,7 @@ def dr_block(
         dp_dbore=(1.0 + s.k) * np.einsum("mij,jk,m->ik", c_mid, du, ds),
         path=float(np.abs(ds_c).sum()),
         sum_c_w_dt=np.einsum("kai,kj->aij", c_mid, dtheta).reshape(3, 9),
+        sum_c_f_dt=np.einsum("kai,kj->aij", c_mid, f_b * dt[:, None]).reshape(3, 9),
     )
-    dvel = (accel - s.ba) * dt[:, None]
+    dvel = f_b * dt[:, None]
     return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())

@@ -12,26 +12,56 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import earth
-from .attitude import skew
 from .mechanization import BlockResult
 from .sensors import ImuSpec
-from .state import Layout, NavState, odometer_axis
+from .state import Layout, NavState, odometer_axis, skew3
 
 Array = NDArray[np.float64]
 
 
 def integrated_system_matrix(
-    s: NavState, blk: BlockResult, layout: Layout, earth_sign: float = 1.0
+    s: NavState,
+    blk: BlockResult,
+    layout: Layout,
+    earth_sign: float = 1.0,
+    *,
+    at_rest: bool = False,
+    dv_f: Array | None = None,
+    heading_free: bool = False,
 ) -> Array:
-    """A = integral of F dt over the block (n, n), linearized about the nominal state s."""
+    """A = integral of F dt over the block (n, n), linearized about the nominal state s.
+
+    at_rest: the pig is known to be stopped over the block; the couplings that multiply the
+    true specific force and the true body rate then use their exact values (gravity reaction
+    (0, 0, g) m/s^2 ENU and the Earth rate) instead of the noisy measured ones. With a
+    consumer-grade IMU the measured horizontal specific force of a pig at rest is pure noise
+    (about 1e-3 m/s per 0.1 s epoch), and a Jacobian built from it, read against zero-velocity
+    updates of 2 mm/s, makes the heading look observable at rest when it is not.
+    dv_f: the specific-force velocity increment (m/s, ENU) to use in the attitude-to-velocity
+    coupling instead of the block's own (the engine's first-estimate Jacobian, see
+    :meth:`pipe_nav_core.engine.Navigator`); overrides the at_rest value.
+    heading_free: leave out the Earth rate's coupling of a heading error into the tilt (the
+    engine's live filter, while its heading is still tens of degrees off and unanchored).
+    """
     n = layout.n
     A = np.zeros((n, n))
     T = blk.T
     a, p = layout.att, layout.pos
-    A[a, a] = -skew(blk.w_in) * T
+    sum_c_w_dt, sum_c_f_dt = blk.sum_c_w_dt, blk.sum_c_f_dt
+    if dv_f is None:
+        dv_f = np.array([0.0, 0.0, earth.gravity(s.lat, s.h) * T]) if at_rest else blk.dv_f
+    if at_rest:
+        c = s.c_nb
+        w_b = c.T @ (earth_sign * earth.earth_rate_n(s.lat))
+        sum_c_w_dt = np.einsum("ai,j->aij", c, w_b * T).reshape(3, 9)
+        f_b = c.T @ np.array([0.0, 0.0, earth.gravity(s.lat, s.h)])
+        sum_c_f_dt = np.einsum("ai,j->aij", c, f_b * T).reshape(3, 9)
+    A[a, a] = -skew3(blk.w_in) * T
+    if heading_free:
+        A[a.start : a.start + 2, a.start + 2] = 0.0
     A[a, layout.bg] = -blk.sum_c_dt
     if layout.gm is not None:
-        A[a, layout.gm] = -blk.sum_c_w_dt
+        A[a, layout.gm] = -sum_c_w_dt
     if layout.vel is not None:
         v = layout.vel
         rm, rn = earth.radii(s.lat)
@@ -45,13 +75,15 @@ def integrated_system_matrix(
         w_ie = earth_sign * earth.earth_rate_n(s.lat)
         w_en = earth.transport_rate_n(s.lat, s.h, s.vel_n)
         A[a, v] = -m_v * T
-        A[v, a] = -skew(blk.dv_f)
-        A[v, v] = -skew(2.0 * w_ie + w_en) * T
+        A[v, a] = -skew3(dv_f)
+        A[v, v] = -skew3(2.0 * w_ie + w_en) * T
         A[v, layout.ba] = -blk.sum_c_dt
+        if layout.am is not None:
+            A[v, layout.am] = -sum_c_f_dt
         A[v.start + 2, p.start + 2] = 2.0 * earth.gravity(s.lat, s.h) / (np.sqrt(rm * rn) + s.h) * T
         A[p, v] = np.eye(3) * T
     else:
-        A[p, a] = -skew(blk.dp)
+        A[p, a] = -skew3(blk.dp)
         A[p, layout.k] = blk.dp_dk[:, None]
         A[p, layout.bore] = blk.dp_dbore
     return A
@@ -67,11 +99,14 @@ def continuous_noise(
     dr_along_sigma: float,
     dr_lateral_sigma: float,
     bend_sigma: float,
+    odometer_resolution: float = 0.0,
 ) -> Array:
     """Process noise accumulated over the block (n, n) before propagation through the block.
 
     bend_sigma: m, extra along-track distance noise in DR mode for wall-versus-centreline
     differences in bends (zero when the wheel lever arm is known and compensated).
+    odometer_resolution: m per count; the fresh reading error at the epoch end is uniform over
+    one count (variance resolution^2 / 12).
     """
     T = blk.T
     q = np.zeros(layout.n)
@@ -84,6 +119,10 @@ def continuous_noise(
     q[layout.bore] = 1e-8**2 * T
     if layout.gm is not None:
         q[layout.gm] = 1e-9**2 * T
+    if layout.am is not None:
+        q[layout.am] = 1e-9**2 * T
+    if layout.odoq is not None:
+        q[layout.odoq.start + 1] = odometer_resolution**2 / 12.0
     Q = np.diag(q)
     if layout.vel is None:
         u, _ = odometer_axis(s.bore)
@@ -98,10 +137,18 @@ def continuous_noise(
     return Q
 
 
-def discretize(A: Array, Q: Array) -> tuple[Array, Array]:
-    """Phi = I + A + A^2/2 and Qd = Q + (A Q + Q A^T)/2 + A Q A^T / 3."""
+def discretize(A: Array, Q: Array, layout: Layout | None = None) -> tuple[Array, Array]:
+    """Phi = I + A + A^2/2 and Qd = Q + (A Q + Q A^T)/2 + A Q A^T / 3.
+
+    With a layout that has odometer reading errors, their rows become the epoch shift
+    (start <- end, end <- fresh draw whose variance Q holds); A never couples them.
+    """
     AA = A @ A
     phi = np.eye(A.shape[0]) + A + 0.5 * AA
     AQ = A @ Q
     qd = Q + 0.5 * (AQ + AQ.T) + (AQ @ A.T) / 3.0
+    if layout is not None and layout.odoq is not None:
+        i = layout.odoq.start
+        phi[i : i + 2, :] = 0.0
+        phi[i, i + 1] = 1.0
     return phi, 0.5 * (qd + qd.T)

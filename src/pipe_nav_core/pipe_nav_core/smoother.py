@@ -6,17 +6,25 @@ Methods (``method``):
 - ``rts``: Rauch-Tung-Striebel over the recorded forward filter;
 - ``two-filter``: the forward filter fused with a filter run on the time-reversed data
   (seed 001 RTS-FC, seed 004).
-Passes repeat (up to ``iterations``) from the smoothed initial attitude, biases, odometer
-scale and boresight of the previous pass, so that the linearization is about a trajectory
-close to the truth (an iterated smoother), until the smoothed correction of the initial
-attitude falls below CONVERGED_RAD; odometer epochs that disagree with the previous pass's
-smoothed path (wheel slip) are left out of the next pass.
+
+Passes:
+1. the live filter (what the live node computes; ``forward`` of the result unless 2.);
+2. with the heading from the markers, the initial heading is found by odometer dead
+   reckoning up to the second marker, re-anchored until it no longer turns
+   (:func:`anchored_config`), and a filter pass starts from it (``forward`` of the result);
+3. Gauss-Newton: each following pass is linearized about the previous pass's smoothed
+   trajectory, every epoch of it (:class:`pipe_nav_core.engine.Navigator` ``reference``), with
+   the same prior, so that the smoother converges to the optimum of the whole batch problem
+   (a factor graph of the prior, the IMU transitions between epochs and every update) instead
+   of the optimum of a linearization about a drifting forward filter; it stops when a pass's
+   step is below CONVERGED_POS_M and CONVERGED_RAD. Odometer epochs that disagree with the
+   previous pass's smoothed path (wheel slip) are left out of the next pass.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,7 +34,7 @@ from . import earth
 from .config import NavConfig
 from .engine import Navigator, Recording
 from .smoothing import fuse_covariance, rts
-from .state import Layout, NavState
+from .state import Layout, NavState, layout_for
 from .types import (
     Datum,
     ImuSamples,
@@ -40,7 +48,18 @@ from .types import (
 
 Array = NDArray[np.float64]
 METHODS = ("forward", "rts", "two-filter")
-CONVERGED_RAD = 1e-4  # rad: initial-attitude correction below which another pass is not needed
+# A pass linearized within these of its smoothed result has converged: Gauss-Newton converges
+# quadratically here (a 0.1 m step is followed by about 2 mm, a 2 mm one by microns), so the
+# result of such a pass is the optimum to well below a millimetre.
+CONVERGED_RAD = 1e-4  # rad: largest attitude step of a converged pass
+CONVERGED_POS_M = 0.01  # m: largest position step of a converged pass
+ANCHOR_RAD = 5e-4  # rad: re-anchoring rotation below which the initial heading is settled
+ANCHOR_PASSES = 6  # at most this many re-anchoring passes over the data up to the 2nd marker
+# prior sigma of the dead-reckoned initial heading (gyro drift and scale factor over the bends
+# up to the second marker); the markers' own constraint on the heading is some 1e-4 rad, so
+# the prior hardly counts there, but it keeps the forward pass from trading a heading it
+# thinks unknown for small tilt discrepancies through the Earth rate
+ANCHORED_HEADING_SIGMA = np.radians(5.0)
 
 
 @dataclass
@@ -104,6 +123,8 @@ def run_forward(
     reverse: bool = False,
     epoch_times: Array | None = None,
     odometer_exclude: Array | None = None,
+    reference: list[NavState] | None = None,
+    initial_azimuth: float | None = None,
 ) -> Navigator:
     """One recorded filter pass over a time-sorted log."""
     nav = Navigator(
@@ -114,6 +135,8 @@ def run_forward(
         initial=initial,
         epoch_times=epoch_times,
         odometer_exclude=odometer_exclude,
+        reference=reference,
+        initial_azimuth=initial_azimuth,
     )
     nav.run(log)
     nav.poll()
@@ -130,36 +153,67 @@ def smooth_log(
     iterations: int = 5,
     progress: Callable[[str], None] | None = None,
 ) -> SmoothResult:
-    """Smooth a whole time-sorted log (IMU in imu_link as recorded) and return the centreline."""
+    """Smooth a whole time-sorted log (IMU in imu_link as recorded) and return the centreline.
+
+    Passes (see the module docstring): the live filter; with the heading from the markers, a
+    filter pass from the dead-reckoned initial heading (its estimates are then ``forward``,
+    otherwise the live filter's); then up to ``iterations`` smoothing passes, each linearized
+    about the previous smoothed trajectory (Gauss-Newton), until the step is below
+    CONVERGED_POS_M and CONVERGED_RAD and the excluded odometer epochs do not change.
+    """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     if len(log.imu) < 10:
         raise ValueError("the log has fewer than 10 IMU samples")
     say = progress or (lambda _msg: None)
-    layout = Layout(config.mode, config.gyro_error_states)
+    layout = layout_for(config)
     markers = markers_sorted(log.markers)
-    initial: NavState | None = None
-    exclude: Array | None = None
-    best: tuple[tuple[int, float], SmoothResult] | None = None
-    for it in range(max(1, iterations)):
-        say(f"forward filter (pass {it + 1})")
-        nav = run_forward(log, config, initial=initial, odometer_exclude=exclude)
-        rec = nav.recording
-        assert rec is not None
-        if method == "forward":
-            e = np.zeros((len(rec.t), layout.n))
-            P_s = np.array(rec.P_upd)
-        elif method == "rts":
-            say("RTS smoother")
-            e, P_s = rts(rec.P_upd, rec.P_pred, rec.phi, rec.dx)
-        else:
-            say("backward filter")
-            e, P_s = _two_filter(log, config, rec, layout)
-        centre = _centreline(rec, e, P_s, layout)
-        datum = nav.datum or Datum(rec.states[0].lat, rec.states[0].lon, rec.states[0].h)
+    say("forward filter")
+    live = run_forward(log, config)
+    assert live.recording is not None
+    forward = _forward_trajectory(live.recording, layout)
+    datum = live.datum or Datum(
+        live.recording.states[0].lat, live.recording.states[0].lon, live.recording.states[0].h
+    )
+    if method == "forward":
+        rec = live.recording
+        e = np.zeros((len(rec.t), layout.n))
+        centre = _centreline(rec, e, np.asarray(rec.P_upd), layout)
         result = SmoothResult(
             centre,
-            _forward_trajectory(rec, layout),
+            forward,
+            datum,
+            markers,
+            marker_residuals(centre, markers),
+            final_state=live.state,
+        )
+        result.summary = summarize(result, live)
+        result.summary.update(passes=1, passes_run=1)
+        return result
+    cfg = anchored_config(log, config, live, say)
+    nav = live
+    if cfg is not config:
+        say("forward filter (re-anchored heading)")
+        nav = run_forward(log, cfg)
+        assert nav.recording is not None
+        forward = _forward_trajectory(nav.recording, layout)
+    exclude: Array | None = None
+    reference: list[NavState] | None = None
+    best: tuple[int, SmoothResult] | None = None
+    n_pass = max(1, iterations)
+    for it in range(n_pass):
+        rec = nav.recording
+        assert rec is not None
+        if method == "rts":
+            say(f"RTS smoother (pass {it + 1})")
+            e, P_s = rts(rec.P_upd, rec.P_pred, rec.phi, rec.dx)
+        else:
+            say(f"backward filter (pass {it + 1})")
+            e, P_s = _two_filter(log, cfg, rec, layout, exclude)
+        centre = _centreline(rec, e, P_s, layout)
+        result = SmoothResult(
+            centre,
+            forward,
             datum,
             markers,
             marker_residuals(centre, markers),
@@ -167,36 +221,117 @@ def smooth_log(
         )
         result.summary = summarize(result, nav)
         result.summary["passes"] = it + 1
-        # a pass is better when it rejects fewer markers, then when it fits them more closely
-        quality = (
-            int(result.summary["markers_rejected"]),
-            float(result.summary["max_marker_residual_m"]),
+        # a pass that rejects more markers than an earlier one is not taken
+        rejected = int(result.summary["markers_rejected"])
+        if best is None or rejected <= best[0]:
+            best = (rejected, result)
+        step_pos, step_att = step_size(rec, e, layout)
+        result.summary["last_step_m"] = step_pos
+        new_exclude = (
+            find_slips(rec, centre, cfg, resolution=nav.odometer_resolution)
+            if layout.has_vel
+            else None
         )
-        if best is None or quality < best[0]:
-            best = (quality, result)
-        if method == "forward":
-            break
-        initial = rec.states[0].inject(e[0], layout)
-        new_exclude = find_slips(rec, centre, config) if layout.has_vel else None
-        same_slips = (
-            exclude is not None and new_exclude is not None and np.array_equal(exclude, new_exclude)
+        same_slips = new_exclude is None or (
+            exclude is not None and np.array_equal(exclude, new_exclude)
         )
-        if float(np.linalg.norm(e[0][layout.att])) < CONVERGED_RAD and (
-            same_slips or new_exclude is None
-        ):
+        converged = (
+            reference is not None
+            and step_pos < CONVERGED_POS_M
+            and step_att < CONVERGED_RAD
+            and same_slips
+        )
+        if converged or it == n_pass - 1:
             break
+        reference = smoothed_states(rec, e, layout)
         exclude = new_exclude
+        say(f"forward filter about the smoothed trajectory (pass {it + 2})")
+        nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude)
     assert best is not None
     best[1].summary["passes_run"] = it + 1
     return best[1]
 
 
+def anchored_config(
+    log: SensorLog,
+    config: NavConfig,
+    live: Navigator,
+    say: Callable[[str], None] = lambda _msg: None,
+) -> NavConfig:
+    """The configuration of the smoothing passes. With the heading from the markers, the live
+    filter starts on the bearing between the first two markers and re-anchors at the second
+    one by rotating its state about the first (seed 000). On a winding pipe the bearing can be
+    90 degrees off the initial heading, and a filter that far off gets its heading wrong on
+    the way (an industrial gyro resolves the Earth rate, which it then compensates in the
+    wrong axes), so that rotation is not the initial heading's error. The initial heading is
+    therefore found by odometer dead reckoning over the data up to the second marker, where
+    nothing but the gyros turns the heading and the re-anchoring rotation is the initial
+    heading's error; repeated (secant) until the rotation is below ANCHOR_RAD. The smoothing
+    passes start from that heading, with ANCHORED_HEADING_SIGMA (or the configured initial
+    heading sigma if smaller) as its prior."""
+    if config.heading_source != "markers" or live.initial_azimuth is None:
+        return config
+    az = live.initial_azimuth
+    markers = markers_sorted(log.markers)
+    if len(markers) >= 2 and live.reanchor_rad != 0.0:
+        head = _truncate(log, markers[1].t + 1.0)
+        dr = replace(config, mode="dr")
+        # secant iteration on f(azimuth) = the rotation the re-anchoring asks for
+        az_prev, f_prev = az, run_forward(head, dr, initial_azimuth=az).reanchor_rad
+        az = az + f_prev
+        for i in range(ANCHOR_PASSES):
+            say(f"re-anchoring the initial heading (pass {i + 1})")
+            f = run_forward(head, dr, initial_azimuth=az).reanchor_rad
+            if abs(f) < ANCHOR_RAD:
+                az += f
+                break
+            slope = (f - f_prev) / (az - az_prev) if az != az_prev else -1.0
+            az_prev, f_prev = az, f
+            az = az - f / slope if -2.0 < slope < -0.25 else az + f
+    return replace(
+        config,
+        heading_source="fixed",
+        initial_azimuth=float(np.mod(az, 2 * np.pi)),
+        initial_heading_sigma=min(config.initial_heading_sigma, ANCHORED_HEADING_SIGMA),
+    )
+
+
+def _truncate(log: SensorLog, t_end: float) -> SensorLog:
+    """The log up to t_end (s)."""
+    return SensorLog(
+        log.imu.slice(log.imu.t <= t_end),
+        log.odometer.slice(log.odometer.t <= t_end),
+        log.mag.slice(log.mag.t <= t_end),
+        [m for m in log.markers if m.t <= t_end],
+    )
+
+
+def smoothed_states(rec: Recording, e: Array, layout: Layout) -> list[NavState]:
+    """The smoothed state of every epoch: lin[k] (+) (x_upd[k] + e[k])."""
+    return [lin.inject(xu + ek, layout) for lin, xu, ek in zip(rec.lin, rec.x_upd, e, strict=True)]
+
+
+def step_size(rec: Recording, e: Array, layout: Layout) -> tuple[float, float]:
+    """Largest smoothed correction of the position (m) and attitude (rad) relative to the
+    pass's linearization points: the Gauss-Newton step of that pass."""
+    d = np.asarray(rec.x_upd) + e
+    pos = float(np.max(np.linalg.norm(d[:, layout.pos], axis=1)))
+    att_ = float(np.max(np.linalg.norm(d[:, layout.att], axis=1)))
+    return pos, att_
+
+
 def find_slips(
-    rec: Recording, centre: Trajectory, config: NavConfig, n_sigma: float = 4.0
+    rec: Recording,
+    centre: Trajectory,
+    config: NavConfig,
+    n_sigma: float = 4.0,
+    resolution: float = 0.0,
 ) -> Array:
     """Epochs whose calibrated odometer distance disagrees with the smoothed path length by more
-    than n_sigma odometer sigmas (wheel slip or spin), widened by one epoch on each side, as
-    (N, 2) time intervals in s."""
+    than n_sigma sigmas of an epoch's odometer distance (wheel slip or spin), widened by one
+    epoch on each side, as (N, 2) time intervals in s. The sigma combines the white speed noise
+    over the epoch and the quantization of the two readings that bound it (resolution m per
+    count: variance resolution^2 / 6); with a coarse encoder the latter dominates."""
     enu = earth.geodetic_to_enu(
         centre.lat, centre.lon, centre.h, centre.lat[0], centre.lon[0], centre.h[0]
     )
@@ -210,7 +345,8 @@ def find_slips(
     odo = np.bincount(k, weights=d_odo, minlength=n_ep) * scale
     t = np.asarray(rec.t)
     T = np.diff(t, prepend=t[:1])
-    bad = np.abs(np.abs(odo) - path) > n_sigma * config.odometer_speed_sigma * np.maximum(T, 1e-9)
+    sigma = np.sqrt((config.odometer_speed_sigma * T) ** 2 + resolution**2 / 6.0)
+    bad = np.abs(np.abs(odo) - path) > n_sigma * np.maximum(sigma, 1e-9)
     bad[0] = False
     bad = bad | np.r_[bad[1:], False] | np.r_[False, bad[:-1]]
     idx = np.nonzero(bad)[0]
@@ -219,10 +355,26 @@ def find_slips(
 
 
 def _two_filter(
-    log: SensorLog, config: NavConfig, rec: Recording, layout: Layout
+    log: SensorLog,
+    config: NavConfig,
+    rec: Recording,
+    layout: Layout,
+    exclude: Array | None = None,
 ) -> tuple[Array, Array]:
+    """Fuse the forward pass with a filter run over the time-reversed data (seed 001 RTS-FC).
+
+    The backward filter starts at the receive trap with the forward estimate's azimuth there as
+    its initial heading (with the configured sigma: a prior, not the forward's information)
+    and leaves out the same odometer epochs. Returns the corrections to the forward estimates
+    and the fused covariances.
+    """
     t_f = np.asarray(rec.t)
-    back = run_forward(reverse_log(log), config, reverse=True, epoch_times=-t_f[::-1])
+    _, _, az_end = att.euler_from_dcm(rec.states[-1].c_nb)
+    cfg_b = replace(config, heading_source="fixed", initial_azimuth=float(az_end))
+    ex_b = None if exclude is None else -np.asarray(exclude)[::-1, ::-1]
+    back = run_forward(
+        reverse_log(log), cfg_b, reverse=True, epoch_times=-t_f[::-1], odometer_exclude=ex_b
+    )
     rb = back.recording
     assert rb is not None
     t_b = -np.asarray(rb.t)
@@ -236,19 +388,33 @@ def _two_filter(
             continue  # no independent backward estimate here (its alignment or beyond)
         xb = _flip_state(rb.states[j].inject(-rb.dx[j], layout))  # backward prediction
         Pb = rb.P_pred[j] * np.outer(flip, flip)
+        if layout.odoq is not None:
+            # its reading error at the start of a reversed epoch is a later reading's: unknown
+            i = layout.odoq.start
+            Pb[i, :] = 0.0
+            Pb[:, i] = 0.0
+            Pb[i, i] = 1.0
         d = xb.difference(rec.states[k], layout)
+        if layout.odoq is not None:
+            d[layout.odoq.start] = 0.0
         e[k], P_s[k] = fuse_covariance(np.zeros(layout.n), rec.P_upd[k], d, Pb)
     return e, P_s
 
 
 def _centreline(rec: Recording, e: Array, P_s: Array, layout: Layout) -> Trajectory:
-    """Apply the smoothed corrections to the per-sample nominal trajectory."""
+    """Apply the smoothed corrections to the per-sample nominal trajectory.
+
+    e (K, n): smoothed corrections to the filter's estimates; the correction relative to the
+    linearization point of epoch k is x_upd[k] + e[k]; a block's nominal starts on lin[k - 1]
+    and ends end_offset[k] short of lin[k]; in between the correction is interpolated in time.
+    """
     t = np.concatenate(rec.s_t)
     k = np.concatenate(rec.s_epoch)
     t_ep = np.asarray(rec.t)
     frac = (t - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
-    dx = np.asarray(rec.dx)
-    corr = (1.0 - frac)[:, None] * e[k - 1] + frac[:, None] * (e[k] + dx[k])
+    d_lin = np.asarray(rec.x_upd) + e
+    d_end = d_lin + np.asarray(rec.end_offset)
+    corr = (1.0 - frac)[:, None] * d_lin[k - 1] + frac[:, None] * d_end[k]
     lat = np.concatenate(rec.s_lat)
     lon = np.concatenate(rec.s_lon)
     h = np.concatenate(rec.s_h)
@@ -261,7 +427,7 @@ def _centreline(rec: Recording, e: Array, P_s: Array, layout: Layout) -> Traject
     var_s = (1.0 - frac)[:, None] * var[k - 1] + frac[:, None] * var[k]
     sig_p = np.sqrt(np.maximum(var_s[:, layout.pos], 0.0))
     sig_a = np.sqrt(np.maximum(var_s[:, layout.att], 0.0))
-    kvals = np.array([s.k for s in rec.states]) + e[:, layout.k.start]
+    kvals = np.array([s.k for s in rec.lin]) + d_lin[:, layout.k.start]
     k_s = (1.0 - frac) * kvals[k - 1] + frac * kvals[k]
     s_odo = np.concatenate(rec.s_odo)
     ds = np.diff(np.r_[s_odo[0], s_odo])

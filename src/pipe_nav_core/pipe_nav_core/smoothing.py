@@ -17,7 +17,6 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import cho_factor, cho_solve
 
 Array = NDArray[np.float64]
 
@@ -39,8 +38,7 @@ def rts(
     for k in range(K - 2, -1, -1):
         Pp = P_pred[k + 1]
         try:
-            cf = cho_factor(Pp)
-            G = cho_solve(cf, phi[k + 1] @ P_upd[k]).T
+            G = np.linalg.solve(Pp, phi[k + 1] @ P_upd[k]).T
         except np.linalg.LinAlgError:
             G = np.linalg.lstsq(Pp, phi[k + 1] @ P_upd[k], rcond=None)[0].T
         e[k] = G @ (e[k + 1] + dx[k + 1])
