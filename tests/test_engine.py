@@ -248,3 +248,23 @@ def test_live_filter_after_the_heading_is_anchored():
     assert err[anchored].max() < 0.8, err[anchored].max()
     diag = nav.diagnostics()
     assert diag["accepted_marker"] == len(run.log.markers) and diag["rejected_marker"] == 0
+
+
+def test_progress_slices_give_identical_results():
+    """Reporting progress feeds the log in time slices: the estimates do not change."""
+    from pipe_nav_core.smoother import report_fraction, reset_fraction, run_forward
+
+    run = simulate("sag104", seed=6)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    whole = run_forward(run.log, cfg).recording
+    seen: list[float] = []
+    token = report_fraction(seen.append)
+    try:
+        sliced = run_forward(run.log, cfg).recording
+    finally:
+        reset_fraction(token)
+    assert seen[-1] == 1.0 and len(seen) > 10 and seen == sorted(seen)
+    assert whole.t == sliced.t
+    for a, b in zip(whole.states, sliced.states):
+        assert a.lat == b.lat and a.lon == b.lon and a.h == b.h
+    np.testing.assert_array_equal(np.array(whole.P_upd), np.array(sliced.P_upd))

@@ -107,23 +107,41 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
-def _progress(quiet: bool):  # noqa: ANN202
-    if quiet or not sys.stderr.isatty():
-        return None
-    from tqdm import tqdm
+class _Progress:
+    """A progress bar on stderr: the stage as its label, the fraction of the current pass as
+    its fill. Nothing at all when stderr is not a terminal or with --quiet."""
 
-    bar = tqdm(total=None, file=sys.stderr, bar_format="{desc} [{elapsed}]", leave=False)
+    def __init__(self) -> None:
+        from tqdm import tqdm
 
-    def say(msg: str) -> None:
-        bar.set_description_str(f"pipe-nav: {msg}")
-        bar.update(0)
+        self.bar = tqdm(
+            total=100,
+            file=sys.stderr,
+            leave=False,
+            unit="%",
+            bar_format=("{desc:<48} {percentage:3.0f}% |{bar:30}| {elapsed}"),
+        )
 
-    say.close = bar.close  # type: ignore[attr-defined]
-    return say
+    def stage(self, msg: str) -> None:
+        self.bar.set_description_str(f"pipe-nav: {msg}")
+        self.bar.n = 0
+        self.bar.refresh()
+
+    def fraction(self, f: float) -> None:
+        self.bar.n = round(100 * f)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _progress(quiet: bool) -> _Progress | None:
+    return None if quiet or not sys.stderr.isatty() else _Progress()
 
 
 def cmd_smooth(args: argparse.Namespace) -> int:
     from .pipeline import Outputs, smooth_bag
+    from .smoother import report_fraction, reset_fraction
 
     cfg = _load_config(args)
     out = Path(args.out)
@@ -141,7 +159,8 @@ def cmd_smooth(args: argparse.Namespace) -> int:
         outputs = Outputs(
             bag=str(out), csv=args.csv, geojson=args.geojson, kml=args.kml, plot=args.plot
         )
-    say = _progress(args.quiet)
+    bar = _progress(args.quiet)
+    token = report_fraction(bar.fraction if bar else None)
     try:
         result, report = smooth_bag(
             args.input,
@@ -152,11 +171,12 @@ def cmd_smooth(args: argparse.Namespace) -> int:
             markers_csv=args.markers,
             spacing=args.spacing,
             topics=_topics(args),
-            progress=say,
+            progress=bar.stage if bar else None,
         )
     finally:
-        if say is not None:
-            say.close()  # type: ignore[attr-defined]
+        reset_fraction(token)
+        if bar is not None:
+            bar.close()
     for w in report.warnings:
         print(f"pipe-nav: warning: {w}", file=sys.stderr)
     if not args.quiet:

@@ -23,6 +23,8 @@ Passes:
 
 from __future__ import annotations
 
+import contextvars
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -115,6 +117,37 @@ def _flip_state(x: NavState) -> NavState:
     return y
 
 
+PROGRESS_SLICES = 40
+# receives the fraction (0..1) of each forward pass done, while a caller shows progress
+_FRACTION: contextvars.ContextVar[Callable[[float], None] | None] = contextvars.ContextVar(
+    "pipe_nav_fraction", default=None
+)
+
+
+def slice_log(log: SensorLog, t0: float, t1: float) -> SensorLog:
+    """The samples and markers of a time-sorted log with stamps in [t0, t1), s."""
+
+    def sel(t: Array) -> slice:
+        return slice(int(np.searchsorted(t, t0, "left")), int(np.searchsorted(t, t1, "left")))
+
+    return SensorLog(
+        log.imu.slice(sel(log.imu.t)),
+        log.odometer.slice(sel(log.odometer.t)),
+        log.mag.slice(sel(log.mag.t)),
+        [m for m in log.markers if t0 <= m.t < t1],
+    )
+
+
+def report_fraction(callback: Callable[[float], None] | None) -> contextvars.Token:
+    """Make forward passes report the fraction done to callback (until reset_fraction)."""
+    return _FRACTION.set(callback)
+
+
+def reset_fraction(token: contextvars.Token) -> None:
+    """Undo report_fraction."""
+    _FRACTION.reset(token)
+
+
 def run_forward(
     log: SensorLog,
     config: NavConfig,
@@ -138,7 +171,15 @@ def run_forward(
         reference=reference,
         initial_azimuth=initial_azimuth,
     )
-    nav.run(log)
+    report = _FRACTION.get()
+    if report is None or len(log.imu) < 2:
+        nav.run(log)
+    else:  # in time slices, to report progress; the engine gives identical results
+        edges = np.linspace(log.imu.t[0], log.imu.t[-1], PROGRESS_SLICES + 1)
+        for i in range(PROGRESS_SLICES):
+            last = i == PROGRESS_SLICES - 1
+            nav.run(slice_log(log, edges[i], math.inf if last else edges[i + 1]), final=last)
+            report((i + 1) / PROGRESS_SLICES)
     nav.poll()
     if nav.recording is None or not nav.recording.t:
         raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
