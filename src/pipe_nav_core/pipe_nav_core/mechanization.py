@@ -164,10 +164,8 @@ def ins_block(
     vel_prev = np.vstack([s.vel_n[None, :], vel[:-1]])
     dp_i = 0.5 * (vel_prev + vel) * dt[:, None]
     p = np.cumsum(dp_i, axis=0)
-    rm, rn = earth.radii(s.lat)
-    lat = s.lat + p[:, 1] / (rm + s.h)
-    lon = s.lon + p[:, 0] / ((rn + s.h) * np.cos(s.lat))
-    h = s.h + p[:, 2]
+    dlat, dlon, dh = earth.enu_to_geodetic_increment(p, s.lat, s.h)
+    lat, lon, h = s.lat + dlat, s.lon + dlon, s.h + dh
     T = float(t[-1] - s.t)
     c_mid = 0.5 * (c + c_prev)
     sum_c_dt = np.einsum("mij,m->ij", c_mid, dt)
@@ -240,10 +238,8 @@ def dr_block(
     cu = c_mid @ u  # (M, 3) odometer axis in ENU
     dp_i = cu * ds_c[:, None]
     p = np.cumsum(dp_i, axis=0)
-    rm, rn = earth.radii(s.lat)
-    lat = s.lat + p[:, 1] / (rm + s.h)
-    lon = s.lon + p[:, 0] / ((rn + s.h) * np.cos(s.lat))
-    h = s.h + p[:, 2]
+    dlat, dlon, dh = earth.enu_to_geodetic_increment(p, s.lat, s.h)
+    lat, lon, h = s.lat + dlat, s.lon + dlon, s.h + dh
     T = float(t[-1] - s.t)
     vel = dp_i / dt[:, None]
     f_b = _specific_force(s, accel)
