@@ -18,6 +18,8 @@ class ConfigError(ValueError):
     """An invalid estimator setting; the message names the setting and what is allowed."""
 
 
+NOISE_EPOCH_S = 0.1  # s, averaging time of odometer_speed_sigma and nhc_sigma
+
 ANGLE_FIELDS = {
     "imu_mount_rpy",
     "initial_azimuth",
@@ -56,8 +58,9 @@ class NavConfig:
     reorder_window_s: float = 0.5
 
     # Odometer (wheel on the pipe wall)
-    odometer_speed_sigma: float = 0.005  # m/s, white noise of the mean speed over one filter epoch
-    nhc_sigma: float = 0.005  # m/s, lateral and vertical body velocity (non-holonomic constraint)
+    # m/s, white noise of the speed averaged over NOISE_EPOCH_S (an epoch of T s: see over_epoch)
+    odometer_speed_sigma: float = 0.005
+    nhc_sigma: float = 0.005  # m/s, the same for the lateral and vertical body velocity (NHC)
     # m per count of the wheel encoder; 0 = the smallest step seen in the readings. The reading
     # errors at both ends of an epoch are states (quantization does not accumulate).
     odometer_resolution: float = 0.0
@@ -106,6 +109,13 @@ class NavConfig:
 
     # Innovation gating
     gate_probability: float = 0.9999  # chi-square acceptance probability of every update
+
+    def over_epoch(self, sigma: float, epoch_s: float) -> float:
+        """Sigma of a white velocity noise averaged over epoch_s (s), given its sigma over
+        NOISE_EPOCH_S: sigma * sqrt(NOISE_EPOCH_S / epoch_s), so that the information the
+        odometer and the NHC carry per second does not depend on the epoch length (epochs cut
+        short at marker passages, other filter rates)."""
+        return sigma * math.sqrt(NOISE_EPOCH_S / max(epoch_s, 1e-3))
 
     def imu_spec(self) -> ImuSpec:
         """The process-noise IMU model: the named grade with overrides applied."""

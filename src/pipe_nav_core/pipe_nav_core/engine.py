@@ -678,7 +678,8 @@ class Navigator:
             w, d = blk.omega_b, self.lever_arm
             lever_rate = float(w[1] * d[2] - w[2] * d[1])  # (omega x d)_x
             sigma_speed = math.hypot(
-                cfg.odometer_speed_sigma, 0.5 * cfg.pipe_diameter * w_yz * (not lever_known)
+                cfg.over_epoch(cfg.odometer_speed_sigma, T),
+                0.5 * cfg.pipe_diameter * w_yz * (not lever_known),
             )
             odo = meas.odometer_velocity(
                 s,
@@ -687,7 +688,7 @@ class Navigator:
                 vel_b_offset=blk.mean_vel_b - s1.c_nb.T @ s1.vel_n,
                 lever_rate=lever_rate,
                 sigma_speed=sigma_speed,
-                sigma_nhc=cfg.nhc_sigma,
+                sigma_nhc=cfg.over_epoch(cfg.nhc_sigma, T),
                 vel_jac=v_jac,
                 epoch_s=T,
             )

@@ -1,4 +1,4 @@
-"""Strapdown mechanization over a block of IMU samples (one filter epoch), vectorized.
+"""Strapdown mechanization over a block of IMU samples (one filter epoch).
 
 Two modes (DESIGN.md):
 - :func:`ins_block`: full strapdown INS in ENU with Earth rate, transport rate, Coriolis and
@@ -10,13 +10,22 @@ Two modes (DESIGN.md):
 IMU samples follow INTERFACES.md: sample i holds the MEAN rate and specific force over
 (t[i-1], t[i]], in base_link. ``earth_sign = -1`` runs the equations in reversed time (the
 backward filter feeds time-reversed data: negated gyro, negated stamps).
+
+The per-sample recursions run in small kernels compiled with numba (``_attitude_kernel``,
+``_ins_kernel``, ``_dr_kernel``: plain float64 arrays in and out); the public functions prepare
+the per-block quantities (Earth and transport rates, gravity, odometer axis) and assemble the
+results. The kernels are cached on disk (``cache=True``): the first call in a fresh process
+loads them (or compiles them once, a few seconds, when the cache is cold or not writable).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from . import attitude as att
@@ -24,11 +33,28 @@ from . import earth
 from .state import NavState, odometer_axis
 
 Array = NDArray[np.float64]
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]  # [x, y, z, w]
+
+
+def _kernel(func: Callable[..., Any]) -> Callable[..., Any]:
+    """func compiled with numba, cached on disk where numba finds a writable cache directory
+    (next to this file, ~/.cache/numba or NUMBA_CACHE_DIR), else compiled in every process.
+
+    error_model="numpy": a zero interval gives inf/nan as in numpy, not ZeroDivisionError.
+    """
+    try:
+        return njit(cache=True, error_model="numpy")(func)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return njit(error_model="numpy")(func)
 
 
 @dataclass
 class Carry:
-    """Increments of the last sample of the previous block (for coning and sculling), base_link."""
+    """Increments of the last sample of the previous block (for coning and sculling), base_link.
+
+    dtheta: (3,) angle increment, rad; dvel: (3,) specific-force velocity increment, m/s.
+    """
 
     dtheta: Array
     dvel: Array
@@ -72,106 +98,358 @@ class BlockResult:
     sum_c_f_dt: Array
 
 
-def _dcm(q: Array) -> Array:
-    """Rotation matrices (M, 3, 3) of unit quaternions (M, 4) [x, y, z, w] (as
-    attitude.dcm_from_quat, filled in place: this runs once per filter epoch)."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    c = np.empty((len(q), 3, 3))
-    c[:, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    c[:, 0, 1] = 2.0 * (x * y - w * z)
-    c[:, 0, 2] = 2.0 * (x * z + w * y)
-    c[:, 1, 0] = 2.0 * (x * y + w * z)
-    c[:, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    c[:, 1, 2] = 2.0 * (y * z - w * x)
-    c[:, 2, 0] = 2.0 * (x * z - w * y)
-    c[:, 2, 1] = 2.0 * (y * z + w * x)
-    c[:, 2, 2] = 1.0 - 2.0 * (x * x + y * y)
-    return c
+# --- scalar helpers of the kernels (3-vectors and quaternions as tuples, no allocation) ---
 
 
-def _cross(a: Array, b: Array) -> Array:
-    """Row-wise cross product of (M, 3) arrays (np.cross costs tens of microseconds a call)."""
-    c = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    c[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    c[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    c[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return c
+@_kernel
+def _cross(a: Vec3 | Array, b: Vec3 | Array) -> Vec3:
+    """a x b of two 3-vectors (tuples or arrays)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-def _qmul(p: Array, q: Array) -> Array:
-    """Hamilton product p * q of (M, 4) or (4,) scalar-last quaternions (as attitude.quat_mul)."""
-    px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    r = np.empty(np.broadcast_shapes(p.shape, q.shape))
-    r[..., 0] = pw * qx + px * qw + py * qz - pz * qy
-    r[..., 1] = pw * qy - px * qz + py * qw + pz * qx
-    r[..., 2] = pw * qz + px * qy - py * qx + pz * qw
-    r[..., 3] = pw * qw - px * qx - py * qy - pz * qz
-    return r
+@_kernel
+def _quat_mul(p: Quat, q: Quat) -> Quat:
+    """Hamilton product p * q of scalar-last quaternions (as attitude.quat_mul)."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    return (
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+        pw * qw - px * qx - py * qy - pz * qz,
+    )
 
 
-def _cumprod(q0: Array, dq: Array) -> Array:
-    """q0 * dq[0] * ... * dq[i] for every i (as attitude.quat_cumprod: log-depth prefix scan)."""
-    acc = np.array(dq, dtype=np.float64)
-    n = acc.shape[0]
-    step = 1
-    while step < n:
-        acc[step:] = _qmul(acc[:-step].copy(), acc[step:])
-        step *= 2
-    return _qmul(np.asarray(q0, dtype=np.float64), acc)
+@_kernel
+def _quat_from_rotvec(x: float, y: float, z: float) -> Quat:
+    """Quaternion of the rotation vector (x, y, z), rad (as attitude.quat_from_rotvec)."""
+    th2 = x * x + y * y + z * z
+    th = np.sqrt(th2)
+    if th < 1e-6:
+        k = 0.5 - th2 / 48.0
+        w = 1.0 - th2 / 8.0
+    else:
+        k = np.sin(0.5 * th) / th
+        w = np.cos(0.5 * th)
+    return (x * k, y * k, z * k, w)
 
 
-def _attitudes(
-    s: NavState, t: Array, gyro: Array, carry: Carry, w_in: Array
-) -> tuple[Array, Array, Array, Array]:
-    """Attitudes at the sample times, the previous-sample attitudes, raw and coned increments."""
-    dt = np.diff(np.concatenate([[s.t], t]))
-    rate = gyro - s.bg
-    if np.any(s.gm):
-        rate = np.linalg.solve(np.eye(3) + s.gm, rate.T).T
-    dtheta = rate * dt[:, None]
-    before = np.vstack([carry.dtheta[None, :], dtheta[:-1]])
-    rv = dtheta + _cross(before, dtheta) / 12.0  # two-sample coning correction
-    q_body = _cumprod(s.q_nb, att.quat_from_rotvec(rv))
-    q_nav = att.quat_from_rotvec(-np.outer(t - s.t, w_in))
-    q = _qmul(q_nav, q_body)
-    q_prev = np.vstack([s.q_nb[None, :], q[:-1]])
-    return q, q_prev, dtheta, dt
+@_kernel
+def _dcm_into(q: Quat, c: Array) -> None:
+    """Write the rotation matrix of the unit quaternion q [x, y, z, w] into c (3, 3)."""
+    x, y, z, w = q
+    c[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    c[0, 1] = 2.0 * (x * y - w * z)
+    c[0, 2] = 2.0 * (x * z + w * y)
+    c[1, 0] = 2.0 * (x * y + w * z)
+    c[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    c[1, 2] = 2.0 * (y * z - w * x)
+    c[2, 0] = 2.0 * (x * z - w * y)
+    c[2, 1] = 2.0 * (y * z + w * x)
+    c[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@_kernel
+def _inv3(a: Array) -> Array:
+    """Inverse of a 3x3 matrix (adjugate over determinant)."""
+    inv = np.empty((3, 3))
+    inv[0, 0] = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    inv[1, 0] = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    inv[2, 0] = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    inv[0, 1] = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    inv[1, 1] = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    inv[2, 1] = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    inv[0, 2] = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    inv[1, 2] = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    inv[2, 2] = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    det = a[0, 0] * inv[0, 0] + a[0, 1] * inv[1, 0] + a[0, 2] * inv[2, 0]
+    return inv / det
+
+
+@_kernel
+def _corrected(raw: Array, bias: Array, err: Array) -> Array:
+    """Sensor samples corrected for bias and error matrix: (I + err)^-1 (raw - bias), (M, 3).
+
+    raw (M, 3), bias (3,), err (3, 3): the gyro (rad/s) or accelerometer (m/s^2) model
+    raw = (I + err) x + bias, base_link.
+    """
+    inv = _inv3(np.eye(3) + err)
+    out = np.empty_like(raw)
+    for i in range(raw.shape[0]):
+        x0 = raw[i, 0] - bias[0]
+        x1 = raw[i, 1] - bias[1]
+        x2 = raw[i, 2] - bias[2]
+        for a in range(3):
+            out[i, a] = inv[a, 0] * x0 + inv[a, 1] * x1 + inv[a, 2] * x2
+    return out
+
+
+# --- kernels: one pass over the samples of a block each ---
+
+
+@_kernel
+def _attitude_kernel(
+    q0: Array,
+    t0: float,
+    t: Array,
+    gyro: Array,
+    bg: Array,
+    gm: Array,
+    carry_dtheta: Array,
+    w_in: Array,
+) -> tuple[Array, Array, Array, Array, Array, Array]:
+    """Attitude propagation over a block, with the attitude-only sums of the block.
+
+    q0 (4,) q_nb at t0 (s); t (M,) sample times, s; gyro (M, 3) raw mean rates, rad/s,
+    base_link; bg (3,) rad/s and gm (3, 3): gyro bias and error matrix; carry_dtheta (3,) the
+    last angle increment of the previous block, rad; w_in (3,) omega_in^n, rad/s ENU, held over
+    the block.
+
+    Body increments dtheta = rate dt with the two-sample coning correction
+    rv = dtheta + before x dtheta / 12 are chained on the right of q0; the navigation-frame
+    rotation quat_from_rotvec(-(t - t0) w_in) is applied on the left.
+
+    Returns q (M, 4) q_nb at the samples; c (M + 1, 3, 3) C_nb at t0 and at the samples;
+    dtheta (M, 3) rad (uncorrected for coning); dt (M,) s; sum_c_dt (3, 3) sum of C_mid dt, s;
+    sum_c_w_dt (3, 9) sum of C_mid[:, i] dtheta_j, rad; C_mid = (C_prev + C) / 2.
+    """
+    m = t.shape[0]
+    rate = _corrected(gyro, bg, gm)
+    q = np.empty((m, 4))
+    c = np.empty((m + 1, 3, 3))
+    dtheta = np.empty((m, 3))
+    dt = np.empty(m)
+    sum_c_dt = np.zeros((3, 3))
+    sum_c_w_dt = np.zeros((3, 9))
+    _dcm_into((q0[0], q0[1], q0[2], q0[3]), c[0])
+    body = (q0[0], q0[1], q0[2], q0[3])
+    before = (carry_dtheta[0], carry_dtheta[1], carry_dtheta[2])
+    t_prev = t0
+    for k in range(m):
+        dt[k] = t[k] - t_prev
+        t_prev = t[k]
+        d = (rate[k, 0] * dt[k], rate[k, 1] * dt[k], rate[k, 2] * dt[k])
+        cone = _cross(before, d)
+        dq = _quat_from_rotvec(d[0] + cone[0] / 12.0, d[1] + cone[1] / 12.0, d[2] + cone[2] / 12.0)
+        body = _quat_mul(body, dq)
+        tau = t[k] - t0
+        nav = _quat_from_rotvec(-(tau * w_in[0]), -(tau * w_in[1]), -(tau * w_in[2]))
+        qk = _quat_mul(nav, body)
+        for a in range(4):
+            q[k, a] = qk[a]
+        for a in range(3):
+            dtheta[k, a] = d[a]
+        _dcm_into(qk, c[k + 1])
+        for a in range(3):
+            for i in range(3):
+                c_mid = 0.5 * (c[k + 1, a, i] + c[k, a, i])
+                sum_c_dt[a, i] += c_mid * dt[k]
+                for j in range(3):
+                    sum_c_w_dt[a, 3 * i + j] += c_mid * d[j]
+        before = d
+    return q, c, dtheta, dt, sum_c_dt, sum_c_w_dt
+
+
+@_kernel
+def _ins_kernel(
+    c: Array,
+    dtheta: Array,
+    dt: Array,
+    accel: Array,
+    ba: Array,
+    am: Array,
+    carry_dtheta: Array,
+    carry_dvel: Array,
+    vel0: Array,
+    g: Array,
+    w_cor: Array,
+) -> tuple[Array, Array, Array, Array, Array, float, Array]:
+    """Velocity and position integration of the INS over a block.
+
+    c (M + 1, 3, 3), dtheta (M, 3) rad and dt (M,) s from :func:`_attitude_kernel`; accel
+    (M, 3) raw mean specific force, m/s^2 base_link; ba (3,) m/s^2 and am (3, 3): accelerometer
+    bias and error matrix; carry_dtheta, carry_dvel (3,): the last increments of the previous
+    block (rad, m/s); vel0 (3,) m/s ENU at the block start; g (3,) normal gravity, m/s^2 ENU,
+    and w_cor (3,) = 2 omega_ie + omega_en, rad/s ENU, at the block start: gravity and the
+    Coriolis acceleration cor = g - w_cor x vel0 are held over the block.
+
+    Sculling: dv_b = dvel + dtheta x dvel / 2 + (th_before x dvel + dv_before x dtheta) / 12,
+    rotated to ENU with C_nb of the previous sample; velocity v_k = v0 + sum (C dv_b + cor dt),
+    position by the trapezoid rule.
+
+    Returns vel (M, 3) m/s ENU; p (M, 3) ENU displacement from the block start, m; dvel (M, 3)
+    specific-force increments, m/s base_link; dv_f (3,) sum of C_prev dv_b, m/s ENU; vel_b_dt
+    (3,) sum of C_mid^T v_mid dt, m; path (sum of |dp|, m); sum_c_f_dt (3, 9) sum of
+    C_prev[:, i] dvel_j, m/s.
+    """
+    m = dt.shape[0]
+    f = _corrected(accel, ba, am)
+    coriolis = _cross(w_cor, vel0)
+    cor = (g[0] - coriolis[0], g[1] - coriolis[1], g[2] - coriolis[2])
+    vel = np.empty((m, 3))
+    p = np.empty((m, 3))
+    dvel = np.empty((m, 3))
+    dv_f = np.zeros(3)
+    vel_b_dt = np.zeros(3)
+    sum_c_f_dt = np.zeros((3, 9))
+    path = 0.0
+    th_before = (carry_dtheta[0], carry_dtheta[1], carry_dtheta[2])
+    dv_before = (carry_dvel[0], carry_dvel[1], carry_dvel[2])
+    v_prev = (vel0[0], vel0[1], vel0[2])
+    dv_sum = (0.0, 0.0, 0.0)
+    pos = (0.0, 0.0, 0.0)
+    for k in range(m):
+        d = (dtheta[k, 0], dtheta[k, 1], dtheta[k, 2])
+        dv = (f[k, 0] * dt[k], f[k, 1] * dt[k], f[k, 2] * dt[k])
+        rot = _cross(d, dv)
+        s1 = _cross(th_before, dv)
+        s2 = _cross(dv_before, d)
+        dv_b = (
+            dv[0] + 0.5 * rot[0] + (s1[0] + s2[0]) / 12.0,
+            dv[1] + 0.5 * rot[1] + (s1[1] + s2[1]) / 12.0,
+            dv[2] + 0.5 * rot[2] + (s1[2] + s2[2]) / 12.0,
+        )
+        cp = c[k]
+        dv_n = (
+            cp[0, 0] * dv_b[0] + cp[0, 1] * dv_b[1] + cp[0, 2] * dv_b[2],
+            cp[1, 0] * dv_b[0] + cp[1, 1] * dv_b[1] + cp[1, 2] * dv_b[2],
+            cp[2, 0] * dv_b[0] + cp[2, 1] * dv_b[1] + cp[2, 2] * dv_b[2],
+        )
+        dv_sum = (
+            dv_sum[0] + (dv_n[0] + dt[k] * cor[0]),
+            dv_sum[1] + (dv_n[1] + dt[k] * cor[1]),
+            dv_sum[2] + (dv_n[2] + dt[k] * cor[2]),
+        )
+        v = (vel0[0] + dv_sum[0], vel0[1] + dv_sum[1], vel0[2] + dv_sum[2])
+        v_mid = (0.5 * (v_prev[0] + v[0]), 0.5 * (v_prev[1] + v[1]), 0.5 * (v_prev[2] + v[2]))
+        dp = (v_mid[0] * dt[k], v_mid[1] * dt[k], v_mid[2] * dt[k])
+        pos = (pos[0] + dp[0], pos[1] + dp[1], pos[2] + dp[2])
+        path += np.sqrt(dp[0] * dp[0] + dp[1] * dp[1] + dp[2] * dp[2])
+        for a in range(3):
+            vel[k, a] = v[a]
+            p[k, a] = pos[a]
+            dvel[k, a] = dv[a]
+            dv_f[a] += dv_n[a]
+        for i in range(3):
+            vb = 0.0
+            for a in range(3):
+                c_mid = 0.5 * (c[k + 1, a, i] + cp[a, i])
+                vb += c_mid * v_mid[a]
+                for j in range(3):
+                    sum_c_f_dt[a, 3 * i + j] += cp[a, i] * dv[j]
+            vel_b_dt[i] += vb * dt[k]
+        th_before = d
+        dv_before = dv
+        v_prev = v
+    return vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt
+
+
+@_kernel
+def _dr_kernel(
+    c: Array,
+    dtheta: Array,
+    dt: Array,
+    accel: Array,
+    ba: Array,
+    am: Array,
+    ds: Array,
+    scale: float,
+    lever_arm: Array,
+    u: Array,
+    du: Array,
+) -> tuple[Array, Array, Array, Array, float, float, Array, Array, Array]:
+    """Odometer dead-reckoning position over a block.
+
+    c (M + 1, 3, 3), dtheta (M, 3) rad and dt (M,) s from :func:`_attitude_kernel`; accel
+    (M, 3) raw mean specific force, m/s^2 base_link; ba (3,) m/s^2 and am (3, 3): accelerometer
+    bias and error matrix; ds (M,) raw odometer distance increments, m; scale = 1 + k;
+    lever_arm (3,) m, wheel contact point in base_link; u (3,) odometer axis in base_link and
+    du (3, 2) its derivative with respect to the boresight (yaw, pitch).
+
+    The distance along the axis, ds_c = scale ds - (dtheta x lever_arm)_x, is laid along
+    C_mid u (C_mid = (C_prev + C) / 2).
+
+    Returns vel (M, 3) m/s ENU (dp / dt); p (M, 3) ENU displacement from the block start, m;
+    dvel (M, 3) specific-force increments f dt, m/s base_link; dv_f (3,) sum of C_mid f dt, m/s
+    ENU; ds_c_sum (m); path (sum of |ds_c|, m); dp_dk (3,) sum of C_mid u ds, m; dp_dbore (3, 2)
+    scale * sum of C_mid du ds, m/rad; sum_c_f_dt (3, 9) sum of C_mid[:, i] f_j dt, m/s.
+    """
+    m = dt.shape[0]
+    f = _corrected(accel, ba, am)
+    vel = np.empty((m, 3))
+    p = np.empty((m, 3))
+    dvel = np.empty((m, 3))
+    dv_f = np.zeros(3)
+    dp_dk = np.zeros(3)
+    c_ds = np.zeros((3, 3))
+    sum_c_f_dt = np.zeros((3, 9))
+    ds_c_sum = 0.0
+    path = 0.0
+    c_mid = np.empty((3, 3))
+    pos = np.zeros(3)
+    for k in range(m):
+        lever_x = dtheta[k, 1] * lever_arm[2] - dtheta[k, 2] * lever_arm[1]  # (omega x d)_x dt
+        ds_c = scale * ds[k] - lever_x
+        ds_c_sum += ds_c
+        path += abs(ds_c)
+        fk = (f[k, 0], f[k, 1], f[k, 2])
+        for a in range(3):
+            dvel[k, a] = fk[a] * dt[k]
+        for a in range(3):
+            for i in range(3):
+                c_mid[a, i] = 0.5 * (c[k + 1, a, i] + c[k, a, i])
+            cu = c_mid[a, 0] * u[0] + c_mid[a, 1] * u[1] + c_mid[a, 2] * u[2]
+            cf = c_mid[a, 0] * fk[0] + c_mid[a, 1] * fk[1] + c_mid[a, 2] * fk[2]
+            dp = cu * ds_c
+            pos[a] += dp
+            p[k, a] = pos[a]
+            vel[k, a] = dp / dt[k]
+            dp_dk[a] += cu * ds[k]
+            dv_f[a] += cf * dt[k]
+            for i in range(3):
+                c_ds[a, i] += c_mid[a, i] * ds[k]
+                for j in range(3):
+                    sum_c_f_dt[a, 3 * i + j] += c_mid[a, i] * dvel[k, j]
+    dp_dbore = scale * (c_ds @ du)
+    return vel, p, dvel, dv_f, ds_c_sum, path, dp_dk, dp_dbore, sum_c_f_dt
+
+
+def _f64(a: Array) -> Array:
+    """a as a C-contiguous float64 array (no copy when it already is one): one kernel
+    specialization serves every caller."""
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _geodetic(s: NavState, p: Array) -> tuple[Array, Array, Array]:
+    """Latitude, longitude (rad) and height (m) at ENU displacements p (M, 3) from s."""
+    dlat, dlon, dh = earth.enu_to_geodetic_increment(p, s.lat, s.h)
+    return s.lat + dlat, s.lon + dlon, s.h + dh
 
 
 def ins_block(
     s: NavState, t: Array, gyro: Array, accel: Array, carry: Carry, earth_sign: float = 1.0
 ) -> tuple[NavState, BlockResult, Carry]:
-    """Integrate the INS over samples (t, gyro, accel) from state s; returns the new state."""
+    """Integrate the strapdown INS over one block of IMU samples from state s.
+
+    t: (M,) sample times, s (after s.t); gyro: (M, 3) mean angular rates, rad/s base_link;
+    accel: (M, 3) mean specific forces, m/s^2 base_link; carry: the last increments of the
+    previous block; earth_sign: -1 for time-reversed data. Returns the state at t[-1], the
+    per-sample trajectory and block sums, and the carry for the next block.
+    """
+    t = _f64(t)
     w_ie = earth_sign * earth.earth_rate_n(s.lat)
     w_en = earth.transport_rate_n(s.lat, s.h, s.vel_n)
     w_in = w_ie + w_en
-    q, q_prev, dtheta, dt = _attitudes(s, t, gyro, carry, w_in)
-    dvel = _specific_force(s, accel) * dt[:, None]
-    th_before = np.vstack([carry.dtheta[None, :], dtheta[:-1]])
-    dv_before = np.vstack([carry.dvel[None, :], dvel[:-1]])
-    dv_b = (
-        dvel
-        + 0.5 * _cross(dtheta, dvel)
-        + (_cross(th_before, dvel) + _cross(dv_before, dtheta)) / 12.0
+    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
+        s.q_nb, float(s.t), t, _f64(gyro), s.bg, s.gm, carry.dtheta, w_in
     )
-    c_all = _dcm(np.vstack([s.q_nb[None, :], q]))
-    c_prev, c = c_all[:-1], c_all[1:]
-    dv_f_n = np.einsum("mij,mj->mi", c_prev, dv_b)
     g = earth.gravity_n(s.lat, s.h)
-    cor = g - np.cross(2.0 * w_ie + w_en, s.vel_n)
-    vel = s.vel_n + np.cumsum(dv_f_n + np.outer(dt, cor), axis=0)
-    vel_prev = np.vstack([s.vel_n[None, :], vel[:-1]])
-    dp_i = 0.5 * (vel_prev + vel) * dt[:, None]
-    p = np.cumsum(dp_i, axis=0)
-    dlat, dlon, dh = earth.enu_to_geodetic_increment(p, s.lat, s.h)
-    lat, lon, h = s.lat + dlat, s.lon + dlon, s.h + dh
+    w_cor = 2.0 * w_ie + w_en
+    vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt = _ins_kernel(
+        c, dtheta, dt, _f64(accel), s.ba, s.am, carry.dtheta, carry.dvel, s.vel_n, g, w_cor
+    )
+    lat, lon, h = _geodetic(s, p)
     T = float(t[-1] - s.t)
-    c_mid = 0.5 * (c + c_prev)
-    sum_c_dt = np.einsum("mij,m->ij", c_mid, dt)
-    vel_mid = 0.5 * (vel_prev + vel)
-    mean_vel_b = np.einsum("mji,mj,m->i", c_mid, vel_mid, dt) / T
-    dv_f = dv_f_n.sum(axis=0)
     new = s.copy()
     new.t = float(t[-1])
     new.odoq = np.array([s.odoq[1], 0.0])  # the end of this epoch starts the next one
@@ -191,23 +469,15 @@ def ins_block(
         dp=p[-1].copy(),
         omega_b=dtheta.sum(axis=0) / T,
         f_mean_n=dv_f / T,
-        mean_vel_b=mean_vel_b,
+        mean_vel_b=vel_b_dt / T,
         w_in=w_in,
         dp_dk=np.zeros(3),
         dp_dbore=np.zeros((3, 2)),
-        path=float(np.abs(np.linalg.norm(dp_i, axis=1)).sum()),
-        sum_c_w_dt=np.einsum("kai,kj->aij", c_mid, dtheta).reshape(3, 9),
-        sum_c_f_dt=np.einsum("kai,kj->aij", c_prev, dvel).reshape(3, 9),
+        path=float(path),
+        sum_c_w_dt=sum_c_w_dt,
+        sum_c_f_dt=sum_c_f_dt,
     )
     return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())
-
-
-def _specific_force(s: NavState, accel: Array) -> Array:
-    """Specific force (M, 3) m/s^2 from raw accelerometer samples: (I + N)^-1 (accel - ba)."""
-    f = accel - s.ba
-    if np.any(s.am):
-        f = np.linalg.solve(np.eye(3) + s.am, f.T).T
-    return f
 
 
 def dr_block(
@@ -220,30 +490,27 @@ def dr_block(
     lever_arm: Array,
     earth_sign: float = 1.0,
 ) -> tuple[NavState, BlockResult, Carry]:
-    """Odometer dead reckoning over one block.
+    """Odometer dead reckoning over one block of IMU samples from state s.
 
-    ds: (M,) raw odometer distance over each sample interval, m (wall contact point).
-    lever_arm: (3,) m, wheel contact point in base_link; its rotation-induced motion is removed.
+    t: (M,) sample times, s (after s.t); gyro: (M, 3) mean angular rates, rad/s base_link;
+    accel: (M, 3) mean specific forces, m/s^2 base_link (for the filter's sums only);
+    ds: (M,) raw odometer distance over each sample interval, m (wall contact point);
+    carry: the last increments of the previous block; lever_arm: (3,) m, wheel contact point
+    in base_link, its rotation-induced motion is removed; earth_sign: -1 for time-reversed
+    data. Returns the state at t[-1], the per-sample trajectory and block sums, and the carry.
     """
+    t = _f64(t)
     w_ie = earth_sign * earth.earth_rate_n(s.lat)
-    vel_guess = s.vel_n
-    w_in = w_ie + earth.transport_rate_n(s.lat, s.h, vel_guess)
-    q, q_prev, dtheta, dt = _attitudes(s, t, gyro, carry, w_in)
+    w_in = w_ie + earth.transport_rate_n(s.lat, s.h, s.vel_n)
+    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
+        s.q_nb, float(s.t), t, _f64(gyro), s.bg, s.gm, carry.dtheta, w_in
+    )
     u, du = odometer_axis(s.bore)
-    lever_x = dtheta[:, 1] * lever_arm[2] - dtheta[:, 2] * lever_arm[1]  # (omega x d)_x dt
-    ds_c = (1.0 + s.k) * ds - lever_x
-    c_all = _dcm(np.vstack([s.q_nb[None, :], q]))
-    c_prev, c = c_all[:-1], c_all[1:]
-    c_mid = 0.5 * (c + c_prev)
-    cu = c_mid @ u  # (M, 3) odometer axis in ENU
-    dp_i = cu * ds_c[:, None]
-    p = np.cumsum(dp_i, axis=0)
-    dlat, dlon, dh = earth.enu_to_geodetic_increment(p, s.lat, s.h)
-    lat, lon, h = s.lat + dlat, s.lon + dlon, s.h + dh
+    vel, p, dvel, dv_f, ds_c_sum, path, dp_dk, dp_dbore, sum_c_f_dt = _dr_kernel(
+        c, dtheta, dt, _f64(accel), s.ba, s.am, _f64(ds), 1.0 + float(s.k), _f64(lever_arm), u, du
+    )
+    lat, lon, h = _geodetic(s, p)
     T = float(t[-1] - s.t)
-    vel = dp_i / dt[:, None]
-    f_b = _specific_force(s, accel)
-    dv_f_n = np.einsum("mij,mj->mi", c_mid, f_b) * dt[:, None]
     new = s.copy()
     new.t = float(t[-1])
     new.q_nb = att.quat_normalize(q[-1])
@@ -257,18 +524,17 @@ def dr_block(
         h=h,
         vel_n=vel,
         T=T,
-        sum_c_dt=np.einsum("mij,m->ij", c_mid, dt),
-        dv_f=dv_f_n.sum(axis=0),
+        sum_c_dt=sum_c_dt,
+        dv_f=dv_f,
         dp=p[-1].copy(),
         omega_b=dtheta.sum(axis=0) / T,
-        f_mean_n=dv_f_n.sum(axis=0) / T,
-        mean_vel_b=u * (ds_c.sum() / T),
+        f_mean_n=dv_f / T,
+        mean_vel_b=u * (ds_c_sum / T),
         w_in=w_in,
-        dp_dk=(cu * ds[:, None]).sum(axis=0),
-        dp_dbore=(1.0 + s.k) * np.einsum("mij,jk,m->ik", c_mid, du, ds),
-        path=float(np.abs(ds_c).sum()),
-        sum_c_w_dt=np.einsum("kai,kj->aij", c_mid, dtheta).reshape(3, 9),
-        sum_c_f_dt=np.einsum("kai,kj->aij", c_mid, f_b * dt[:, None]).reshape(3, 9),
+        dp_dk=dp_dk,
+        dp_dbore=dp_dbore,
+        path=float(path),
+        sum_c_w_dt=sum_c_w_dt,
+        sum_c_f_dt=sum_c_f_dt,
     )
-    dvel = f_b * dt[:, None]
     return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())

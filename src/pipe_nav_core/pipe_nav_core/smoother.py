@@ -8,7 +8,8 @@ Methods (``method``):
   (seed 001 RTS-FC, seed 004).
 
 Passes:
-1. the live filter (what the live node computes; ``forward`` of the result unless 2.);
+1. the live filter (what the live node computes; ``forward`` of the result unless 2.; with
+   the heading from the markers it runs only up to the second marker, which is all 2. needs);
 2. with the heading from the markers, the initial heading is found by odometer dead
    reckoning up to the second marker, re-anchored until it no longer turns
    (:func:`anchored_config`), and a filter pass starts from it (``forward`` of the result);
@@ -33,7 +34,7 @@ from numpy.typing import NDArray
 
 from . import attitude as att
 from . import earth
-from .config import NavConfig
+from .config import NOISE_EPOCH_S, NavConfig
 from .engine import Navigator, Recording
 from .smoothing import fuse_covariance, rts
 from .state import Layout, NavState, layout_for
@@ -196,9 +197,10 @@ def smooth_log(
 ) -> SmoothResult:
     """Smooth a whole time-sorted log (IMU in imu_link as recorded) and return the centreline.
 
-    Passes (see the module docstring): the live filter; with the heading from the markers, a
-    filter pass from the dead-reckoned initial heading (its estimates are then ``forward``,
-    otherwise the live filter's); then up to ``iterations`` smoothing passes, each linearized
+    Passes (see the module docstring): with the heading from the markers, the live filter up
+    to the second marker and the search for the dead-reckoned initial heading; a filter pass
+    over the whole log (from that heading, else the live filter: its estimates are
+    ``forward``); then up to ``iterations`` smoothing passes, each linearized
     about the previous smoothed trajectory (Gauss-Newton), until the step is below
     CONVERGED_POS_M and CONVERGED_RAD and the excluded odometer epochs do not change.
     """
@@ -209,15 +211,20 @@ def smooth_log(
     say = progress or (lambda _msg: None)
     layout = layout_for(config)
     markers = markers_sorted(log.markers)
-    say("forward filter")
-    live = run_forward(log, config)
-    assert live.recording is not None
-    forward = _forward_trajectory(live.recording, layout)
-    datum = live.datum or Datum(
-        live.recording.states[0].lat, live.recording.states[0].lon, live.recording.states[0].h
-    )
+    cfg = config
+    if method != "forward" and config.heading_source == "markers" and len(markers) >= 2:
+        # the live filter up to the second marker is all the re-anchoring needs
+        say("forward filter up to the second marker")
+        head = run_forward(_truncate(log, markers[1].t + 1.0), config)
+        cfg = anchored_config(log, config, head, say)
+    say("forward filter" if cfg is config else "forward filter (re-anchored heading)")
+    nav = run_forward(log, cfg)
+    assert nav.recording is not None
+    forward = _forward_trajectory(nav.recording, layout)
+    first = nav.recording.states[0]
+    datum = nav.datum or Datum(first.lat, first.lon, first.h)
     if method == "forward":
-        rec = live.recording
+        rec = nav.recording
         e = np.zeros((len(rec.t), layout.n))
         centre = _centreline(rec, e, np.asarray(rec.P_upd), layout)
         result = SmoothResult(
@@ -226,18 +233,11 @@ def smooth_log(
             datum,
             markers,
             marker_residuals(centre, markers),
-            final_state=live.state,
+            final_state=nav.state,
         )
-        result.summary = summarize(result, live)
+        result.summary = summarize(result, nav)
         result.summary.update(passes=1, passes_run=1)
         return result
-    cfg = anchored_config(log, config, live, say)
-    nav = live
-    if cfg is not config:
-        say("forward filter (re-anchored heading)")
-        nav = run_forward(log, cfg)
-        assert nav.recording is not None
-        forward = _forward_trajectory(nav.recording, layout)
     exclude: Array | None = None
     reference: list[NavState] | None = None
     best: tuple[int, SmoothResult] | None = None
@@ -386,7 +386,8 @@ def find_slips(
     odo = np.bincount(k, weights=d_odo, minlength=n_ep) * scale
     t = np.asarray(rec.t)
     T = np.diff(t, prepend=t[:1])
-    sigma = np.sqrt((config.odometer_speed_sigma * T) ** 2 + resolution**2 / 6.0)
+    white = config.odometer_speed_sigma * np.sqrt(NOISE_EPOCH_S * T)  # sigma_T * T
+    sigma = np.sqrt(white**2 + resolution**2 / 6.0)
     bad = np.abs(np.abs(odo) - path) > n_sigma * np.maximum(sigma, 1e-9)
     bad[0] = False
     bad = bad | np.r_[bad[1:], False] | np.r_[False, bad[:-1]]
