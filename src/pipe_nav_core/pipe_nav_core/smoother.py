@@ -226,7 +226,7 @@ def smooth_log(
     if method == "forward":
         rec = nav.recording
         e = np.zeros((len(rec.t), layout.n))
-        centre = _centreline(rec, e, np.asarray(rec.P_upd), layout)
+        centre = _centreline(rec, e, _variances(rec.P_upd), layout)
         result = SmoothResult(
             centre,
             forward,
@@ -247,11 +247,11 @@ def smooth_log(
         assert rec is not None
         if method == "rts":
             say(f"RTS smoother (pass {it + 1})")
-            e, P_s = rts(rec.P_upd, rec.P_pred, rec.phi, rec.dx)
+            e, var = rts(rec.P_upd, rec.P_pred, rec.phi, rec.dx, full=False)
         else:
             say(f"backward filter (pass {it + 1})")
-            e, P_s = _two_filter(log, cfg, rec, layout, exclude)
-        centre = _centreline(rec, e, P_s, layout)
+            e, var = _two_filter(log, cfg, rec, layout, exclude)
+        centre = _centreline(rec, e, var, layout)
         result = SmoothResult(
             centre,
             forward,
@@ -286,6 +286,8 @@ def smooth_log(
             break
         reference = smoothed_states(rec, e, layout)
         exclude = new_exclude
+        nav.recording = None  # free this pass's recording before the next one is made
+        del rec, e, var
         say(f"forward filter about the smoothed trajectory (pass {it + 2})")
         nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude)
     assert best is not None
@@ -408,7 +410,7 @@ def _two_filter(
     The backward filter starts at the receive trap with the forward estimate's azimuth there as
     its initial heading (with the configured sigma: a prior, not the forward's information)
     and leaves out the same odometer epochs. Returns the corrections to the forward estimates
-    and the fused covariances.
+    and the variances (K, n) of the fused covariances.
     """
     t_f = np.asarray(rec.t)
     _, _, az_end = att.euler_from_dcm(rec.states[-1].c_nb)
@@ -422,7 +424,7 @@ def _two_filter(
     t_b = -np.asarray(rb.t)
     flip = _flip(layout)
     e = np.zeros((len(t_f), layout.n))
-    P_s = np.array(rec.P_upd)
+    var = _variances(rec.P_upd)
     j_of = {round(tb * 1e6): j for j, tb in enumerate(t_b)}
     for k, tk in enumerate(t_f):
         j = j_of.get(round(tk * 1e6))
@@ -439,14 +441,21 @@ def _two_filter(
         d = xb.difference(rec.states[k], layout)
         if layout.odoq is not None:
             d[layout.odoq.start] = 0.0
-        e[k], P_s[k] = fuse_covariance(np.zeros(layout.n), rec.P_upd[k], d, Pb)
-    return e, P_s
+        e[k], P_k = fuse_covariance(np.zeros(layout.n), rec.P_upd[k], d, Pb)
+        var[k] = np.diag(P_k)
+    return e, var
 
 
-def _centreline(rec: Recording, e: Array, P_s: Array, layout: Layout) -> Trajectory:
+def _variances(P: list[Array]) -> Array:
+    """The diagonals (K, n) of K covariance matrices, without stacking them."""
+    return np.array([p.diagonal() for p in P])
+
+
+def _centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Trajectory:
     """Apply the smoothed corrections to the per-sample nominal trajectory.
 
-    e (K, n): smoothed corrections to the filter's estimates; the correction relative to the
+    e (K, n): smoothed corrections to the filter's estimates, var (K, n) their variances; the
+    correction relative to the
     linearization point of epoch k is x_upd[k] + e[k]; a block's nominal starts on lin[k - 1]
     and ends end_offset[k] short of lin[k]; in between the correction is interpolated in time.
     """
@@ -465,7 +474,6 @@ def _centreline(rec: Recording, e: Array, P_s: Array, layout: Layout) -> Traject
     q = att.quat_normalize(
         att.quat_mul(att.quat_from_rotvec(corr[:, layout.att]), np.concatenate(rec.s_q))
     )
-    var = np.einsum("kii->ki", P_s)
     var_s = (1.0 - frac)[:, None] * var[k - 1] + frac[:, None] * var[k]
     sig_p = np.sqrt(np.maximum(var_s[:, layout.pos], 0.0))
     sig_a = np.sqrt(np.maximum(var_s[:, layout.att], 0.0))
@@ -481,8 +489,7 @@ def _centreline(rec: Recording, e: Array, P_s: Array, layout: Layout) -> Traject
 
 def _forward_trajectory(rec: Recording, layout: Layout) -> Trajectory:
     st = rec.states
-    P = np.asarray(rec.P_upd)
-    var = np.einsum("kii->ki", P)
+    var = _variances(rec.P_upd)
     return Trajectory(
         t=np.asarray(rec.t),
         lat=np.array([s.lat for s in st]),

@@ -22,19 +22,30 @@ Array = NDArray[np.float64]
 
 
 def rts(
-    P_upd: Sequence[Array], P_pred: Sequence[Array], phi: Sequence[Array], dx: Sequence[Array]
+    P_upd: Sequence[Array],
+    P_pred: Sequence[Array],
+    phi: Sequence[Array],
+    dx: Sequence[Array],
+    *,
+    full: bool = True,
 ) -> tuple[Array, Array]:
     """Error-state RTS smoother.
 
     Epoch k has the updated covariance P_upd[k], and (for k >= 1) the predicted covariance
     P_pred[k], the transition phi[k] from k-1 to k, and dx[k] = x_upd[k] (-) x_pred[k].
-    Returns e (K, n): the smoothed correction to x_upd[k], and P_s (K, n, n).
+    Returns e (K, n): the smoothed correction to x_upd[k], and the smoothed covariances
+    P_s (K, n, n), or with full=False only their diagonals (K, n) (the variances, in the
+    error state's units; a long run's K full covariances take gigabytes).
     """
     K = len(P_upd)
     n = P_upd[0].shape[0]
     e = np.zeros((K, n))
-    P_s = np.empty((K, n, n))
-    P_s[-1] = P_upd[-1]
+    P_s = np.empty((K, n, n)) if full else None
+    var = np.empty((K, n))
+    P_next = P_upd[-1]
+    var[-1] = np.diag(P_next)
+    if P_s is not None:
+        P_s[-1] = P_next
     for k in range(K - 2, -1, -1):
         Pp = P_pred[k + 1]
         try:
@@ -42,9 +53,12 @@ def rts(
         except np.linalg.LinAlgError:
             G = np.linalg.lstsq(Pp, phi[k + 1] @ P_upd[k], rcond=None)[0].T
         e[k] = G @ (e[k + 1] + dx[k + 1])
-        Ps = P_upd[k] + G @ (P_s[k + 1] - Pp) @ G.T
-        P_s[k] = 0.5 * (Ps + Ps.T)
-    return e, P_s
+        Ps = P_upd[k] + G @ (P_next - Pp) @ G.T
+        P_next = 0.5 * (Ps + Ps.T)
+        var[k] = np.diag(P_next)
+        if P_s is not None:
+            P_s[k] = P_next
+    return e, (P_s if P_s is not None else var)
 
 
 def backward_information(
