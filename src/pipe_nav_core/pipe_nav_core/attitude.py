@@ -1,11 +1,14 @@
 """Rotations: quaternions (scalar-last [x, y, z, w]), rotation vectors, direction cosine matrices.
 
 ``q_nb`` / ``C_nb`` rotate base_link (FLU) vectors into ENU. All functions are vectorized over
-leading axes. Angles are radians. People-facing attitude (roll, pitch positive nose up, azimuth
+leading axes (a single quaternion or vector takes a scalar ``math`` path: the filter calls them
+once per epoch). Angles are radians. People-facing attitude (roll, pitch positive nose up, azimuth
 clockwise from true north) is produced by :func:`euler_from_dcm`; the CLI converts to degrees.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,6 +34,17 @@ def quat_mul(p: ArrayLike, q: ArrayLike) -> Array:
     """Hamilton product p * q of scalar-last quaternions (rotation q first, then p)."""
     p = np.asarray(p, dtype=np.float64)
     q = np.asarray(q, dtype=np.float64)
+    if p.ndim == 1 and q.ndim == 1:
+        px, py, pz, pw = p.tolist()
+        qx, qy, qz, qw = q.tolist()
+        return np.array(
+            [
+                pw * qx + px * qw + py * qz - pz * qy,
+                pw * qy - px * qz + py * qw + pz * qx,
+                pw * qz + px * qy - py * qx + pz * qw,
+                pw * qw - px * qx - py * qy - pz * qz,
+            ]
+        )
     px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return np.stack(
@@ -54,6 +68,12 @@ def quat_conj(q: ArrayLike) -> Array:
 def quat_normalize(q: ArrayLike) -> Array:
     """Unit quaternion with non-negative scalar part."""
     q = np.asarray(q, dtype=np.float64)
+    if q.ndim == 1:
+        x, y, z, w = q.tolist()
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        if w < 0.0:
+            norm = -norm
+        return np.array([x / norm, y / norm, z / norm, w / norm])
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., 3:4] < 0.0, -q, q)
 
@@ -61,6 +81,15 @@ def quat_normalize(q: ArrayLike) -> Array:
 def quat_from_rotvec(rv: ArrayLike) -> Array:
     """Quaternion of the rotation vector rv (rad), exact, with a series near zero."""
     rv = np.asarray(rv, dtype=np.float64)
+    if rv.ndim == 1:
+        x, y, z = rv.tolist()
+        th2 = x * x + y * y + z * z
+        th = math.sqrt(th2)
+        if th < 1e-6:
+            k, w = 0.5 - th2 / 48.0, 1.0 - th2 / 8.0
+        else:
+            k, w = math.sin(0.5 * th) / th, math.cos(0.5 * th)
+        return np.array([x * k, y * k, z * k, w])
     th2 = np.sum(rv * rv, axis=-1, keepdims=True)
     th = np.sqrt(th2)
     small = th < 1e-6
@@ -73,6 +102,11 @@ def quat_from_rotvec(rv: ArrayLike) -> Array:
 def rotvec_from_quat(q: ArrayLike) -> Array:
     """Rotation vector (rad) of a unit quaternion, angle in [0, pi]."""
     q = quat_normalize(q)
+    if q.ndim == 1:
+        x, y, z, w = q.tolist()
+        s = math.sqrt(x * x + y * y + z * z)
+        k = 2.0 if s < 1e-9 else 2.0 * math.atan2(s, w) / s
+        return np.array([x * k, y * k, z * k])
     s = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
     ang = 2.0 * np.arctan2(s, q[..., 3:4])
     small = s < 1e-9

@@ -1,10 +1,13 @@
 """WGS84 Earth model: radii, normal gravity, Earth and transport rates, coordinate conversions.
 
 Navigation frame n is local East-North-Up. Latitude and longitude in radians, heights in metres
-above the WGS84 ellipsoid. Functions accept scalars or numpy arrays (broadcasting).
+above the WGS84 ellipsoid. Functions accept scalars or numpy arrays (broadcasting); a float
+latitude (and height) takes a scalar ``math`` path, as the filter calls them once per epoch.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pymap3d
@@ -26,8 +29,12 @@ Array = NDArray[np.float64]
 
 def radii(lat: ArrayLike) -> tuple[Array, Array]:
     """Meridian radius R_M and prime-vertical radius R_N (m) at geodetic latitude lat (rad)."""
-    s2 = np.sin(lat) ** 2
-    w = np.sqrt(1.0 - E2 * s2)
+    if isinstance(lat, float):
+        sin_lat = math.sin(lat)
+        w = math.sqrt(1.0 - E2 * (sin_lat * sin_lat))
+    else:
+        s2 = np.sin(lat) ** 2
+        w = np.sqrt(1.0 - E2 * s2)
     rn = A / w
     rm = A * (1.0 - E2) / w**3
     return rm, rn
@@ -36,6 +43,11 @@ def radii(lat: ArrayLike) -> tuple[Array, Array]:
 def gravity(lat: ArrayLike, h: ArrayLike) -> Array:
     """Magnitude of normal gravity (m/s^2) at latitude lat (rad) and height h (m) (Somigliana
     with the second-order free-air correction). Gravity points down (-U) in ENU."""
+    if isinstance(lat, float) and isinstance(h, float):
+        sin_lat = math.sin(lat)
+        s2 = sin_lat * sin_lat
+        g0 = GAMMA_E * (1.0 + GAMMA_K * s2) / math.sqrt(1.0 - E2 * s2)
+        return g0 * (1.0 - 2.0 / A * (1.0 + F + M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * (h * h))
     s2 = np.sin(lat) ** 2
     g0 = GAMMA_E * (1.0 + GAMMA_K * s2) / np.sqrt(1.0 - E2 * s2)
     h = np.asarray(h, dtype=np.float64)
@@ -45,12 +57,16 @@ def gravity(lat: ArrayLike, h: ArrayLike) -> Array:
 def gravity_n(lat: ArrayLike, h: ArrayLike) -> Array:
     """Normal gravity vector in ENU (m/s^2), shape (..., 3)."""
     g = gravity(lat, h)
+    if isinstance(g, float):
+        return np.array([0.0, 0.0, -g])
     z = np.zeros_like(g)
     return np.stack([z, z, -g], axis=-1)
 
 
 def earth_rate_n(lat: ArrayLike) -> Array:
     """Earth rotation rate omega_ie in ENU (rad/s), shape (..., 3)."""
+    if isinstance(lat, float):
+        return np.array([0.0, OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)])
     lat = np.asarray(lat, dtype=np.float64)
     return np.stack([np.zeros_like(lat), OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat)], axis=-1)
 
@@ -59,6 +75,9 @@ def transport_rate_n(lat: ArrayLike, h: ArrayLike, vel_n: ArrayLike) -> Array:
     """Transport rate omega_en in ENU (rad/s) for ENU velocity vel_n (m/s), shape (..., 3)."""
     v = np.asarray(vel_n, dtype=np.float64)
     rm, rn = radii(lat)
+    if isinstance(lat, float) and isinstance(h, float) and v.ndim == 1:
+        ve, vn = float(v[0]), float(v[1])
+        return np.array([-vn / (rm + h), ve / (rn + h), ve * math.tan(lat) / (rn + h)])
     ve, vn = v[..., 0], v[..., 1]
     return np.stack([-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)], axis=-1)
 
@@ -69,6 +88,9 @@ def enu_to_geodetic_increment(
     """Small ENU displacement (m) -> (dlat rad, dlon rad, dh m) at latitude lat, height h."""
     d = np.asarray(d_enu, dtype=np.float64)
     rm, rn = radii(lat)
+    if isinstance(lat, float) and isinstance(h, float) and d.ndim == 1:
+        e, n, u = d.tolist()
+        return n / (rm + h), e / ((rn + h) * math.cos(lat)), u
     return d[..., 1] / (rm + h), d[..., 0] / ((rn + h) * np.cos(lat)), d[..., 2]
 
 

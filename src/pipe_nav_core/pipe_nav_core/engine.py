@@ -154,6 +154,9 @@ class Navigator:
         config.validate()
         self.cfg = config
         self.layout = layout_for(config)
+        pose = [*range(self.layout.pos.start, self.layout.pos.stop)]
+        pose += range(self.layout.att.start, self.layout.att.stop)
+        self._pose_ix = np.ix_(pose, pose)  # [position, attitude] rows/columns of P
         self.imu_spec = config.imu_spec()
         self.r_base_imu = mount_rotation(config.imu_mount_rpy)
         self.earth_sign = -1.0 if reverse else 1.0
@@ -371,13 +374,14 @@ class Navigator:
         batching of the input)."""
         if self.cfg.odometer_resolution <= 0.0:
             o = self._odo
-            sel = (o.t > self._odo_learnt_t) & (o.t <= t_now)
-            if sel.any():
-                dist = o.distance[sel]
-                prev = [] if self._odo_last is None else [self._odo_last]
-                d = np.abs(np.diff(np.r_[prev, dist]))
+            i0 = int(np.searchsorted(o.t, self._odo_learnt_t, side="right"))
+            i1 = int(np.searchsorted(o.t, t_now, side="right"))
+            if i1 > i0:
+                dist = o.distance[i0:i1]
+                prev = self._odo_last
+                d = np.abs(np.diff(dist) if prev is None else _increments(prev, dist))
                 self._odo_last = float(dist[-1])
-                self._odo_learnt_t = float(o.t[sel][-1])
+                self._odo_learnt_t = float(o.t[i1 - 1])
                 steps = d[d > 1e-9]
                 if len(steps):
                     q = float(steps.min())
@@ -605,7 +609,7 @@ class Navigator:
         if not has_odo:
             self._counts["epochs_without_odometer"] += 1
         s_odo = self._odometer_at(t) if has_odo else np.full(len(t), self._s_epoch_start)
-        ds = np.diff(np.r_[self._s_epoch_start, s_odo])
+        ds = _increments(self._s_epoch_start, s_odo)
         if lay.has_vel:
             s1, blk, carry = ins_block(s0, t, g, a, self._carry, self.earth_sign)
         else:
@@ -615,7 +619,8 @@ class Navigator:
         w_yz = float(np.hypot(blk.omega_b[1], blk.omega_b[2]))
         lever_known = bool(np.any(self.lever_arm))
         bend_sigma = 0.0 if lever_known else 0.5 * cfg.pipe_diameter * w_yz * T
-        gyro_mean = np.average(g, axis=0, weights=np.diff(np.r_[s0.t, t]))
+        w_dt = _increments(s0.t, t)
+        gyro_mean = (g * w_dt[:, None]).sum(axis=0) / w_dt.sum()  # time-weighted, rad/s
         stopped = (
             has_odo
             and abs(speed) < cfg.stop_speed_threshold
@@ -861,8 +866,7 @@ class Navigator:
     def _emit(self, status: str = "static", omega: Array | None = None) -> None:
         s, kf, lay = self.state, self.kf, self.layout
         assert s is not None and kf is not None
-        idx = np.r_[np.arange(lay.pos.start, lay.pos.stop), np.arange(lay.att.start, lay.att.stop)]
-        cov_pose = kf.P[np.ix_(idx, idx)].copy()
+        cov_pose = kf.P[self._pose_ix]
         cov_vel = (
             kf.P[lay.vel, lay.vel].copy()
             if lay.vel is not None
@@ -917,6 +921,15 @@ class Navigator:
             rec.s_h.append(blk.h.copy())
             rec.s_q.append(blk.q_nb.copy())
             rec.s_epoch.append(np.full(len(blk.t), k))
+
+
+def _increments(x0: float, x: Array) -> Array:
+    """x[i] - x[i - 1] for every i, with x[-1] = x0 (np.diff with prepend, without its
+    overhead on the short per-epoch arrays)."""
+    before = np.empty_like(x)
+    before[0] = x0
+    before[1:] = x[:-1]
+    return x - before
 
 
 def _last_stamp(log: SensorLog) -> float:

@@ -35,7 +35,7 @@ class Measurement:
 
     def rows(self, idx: list[int], name: str) -> Measurement:
         """The measurement restricted to some of its components, renamed."""
-        return Measurement(name, self.residual[idx], self.H[idx], self.R[np.ix_(idx, idx)])
+        return Measurement(name, self.residual[idx], self.H[idx], self.R[idx][:, idx])
 
 
 def odometer_velocity(

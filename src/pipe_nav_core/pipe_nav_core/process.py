@@ -8,6 +8,8 @@ matrix. Error-state conventions: :mod:`pipe_nav_core.state`.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -48,13 +50,15 @@ def integrated_system_matrix(
     T = blk.T
     a, p = layout.att, layout.pos
     sum_c_w_dt, sum_c_f_dt = blk.sum_c_w_dt, blk.sum_c_f_dt
+    g = earth.gravity(s.lat, s.h)
+    w_ie = earth_sign * earth.earth_rate_n(s.lat)
     if dv_f is None:
-        dv_f = np.array([0.0, 0.0, earth.gravity(s.lat, s.h) * T]) if at_rest else blk.dv_f
+        dv_f = np.array([0.0, 0.0, g * T]) if at_rest else blk.dv_f
     if at_rest:
         c = s.c_nb
-        w_b = c.T @ (earth_sign * earth.earth_rate_n(s.lat))
+        w_b = c.T @ w_ie
         sum_c_w_dt = np.einsum("ai,j->aij", c, w_b * T).reshape(3, 9)
-        f_b = c.T @ np.array([0.0, 0.0, earth.gravity(s.lat, s.h)])
+        f_b = c.T @ np.array([0.0, 0.0, g])
         sum_c_f_dt = np.einsum("ai,j->aij", c, f_b * T).reshape(3, 9)
     A[a, a] = -skew3(blk.w_in) * T
     if heading_free:
@@ -69,10 +73,9 @@ def integrated_system_matrix(
             [
                 [0.0, -1.0 / (rm + s.h), 0.0],
                 [1.0 / (rn + s.h), 0.0, 0.0],
-                [np.tan(s.lat) / (rn + s.h), 0.0, 0.0],
+                [math.tan(s.lat) / (rn + s.h), 0.0, 0.0],
             ]
         )
-        w_ie = earth_sign * earth.earth_rate_n(s.lat)
         w_en = earth.transport_rate_n(s.lat, s.h, s.vel_n)
         A[a, v] = -m_v * T
         A[v, a] = -skew3(dv_f)
@@ -80,7 +83,7 @@ def integrated_system_matrix(
         A[v, layout.ba] = -blk.sum_c_dt
         if layout.am is not None:
             A[v, layout.am] = -sum_c_f_dt
-        A[v.start + 2, p.start + 2] = 2.0 * earth.gravity(s.lat, s.h) / (np.sqrt(rm * rn) + s.h) * T
+        A[v.start + 2, p.start + 2] = 2.0 * g / (math.sqrt(rm * rn) + s.h) * T
         A[p, v] = np.eye(3) * T
     else:
         A[p, a] = -skew3(blk.dp)
@@ -140,13 +143,22 @@ def continuous_noise(
 def discretize(A: Array, Q: Array, layout: Layout | None = None) -> tuple[Array, Array]:
     """Phi = I + A + A^2/2 and Qd = Q + (A Q + Q A^T)/2 + A Q A^T / 3.
 
+    Only the leading rows of A (the attitude, velocity and position errors) are nonzero; the
+    products are taken over those rows alone (the same sums, without the zero terms).
     With a layout that has odometer reading errors, their rows become the epoch shift
     (start <- end, end <- fresh draw whose variance Q holds); A never couples them.
     """
-    AA = A @ A
-    phi = np.eye(A.shape[0]) + A + 0.5 * AA
-    AQ = A @ Q
-    qd = Q + 0.5 * (AQ + AQ.T) + (AQ @ A.T) / 3.0
+    n = A.shape[0]
+    nonzero = np.flatnonzero(A.any(axis=1))
+    r = int(nonzero[-1]) + 1 if len(nonzero) else 0  # A[r:] == 0
+    Ar = A[:r]
+    phi = np.eye(n) + A
+    phi[:r] += 0.5 * (Ar[:, :r] @ Ar)
+    AQ = Ar @ Q  # (r, n): the rows of A Q below r are zero
+    qd = Q.copy()
+    qd[:r, :r] += 0.5 * (AQ[:, :r] + AQ[:, :r].T) + (AQ @ Ar.T) / 3.0
+    qd[:r, r:] += 0.5 * AQ[:, r:]
+    qd[r:, :r] += 0.5 * AQ[:, r:].T
     if layout is not None and layout.odoq is not None:
         i = layout.odoq.start
         phi[i : i + 2, :] = 0.0

@@ -22,7 +22,8 @@ Error state (truth minus estimate), navigation frame ENU:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,7 +91,7 @@ def skew3(v: Array) -> Array:
 
 def dcm1(q: Array) -> Array:
     """C_nb of one unit quaternion [x, y, z, w] (as attitude.dcm_from_quat, scalar path)."""
-    x, y, z, w = (float(a) for a in q)
+    x, y, z, w = np.asarray(q, dtype=np.float64).tolist()
     return np.array(
         [
             [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
@@ -102,12 +103,12 @@ def dcm1(q: Array) -> Array:
 
 def odometer_axis(bore: Array) -> tuple[Array, Array]:
     """Unit odometer axis u in base_link for boresight (yaw, pitch) and du/d(yaw, pitch) (3, 2)."""
-    raw = np.array([1.0, bore[0], bore[1]])
-    norm = np.linalg.norm(raw)
-    u = raw / norm
-    d_raw = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    du = (d_raw - np.outer(u, u @ d_raw)) / norm
-    return u, du
+    yaw, pitch = float(bore[0]), float(bore[1])
+    norm = math.sqrt(1.0 + yaw * yaw + pitch * pitch)
+    ux, uy, uz = 1.0 / norm, yaw / norm, pitch / norm
+    # du = (d_raw - u (u^T d_raw)) / norm with d_raw = d[1, yaw, pitch] / d(yaw, pitch)
+    du = np.array([[-ux * uy, -ux * uz], [1.0 - uy * uy, -uy * uz], [-uz * uy, 1.0 - uz * uz]])
+    return np.array([ux, uy, uz]), du / norm
 
 
 @dataclass
@@ -148,13 +149,18 @@ class NavState:
             self.am = np.zeros((3, 3))
 
     def copy(self) -> NavState:
-        return replace(
-            self,
+        return NavState(
+            t=self.t,
+            lat=self.lat,
+            lon=self.lon,
+            h=self.h,
             vel_n=self.vel_n.copy(),
             q_nb=self.q_nb.copy(),
             bg=self.bg.copy(),
             ba=self.ba.copy(),
+            k=self.k,
             bore=self.bore.copy(),
+            distance=self.distance,
             gm=self.gm.copy(),
             odoq=self.odoq.copy(),
             am=self.am.copy(),
@@ -166,24 +172,25 @@ class NavState:
 
     def inject(self, dx: Array, layout: Layout) -> NavState:
         """The state corrected by the error-state vector dx (truth = estimate (+) dx)."""
-        s = self.copy()
-        phi = dx[layout.att]
-        s.q_nb = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(phi), s.q_nb))
-        if layout.vel is not None:
-            s.vel_n = s.vel_n + dx[layout.vel]
-        dlat, dlon, dh = earth.enu_to_geodetic_increment(dx[layout.pos], s.lat, s.h)
-        s.lat, s.lon, s.h = float(s.lat + dlat), float(s.lon + dlon), float(s.h + dh)
-        s.bg = s.bg + dx[layout.bg]
-        s.ba = s.ba + dx[layout.ba]
-        s.k = float(s.k + dx[layout.k][0])
-        s.bore = s.bore + dx[layout.bore]
-        if layout.odoq is not None:
-            s.odoq = s.odoq + dx[layout.odoq]
-        if layout.gm is not None:
-            s.gm = s.gm + dx[layout.gm].reshape(3, 3)
-        if layout.am is not None:
-            s.am = s.am + dx[layout.am].reshape(3, 3)
-        return s
+        q_nb = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(dx[layout.att]), self.q_nb))
+        dlat, dlon, dh = earth.enu_to_geodetic_increment(dx[layout.pos], self.lat, self.h)
+        gm, am = self.gm, self.am
+        return NavState(
+            t=self.t,
+            lat=float(self.lat + dlat),
+            lon=float(self.lon + dlon),
+            h=float(self.h + dh),
+            vel_n=self.vel_n + dx[layout.vel] if layout.vel is not None else self.vel_n.copy(),
+            q_nb=q_nb,
+            bg=self.bg + dx[layout.bg],
+            ba=self.ba + dx[layout.ba],
+            k=self.k + float(dx[layout.k.start]),
+            bore=self.bore + dx[layout.bore],
+            distance=self.distance,
+            gm=gm + dx[layout.gm].reshape(3, 3) if layout.gm is not None else gm.copy(),
+            odoq=self.odoq + dx[layout.odoq] if layout.odoq is not None else self.odoq.copy(),
+            am=am + dx[layout.am].reshape(3, 3) if layout.am is not None else am.copy(),
+        )
 
     def difference(self, other: NavState, layout: Layout) -> Array:
         """Error-state vector dx with self = other (+) dx (first order in position)."""
@@ -192,15 +199,14 @@ class NavState:
         dx[layout.att] = att.rotvec_from_quat(dq)
         if layout.vel is not None:
             dx[layout.vel] = self.vel_n - other.vel_n
-        rm, rn = earth.radii(other.lat)
-        dx[layout.pos] = [
-            (self.lon - other.lon) * (rn + other.h) * np.cos(other.lat),
-            (self.lat - other.lat) * (rm + other.h),
-            self.h - other.h,
-        ]
+        rm, rn = earth.radii(float(other.lat))
+        p = layout.pos.start
+        dx[p] = (self.lon - other.lon) * (rn + other.h) * math.cos(other.lat)
+        dx[p + 1] = (self.lat - other.lat) * (rm + other.h)
+        dx[p + 2] = self.h - other.h
         dx[layout.bg] = self.bg - other.bg
         dx[layout.ba] = self.ba - other.ba
-        dx[layout.k] = self.k - other.k
+        dx[layout.k.start] = self.k - other.k
         dx[layout.bore] = self.bore - other.bore
         if layout.odoq is not None:
             dx[layout.odoq] = self.odoq - other.odoq
