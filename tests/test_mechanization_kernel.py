@@ -9,7 +9,7 @@ from pipe_nav_core.mechanization import BlockResult, Carry, dr_block, ins_block
 from pipe_nav_core.state import NavState, odometer_axis
 
 from pipe_nav_core import attitude as att
-from pipe_nav_core import earth
+from pipe_nav_core import earth, jit
 
 # --- reference: the numpy implementation of mechanization.py before the numba kernels ---
 
@@ -296,15 +296,14 @@ def test_inputs_of_any_layout_and_dtype():
 def test_kernels_compile_without_a_cache_directory(monkeypatch):
     """Where numba finds no writable cache directory it refuses cache=True; the kernels are
     then compiled without a cache instead of failing at import."""
-    from pipe_nav_core import mechanization as mech
 
-    real_njit = mech.njit
+    real_njit = jit.njit
 
     def njit_no_cache(**options):
         if options.get("cache"):
             raise RuntimeError("cannot cache function 'f': no locator available for file 'x.py'")
         return real_njit(**options)
 
-    monkeypatch.setattr(mech, "njit", njit_no_cache)
-    f = mech._kernel(lambda x: 2.0 * x)
+    monkeypatch.setattr(jit, "njit", njit_no_cache)
+    f = jit.kernel(lambda x: 2.0 * x)
     assert f(1.5) == 3.0

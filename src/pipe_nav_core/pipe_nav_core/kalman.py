@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
+from .jit import kernel
 from .measurements import Measurement
-from .mechanization import _kernel
 
 Array = NDArray[np.float64]
 
@@ -46,7 +46,7 @@ class UpdateStats:
         return out
 
 
-@_kernel
+@kernel
 def _joseph_update(
     P: Array, x: Array, H: Array, R: Array, residual: Array, nis_max: float
 ) -> tuple[float, Array, Array, Array]:

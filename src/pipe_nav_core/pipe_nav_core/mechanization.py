@@ -20,33 +20,19 @@ loads them (or compiles them once, a few seconds, when the cache is cold or not 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from . import attitude as att
 from . import earth
+from .jit import kernel
 from .state import NavState, odometer_axis
 
 Array = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]  # [x, y, z, w]
-
-
-def _kernel(func: Callable[..., Any]) -> Callable[..., Any]:
-    """func compiled with numba, cached on disk where numba finds a writable cache directory
-    (next to this file, ~/.cache/numba or NUMBA_CACHE_DIR), else compiled in every process.
-
-    error_model="numpy": a zero interval gives inf/nan as in numpy, not ZeroDivisionError.
-    """
-    try:
-        return njit(cache=True, error_model="numpy")(func)
-    except RuntimeError:  # "cannot cache function ...: no locator available"
-        return njit(error_model="numpy")(func)
 
 
 @dataclass
@@ -101,13 +87,13 @@ class BlockResult:
 # --- scalar helpers of the kernels (3-vectors and quaternions as tuples, no allocation) ---
 
 
-@_kernel
+@kernel
 def _cross(a: Vec3 | Array, b: Vec3 | Array) -> Vec3:
     """a x b of two 3-vectors (tuples or arrays)."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-@_kernel
+@kernel
 def _quat_mul(p: Quat, q: Quat) -> Quat:
     """Hamilton product p * q of scalar-last quaternions (as attitude.quat_mul)."""
     px, py, pz, pw = p
@@ -120,7 +106,7 @@ def _quat_mul(p: Quat, q: Quat) -> Quat:
     )
 
 
-@_kernel
+@kernel
 def _quat_from_rotvec(x: float, y: float, z: float) -> Quat:
     """Quaternion of the rotation vector (x, y, z), rad (as attitude.quat_from_rotvec)."""
     th2 = x * x + y * y + z * z
@@ -134,7 +120,7 @@ def _quat_from_rotvec(x: float, y: float, z: float) -> Quat:
     return (x * k, y * k, z * k, w)
 
 
-@_kernel
+@kernel
 def _dcm_into(q: Quat, c: Array) -> None:
     """Write the rotation matrix of the unit quaternion q [x, y, z, w] into c (3, 3)."""
     x, y, z, w = q
@@ -149,7 +135,7 @@ def _dcm_into(q: Quat, c: Array) -> None:
     c[2, 2] = 1.0 - 2.0 * (x * x + y * y)
 
 
-@_kernel
+@kernel
 def _inv3(a: Array) -> Array:
     """Inverse of a 3x3 matrix (adjugate over determinant)."""
     inv = np.empty((3, 3))
@@ -166,7 +152,7 @@ def _inv3(a: Array) -> Array:
     return inv / det
 
 
-@_kernel
+@kernel
 def _corrected(raw: Array, bias: Array, err: Array) -> Array:
     """Sensor samples corrected for bias and error matrix: (I + err)^-1 (raw - bias), (M, 3).
 
@@ -187,7 +173,7 @@ def _corrected(raw: Array, bias: Array, err: Array) -> Array:
 # --- kernels: one pass over the samples of a block each ---
 
 
-@_kernel
+@kernel
 def _attitude_kernel(
     q0: Array,
     t0: float,
@@ -250,7 +236,7 @@ def _attitude_kernel(
     return q, c, dtheta, dt, sum_c_dt, sum_c_w_dt
 
 
-@_kernel
+@kernel
 def _ins_kernel(
     c: Array,
     dtheta: Array,
@@ -344,7 +330,7 @@ def _ins_kernel(
     return vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt
 
 
-@_kernel
+@kernel
 def _dr_kernel(
     c: Array,
     dtheta: Array,

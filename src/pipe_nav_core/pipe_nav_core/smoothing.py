@@ -40,12 +40,13 @@ def rts(
     K = len(P_upd)
     n = P_upd[0].shape[0]
     e = np.zeros((K, n))
-    P_s = np.empty((K, n, n)) if full else None
-    var = np.empty((K, n))
+    out = np.empty((K, n, n) if full else (K, n))
+
+    def keep(k: int, P: Array) -> None:
+        out[k] = P if full else P.diagonal()
+
     P_next = P_upd[-1]
-    var[-1] = np.diag(P_next)
-    if P_s is not None:
-        P_s[-1] = P_next
+    keep(K - 1, P_next)
     for k in range(K - 2, -1, -1):
         Pp = P_pred[k + 1]
         try:
@@ -55,10 +56,8 @@ def rts(
         e[k] = G @ (e[k + 1] + dx[k + 1])
         Ps = P_upd[k] + G @ (P_next - Pp) @ G.T
         P_next = 0.5 * (Ps + Ps.T)
-        var[k] = np.diag(P_next)
-        if P_s is not None:
-            P_s[k] = P_next
-    return e, (P_s if P_s is not None else var)
+        keep(k, P_next)
+    return e, out
 
 
 def backward_information(
