@@ -87,6 +87,24 @@ def test_marker_messages_and_default_sigma():
     assert R.marker_from_msg(msg).sigma_enu == (0.05, 0.05, 0.05)
 
 
+def test_log_to_messages_in_stamp_order_up_to_t_end():
+    from pipe_nav_core.sim import simulate
+
+    log = simulate("demo", 0).log
+    types = R.rosbags_types()
+    msgs = R.log_to_messages(types, log, t_end=12.0)
+    stamps = [t for t, _, _ in msgs]
+    assert stamps == sorted(stamps) and stamps[-1] <= 12.0
+    roles = [r for _, r, _ in msgs]
+    assert roles.count("imu") == int(np.sum(log.imu.t <= 12.0))
+    assert roles.count("odometer") == int(np.sum(log.odometer.t <= 12.0))
+    assert roles.count("mag") == int(np.sum(log.mag.t <= 12.0))
+    assert roles.count("markers") == sum(m.t <= 12.0 for m in log.markers) >= 1
+    t, gyro, accel = R.imu_from_msg(next(m for _, r, m in msgs if r == "imu"))
+    np.testing.assert_allclose(gyro, log.imu.gyro[0])
+    assert R.stamp_to_sec(next(m for _, r, m in msgs if r == "markers").header.stamp) <= 12.0
+
+
 def test_odometry_position_relative_to_datum_and_body_twist():
     # a point 100 m east, 50 m north, 2 m up of the datum
     lat, lon, h = enu_to_geodetic(np.array([100.0, 50.0, 2.0]), DATUM.lat, DATUM.lon, DATUM.alt)

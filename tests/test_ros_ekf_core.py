@@ -31,26 +31,7 @@ def config(run):
 
 def input_messages(run, t_end=CROP_S):
     """(stamp, role, message) of the run's first t_end seconds in stamp order."""
-    log = run.log
-    out = []
-    for i in np.nonzero(log.imu.t <= t_end)[0]:
-        out.append(
-            (
-                log.imu.t[i],
-                "imu",
-                rosmsg.imu_to_msg(TYPES, log.imu.t[i], log.imu.gyro[i], log.imu.accel[i]),
-            )
-        )
-    o = log.odometer
-    for i in np.nonzero(o.t <= t_end)[0]:
-        out.append(
-            (o.t[i], "odometer", rosmsg.wheel_to_msg(TYPES, o.t[i], o.distance[i], o.speed[i]))
-        )
-    for i in np.nonzero(log.mag.t <= t_end)[0]:
-        out.append((log.mag.t[i], "mag", rosmsg.mag_to_msg(TYPES, log.mag.t[i], log.mag.field[i])))
-    out += [(m.t, "markers", rosmsg.marker_to_msg(TYPES, m)) for m in log.markers if m.t <= t_end]
-    out.sort(key=lambda x: x[0])
-    return out
+    return rosmsg.log_to_messages(TYPES, run.log, t_end)
 
 
 def feed(core, messages):

@@ -115,27 +115,8 @@ def scenario_overrides(run, **extra):
 
 
 def input_messages(run, t_end):
-    types = rclpy_types()
-    log = run.log
-    out = []
-    for i in np.nonzero(log.imu.t <= t_end)[0]:
-        out.append(
-            (
-                log.imu.t[i],
-                "imu",
-                rosmsg.imu_to_msg(types, log.imu.t[i], log.imu.gyro[i], log.imu.accel[i]),
-            )
-        )
-    o = log.odometer
-    for i in np.nonzero(o.t <= t_end)[0]:
-        out.append(
-            (o.t[i], "odometer", rosmsg.wheel_to_msg(types, o.t[i], o.distance[i], o.speed[i]))
-        )
-    for i in np.nonzero(log.mag.t <= t_end)[0]:
-        out.append((log.mag.t[i], "mag", rosmsg.mag_to_msg(types, log.mag.t[i], log.mag.field[i])))
-    out += [(m.t, "markers", rosmsg.marker_to_msg(types, m)) for m in log.markers if m.t <= t_end]
-    out.sort(key=lambda x: x[0])
-    return out
+    """(stamp, role, message) of the run's first t_end seconds in stamp order."""
+    return rosmsg.log_to_messages(rclpy_types(), run.log, t_end)
 
 
 def call(executor, node, service, timeout=10.0):

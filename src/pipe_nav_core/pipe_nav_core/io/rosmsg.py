@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..attitude import dcm_from_quat, quat_conj, quat_mul, rotvec_from_quat
 from ..earth import geodetic_to_enu
-from ..types import Datum, Marker, Trajectory
+from ..types import Datum, Marker, SensorLog, Trajectory
 from .stamps import NS_PER_S, ns_to_sec_scalar, sec_to_ns_scalar
 
 DEFAULT_MARKER_SIGMA_M = 0.05  # used when a NavSatFix carries no usable covariance
@@ -281,6 +281,27 @@ def marker_to_msg(types: MsgTypes, marker: Marker) -> Any:
         position_covariance=np.diag(s * s).reshape(9),
         position_covariance_type=COVARIANCE_TYPE_DIAGONAL_KNOWN,
     )
+
+
+def log_to_messages(
+    types: MsgTypes, log: SensorLog, t_end: float = math.inf
+) -> list[tuple[float, str, Any]]:
+    """(stamp s, role, message) of every sample and marker of a log stamped up to t_end (s), in
+    stamp order; roles "imu", "odometer", "mag", "markers" (the input topics'
+    INTERFACES.md roles). Vectors stay in the log's frame (imu_link as recorded)."""
+    imu, odo, mag = log.imu, log.odometer, log.mag
+    out: list[tuple[float, str, Any]] = []
+    for i in np.flatnonzero(imu.t <= t_end):
+        out.append((imu.t[i], "imu", imu_to_msg(types, imu.t[i], imu.gyro[i], imu.accel[i])))
+    for i in np.flatnonzero(odo.t <= t_end):
+        out.append(
+            (odo.t[i], "odometer", wheel_to_msg(types, odo.t[i], odo.distance[i], odo.speed[i]))
+        )
+    for i in np.flatnonzero(mag.t <= t_end):
+        out.append((mag.t[i], "mag", mag_to_msg(types, mag.t[i], mag.field[i])))
+    out += [(m.t, "markers", marker_to_msg(types, m)) for m in log.markers if m.t <= t_end]
+    out.sort(key=lambda x: x[0])
+    return out
 
 
 def marker_from_msg(msg: Any) -> Marker:
