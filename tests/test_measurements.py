@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from pipe_nav_core.state import Layout, NavState
+from pipe_nav_core.state import Layout, NavState, inject_many
 from pipe_nav_core.types import Marker
 
 from pipe_nav_core import attitude as att
@@ -159,3 +159,19 @@ def test_marker_fix_jacobian_and_residual(mode):
     # the residual is the survey minus the estimate in ENU metres
     assert m.residual[1] == pytest.approx(1e-6 * 6.3e6, rel=0.01)
     assert m.residual[2] == pytest.approx(0.3)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_flat_state_vector_round_trip_and_batch_injection(mode):
+    rng = np.random.default_rng(5)
+    layout = Layout(mode, gyro_errors=True, accel_errors=True)
+    s = _state(rng)
+    s.gm, s.am = rng.normal(0, 1e-3, (3, 3)), rng.normal(0, 1e-3, (3, 3))
+    s.odoq = rng.normal(size=2)
+    v = s.vector()
+    np.testing.assert_array_equal(NavState.from_vector(v).vector(), v)
+    dx = rng.normal(0, 1e-2, (5, layout.n))
+    many = inject_many(np.stack([v] * 5), dx, layout)
+    for row, d in zip(many, dx, strict=True):
+        np.testing.assert_allclose(row, s.inject(d, layout).vector(), rtol=0, atol=1e-15)
+    assert not np.allclose(many[0], v)  # the corrections did move the state

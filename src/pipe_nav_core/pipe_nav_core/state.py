@@ -82,6 +82,22 @@ class Layout:
         return self.vel is not None
 
 
+# The nominal state as one flat float64 vector (NavState.vector / NavState.from_vector): the
+# form the compiled kernels and the Recording use. Indices:
+SV_T, SV_LAT, SV_LON, SV_H = 0, 1, 2, 3  # s, rad, rad, m
+SV_VEL = slice(4, 7)  # m/s ENU
+SV_Q = slice(7, 11)  # [x, y, z, w] base_link -> ENU
+SV_BG = slice(11, 14)  # rad/s base_link
+SV_BA = slice(14, 17)  # m/s^2 base_link
+SV_K = 17  # odometer scale error
+SV_BORE = slice(18, 20)  # rad (yaw, pitch)
+SV_DIST = 20  # m calibrated chainage
+SV_GM = slice(21, 30)  # gyro error matrix M, row-major
+SV_ODOQ = slice(30, 32)  # m odometer reading errors (start, end of the epoch)
+SV_AM = slice(32, 41)  # accelerometer error matrix N, row-major
+SV_SIZE = 41
+
+
 def skew3(v: Array) -> Array:
     """Cross-product matrix [v x] of one 3-vector (as attitude.skew, for the per-epoch
     Jacobians, where numpy's stacking overhead dominated)."""
@@ -166,6 +182,36 @@ class NavState:
             am=self.am.copy(),
         )
 
+    def vector(self) -> Array:
+        """The state as one flat vector (SV_SIZE,) (index constants SV_* of this module)."""
+        v = np.empty(SV_SIZE)
+        v[SV_T], v[SV_LAT], v[SV_LON], v[SV_H] = self.t, self.lat, self.lon, self.h
+        v[SV_VEL], v[SV_Q], v[SV_BG], v[SV_BA] = self.vel_n, self.q_nb, self.bg, self.ba
+        v[SV_K], v[SV_BORE], v[SV_DIST] = self.k, self.bore, self.distance
+        v[SV_GM], v[SV_ODOQ], v[SV_AM] = self.gm.reshape(9), self.odoq, self.am.reshape(9)
+        return v
+
+    @classmethod
+    def from_vector(cls, v: Array) -> NavState:
+        """The state of a flat vector made by :meth:`vector` (copies)."""
+        v = np.asarray(v, dtype=np.float64)
+        return cls(
+            t=float(v[SV_T]),
+            lat=float(v[SV_LAT]),
+            lon=float(v[SV_LON]),
+            h=float(v[SV_H]),
+            vel_n=v[SV_VEL].copy(),
+            q_nb=v[SV_Q].copy(),
+            bg=v[SV_BG].copy(),
+            ba=v[SV_BA].copy(),
+            k=float(v[SV_K]),
+            bore=v[SV_BORE].copy(),
+            distance=float(v[SV_DIST]),
+            gm=v[SV_GM].reshape(3, 3).copy(),
+            odoq=v[SV_ODOQ].copy(),
+            am=v[SV_AM].reshape(3, 3).copy(),
+        )
+
     @property
     def c_nb(self) -> Array:
         return dcm1(self.q_nb)
@@ -215,6 +261,35 @@ class NavState:
         if layout.am is not None:
             dx[layout.am] = (self.am - other.am).reshape(9)
         return dx
+
+
+def inject_many(states: Array, dx: Array, layout: Layout) -> Array:
+    """Flat states (K, SV_SIZE) corrected by error-state vectors dx (K, n): NavState.inject of
+    every row at once (t and distance unchanged)."""
+    out = np.array(states, dtype=np.float64)
+    d = np.asarray(dx, dtype=np.float64)
+    q = att.quat_mul(att.quat_from_rotvec(d[:, layout.att]), out[:, SV_Q])
+    out[:, SV_Q] = att.quat_normalize(q)
+    dlat, dlon, dh = earth.enu_to_geodetic_increment(d[:, layout.pos], out[:, SV_LAT], out[:, SV_H])
+    out[:, SV_LAT] += dlat
+    out[:, SV_LON] += dlon
+    out[:, SV_H] += dh
+    pairs = [
+        (layout.vel, SV_VEL),
+        (layout.bg, SV_BG),
+        (layout.ba, SV_BA),
+        (layout.k, slice(SV_K, SV_K + 1)),
+    ]
+    pairs += [
+        (layout.bore, SV_BORE),
+        (layout.gm, SV_GM),
+        (layout.odoq, SV_ODOQ),
+        (layout.am, SV_AM),
+    ]
+    for src, dst in pairs:
+        if src is not None:
+            out[:, dst] += d[:, src]
+    return out
 
 
 def layout_for(config: NavConfig) -> Layout:
