@@ -13,7 +13,11 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .jit import kernel
+
 Array = NDArray[np.float64]
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]  # [x, y, z, w]
 
 
 def skew(v: ArrayLike) -> Array:
@@ -213,3 +217,90 @@ def dcm_from_euler(roll: ArrayLike, pitch: ArrayLike, azimuth: ArrayLike) -> Arr
 def quat_from_euler(roll: ArrayLike, pitch: ArrayLike, azimuth: ArrayLike) -> Array:
     """q_nb from roll, pitch (nose up) and azimuth (clockwise from north), rad."""
     return quat_from_dcm(dcm_from_euler(roll, pitch, azimuth))
+
+
+# --- compiled scalar helpers for the numba kernels (3-vectors and quaternions as tuples) ---
+
+
+@kernel
+def cross3(a: Vec3 | Array, b: Vec3 | Array) -> Vec3:
+    """a x b of two 3-vectors (tuples or arrays)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@kernel
+def qmul(p: Quat, q: Quat) -> Quat:
+    """Hamilton product p * q of scalar-last quaternions (as attitude.quat_mul)."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    return (
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+        pw * qw - px * qx - py * qy - pz * qz,
+    )
+
+
+@kernel
+def qrotvec(x: float, y: float, z: float) -> Quat:
+    """Quaternion of the rotation vector (x, y, z), rad (as attitude.quat_from_rotvec)."""
+    th2 = x * x + y * y + z * z
+    th = np.sqrt(th2)
+    if th < 1e-6:
+        k = 0.5 - th2 / 48.0
+        w = 1.0 - th2 / 8.0
+    else:
+        k = np.sin(0.5 * th) / th
+        w = np.cos(0.5 * th)
+    return (x * k, y * k, z * k, w)
+
+
+@kernel
+def dcm_into(q: Quat, c: Array) -> None:
+    """Write the rotation matrix of the unit quaternion q [x, y, z, w] into c (3, 3)."""
+    x, y, z, w = q
+    c[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    c[0, 1] = 2.0 * (x * y - w * z)
+    c[0, 2] = 2.0 * (x * z + w * y)
+    c[1, 0] = 2.0 * (x * y + w * z)
+    c[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    c[1, 2] = 2.0 * (y * z - w * x)
+    c[2, 0] = 2.0 * (x * z - w * y)
+    c[2, 1] = 2.0 * (y * z + w * x)
+    c[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@kernel
+def inv3(a: Array) -> Array:
+    """Inverse of a 3x3 matrix (adjugate over determinant)."""
+    inv = np.empty((3, 3))
+    inv[0, 0] = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    inv[1, 0] = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    inv[2, 0] = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    inv[0, 1] = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    inv[1, 1] = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    inv[2, 1] = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    inv[0, 2] = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    inv[1, 2] = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    inv[2, 2] = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    det = a[0, 0] * inv[0, 0] + a[0, 1] * inv[1, 0] + a[0, 2] * inv[2, 0]
+    return inv / det
+
+
+@kernel
+def qnormalize(q: Quat) -> Quat:
+    """Unit quaternion with non-negative scalar part (as quat_normalize)."""
+    x, y, z, w = q
+    norm = np.sqrt(x * x + y * y + z * z + w * w)
+    if w < 0.0:
+        norm = -norm
+    return (x / norm, y / norm, z / norm, w / norm)
+
+
+@kernel
+def rotvec_of(q: Quat) -> Vec3:
+    """Rotation vector (rad) of a quaternion, angle in [0, pi] (as rotvec_from_quat)."""
+    x, y, z, w = qnormalize(q)
+    s = np.sqrt(x * x + y * y + z * z)
+    k = 2.0 if s < 1e-9 else 2.0 * np.arctan2(s, w) / s
+    return (x * k, y * k, z * k)

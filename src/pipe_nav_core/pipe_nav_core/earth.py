@@ -13,6 +13,8 @@ import numpy as np
 import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
+from .jit import kernel
+
 A = 6378137.0  # m, semi-major axis
 F = 1.0 / 298.257223563
 E2 = F * (2.0 - F)  # first eccentricity squared
@@ -27,31 +29,39 @@ M_RATIO = OMEGA_IE**2 * A**2 * B / GM
 Array = NDArray[np.float64]
 
 
+@kernel
+def _radii(lat):  # noqa: ANN001, ANN202 (float or array: numba specializes)
+    s = np.sin(lat)
+    w = np.sqrt(1.0 - E2 * (s * s))
+    return A * (1.0 - E2) / (w * w * w), A / w
+
+
+@kernel
+def _gravity(lat, h):  # noqa: ANN001, ANN202
+    s = np.sin(lat)
+    s2 = s * s
+    g0 = GAMMA_E * (1.0 + GAMMA_K * s2) / np.sqrt(1.0 - E2 * s2)
+    return g0 * (1.0 - 2.0 / A * (1.0 + F + M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * (h * h))
+
+
+def _f(x: ArrayLike) -> float | Array:
+    return x if isinstance(x, float) else np.asarray(x, dtype=np.float64)
+
+
 def radii(lat: ArrayLike) -> tuple[Array, Array]:
-    """Meridian radius R_M and prime-vertical radius R_N (m) at geodetic latitude lat (rad)."""
-    if isinstance(lat, float):
-        sin_lat = math.sin(lat)
-        w = math.sqrt(1.0 - E2 * (sin_lat * sin_lat))
-    else:
-        s2 = np.sin(lat) ** 2
-        w = np.sqrt(1.0 - E2 * s2)
-    rn = A / w
-    rm = A * (1.0 - E2) / w**3
-    return rm, rn
+    """Meridian radius R_M and prime-vertical radius R_N (m) at geodetic latitude lat (rad).
+    Compiled (:func:`_radii`), so that the numba kernels share it."""
+    return _radii(_f(lat))
 
 
 def gravity(lat: ArrayLike, h: ArrayLike) -> Array:
     """Magnitude of normal gravity (m/s^2) at latitude lat (rad) and height h (m) (Somigliana
-    with the second-order free-air correction). Gravity points down (-U) in ENU."""
-    if isinstance(lat, float) and isinstance(h, float):
-        sin_lat = math.sin(lat)
-        s2 = sin_lat * sin_lat
-        g0 = GAMMA_E * (1.0 + GAMMA_K * s2) / math.sqrt(1.0 - E2 * s2)
-        return g0 * (1.0 - 2.0 / A * (1.0 + F + M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * (h * h))
-    s2 = np.sin(lat) ** 2
-    g0 = GAMMA_E * (1.0 + GAMMA_K * s2) / np.sqrt(1.0 - E2 * s2)
-    h = np.asarray(h, dtype=np.float64)
-    return g0 * (1.0 - 2.0 / A * (1.0 + F + M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * h**2)
+    with the second-order free-air correction). Gravity points down (-U) in ENU. Compiled
+    (:func:`_gravity`), so that the numba kernels share it."""
+    lat, h = _f(lat), _f(h)
+    if isinstance(lat, float) != isinstance(h, float):  # one array: both arrays, same shape
+        lat, h = lat + np.zeros(np.shape(h)), h + np.zeros(np.shape(lat))
+    return _gravity(lat, h)
 
 
 def gravity_n(lat: ArrayLike, h: ArrayLike) -> Array:

@@ -10,6 +10,10 @@ Processing: static alignment -> per epoch (``filter_rate_hz``): mechanize the IM
 (INS or DR), propagate the covariance, then gated updates: odometer speed + non-holonomic
 constraint (INS), zero velocity and zero rate at stops, gravity tilt, magnetic heading, marker
 fixes, with the heading re-anchored at the second marker when it comes from the markers.
+The epochs run compiled (:mod:`pipe_nav_core.epoch`), as many per call as the buffered data
+allow (one at a time live, thousands offline: the results do not depend on it); this class
+plans them, prepares their inputs, handles alignment and marker passages, and keeps the
+results.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,10 +31,34 @@ from . import alignment, earth
 from . import attitude as att
 from . import measurements as meas
 from .config import NavConfig
+from .epoch import (
+    COUNTERS,
+    D_FREE,
+    D_S_START,
+    D_SIZE,
+    KINDS,
+    S_LIN,
+    W_VJAC,
+    Batch,
+    parameters,
+    run_epochs,
+)
+from .jit import kernel
 from .kalman import ErrorStateKF, chi2_threshold
-from .mechanization import BlockResult, Carry, dr_block, ins_block
-from .process import continuous_noise, discretize, integrated_system_matrix
-from .state import NavState, layout_for
+from .measurements import marker_vector
+from .recording import Recording
+from .state import (
+    SV_DIST,
+    SV_H,
+    SV_LAT,
+    SV_LON,
+    SV_Q,
+    SV_SIZE,
+    SV_T,
+    SV_VEL,
+    NavState,
+    layout_for,
+)
 from .stream import ReorderBuffer
 from .types import (
     Datum,
@@ -45,6 +73,7 @@ from .types import (
 Array = NDArray[np.float64]
 
 ODOMETER_TIMEOUT_S = 1.0  # an epoch waits at most this long (stamp time) for odometer coverage
+MAX_BATCH = 1024  # epochs per call of the compiled epoch loop (bounds its output buffers)
 ALIGN_WAIT_S = 5.0  # after motion starts, wait this long for the first marker before starting
 STATIC_MOVE_M = 0.005  # odometer change that ends the initial rest
 
@@ -70,40 +99,6 @@ class NavEstimate:
     cov_vel_n: Array
     distance: float
     status: str
-
-
-@dataclass
-class Recording:
-    """What the smoothers need from a forward pass.
-
-    Per epoch k (k = 0 is the alignment): t; the filter's estimate after the update
-    (``states``); the linearization point ``lin`` (the estimate itself for the ordinary EKF,
-    the reference state when the filter runs about a reference trajectory); the filter's mean
-    error state relative to it ``x_upd`` (zero for the EKF); the predicted and updated
-    covariances; Phi from k-1 to k; ``dx`` = updated minus predicted mean error state (what an
-    RTS smoother carries back); ``end_offset`` = lin (-) the nominal at the end of the block
-    (the correction that moves the per-sample nominal onto the linearization point).
-    Per IMU sample: t, raw odometer distance (m), nominal lat, lon, h, q_nb and the epoch
-    whose block the sample belongs to (the block of epoch k starts at lin[k - 1]).
-    """
-
-    t: list[float] = field(default_factory=list)
-    states: list[NavState] = field(default_factory=list)
-    lin: list[NavState] = field(default_factory=list)
-    x_upd: list[Array] = field(default_factory=list)
-    P_pred: list[Array] = field(default_factory=list)
-    P_upd: list[Array] = field(default_factory=list)
-    phi: list[Array] = field(default_factory=list)
-    dx: list[Array] = field(default_factory=list)
-    end_offset: list[Array] = field(default_factory=list)
-    s_t: list[Array] = field(default_factory=list)
-    s_odo: list[Array] = field(default_factory=list)
-    s_lat: list[Array] = field(default_factory=list)
-    s_lon: list[Array] = field(default_factory=list)
-    s_h: list[Array] = field(default_factory=list)
-    s_q: list[Array] = field(default_factory=list)
-    s_epoch: list[Array] = field(default_factory=list)
-    marker_residuals: dict[str, Array] = field(default_factory=dict)
 
 
 def mount_rotation(rpy: Sequence[float]) -> Array:
@@ -144,11 +139,12 @@ class Navigator:
         survey: Sequence[Marker] = (),
         *,
         record: bool = False,
+        emit: bool = True,
         reverse: bool = False,
         initial: NavState | None = None,
         epoch_times: Array | None = None,
         odometer_exclude: Array | None = None,
-        reference: Sequence[NavState] | None = None,
+        reference: Sequence[NavState] | Array | None = None,
         initial_azimuth: float | None = None,
     ) -> None:
         config.validate()
@@ -162,15 +158,15 @@ class Navigator:
         self.earth_sign = -1.0 if reverse else 1.0
         self.survey = markers_sorted(survey)
         self.record = record
+        self.emit = emit
         self.initial = initial
-        self.odometer_exclude = (
-            np.zeros((0, 2)) if odometer_exclude is None else np.asarray(odometer_exclude, float)
-        )
+        ex = np.zeros((0, 2)) if odometer_exclude is None else np.asarray(odometer_exclude, float)
+        self.odometer_exclude = ex[np.argsort(ex[:, 0], kind="stable")].reshape(-1, 2)
         self.epoch_times = None if epoch_times is None else np.sort(np.asarray(epoch_times, float))
-        self.reference = list(reference) if reference is not None else None
+        self.reference = _flat_states(reference)
         self._azimuth_override = initial_azimuth
         if self.reference is not None:
-            self.epoch_times = np.array([r.t for r in self.reference])
+            self.epoch_times = self.reference[:, SV_T].copy()
         self.lever_arm = np.asarray(config.odometer_lever_arm, dtype=np.float64)
         self.hard_iron = np.asarray(config.mag_hard_iron, dtype=np.float64)
         self.reset()
@@ -188,7 +184,10 @@ class Navigator:
         self._horizon = -math.inf
         self.state: NavState | None = None
         self.kf: ErrorStateKF | None = None
-        self._carry = Carry.zero()
+        self._sv = np.zeros(SV_SIZE)  # the state as the compiled epoch keeps it
+        self._carry = np.zeros(6)
+        self._dyn = np.zeros(D_SIZE)
+        self._prm: Array | None = None
         self._out: list[NavEstimate] = []
         self._counts: dict[str, int] = defaultdict(int)
         self._first_marker: Marker | None = self.survey[0] if self.survey else None
@@ -197,17 +196,15 @@ class Navigator:
         self.reanchor_rad = 0.0
         self.initial_azimuth: float | None = None
         self._epoch = 0
-        self._v_jac = np.zeros(3)
-        self._prev_speed = 0.0
-        self._prev_vel_mean: Array | None = None
         self._mag_ref: tuple[float, float] | None = None
         self._odo_start: float | None = None
         self._odo_quantum = self.cfg.odometer_resolution
         self._odo_last: float | None = None
         self._odo_learnt_t = -math.inf
-        self._s_epoch_start = 0.0
         self._static_epochs = 0
-        self.recording = Recording() if self.record else None
+        self.recording = (
+            Recording(self.layout, linearized=self.reference is not None) if self.record else None
+        )
         self.datum: Datum | None = (
             Datum(self._first_marker.lat, self._first_marker.lon, self._first_marker.alt)
             if self._first_marker
@@ -216,12 +213,12 @@ class Navigator:
 
     def push_imu(self, t: float, gyro: Sequence[float], accel: Sequence[float]) -> None:
         """One IMU sample: stamp s, mean rate rad/s and mean specific force m/s^2, imu_link."""
-        g = np.asarray(gyro, dtype=np.float64).reshape(3)
-        a = np.asarray(accel, dtype=np.float64).reshape(3)
-        if not (math.isfinite(t) and np.all(np.isfinite(g)) and np.all(np.isfinite(a))):
+        gx, gy, gz = (float(v) for v in gyro)  # scalars: numpy per sample costs more here
+        ax, ay, az = (float(v) for v in accel)
+        if not all(map(math.isfinite, (t, gx, gy, gz, ax, ay, az))):
             self._counts["dropped_nan_imu"] += 1
             return
-        self._push(t, "imu", (g, a))
+        self._push(t, "imu", ((gx, gy, gz), (ax, ay, az)))
 
     def push_odometer(self, t: float, distance: float, speed: float) -> None:
         """One odometer sample: cumulative distance m and speed m/s."""
@@ -372,21 +369,32 @@ class Navigator:
         """Encoder resolution used in the noise model (m), floored at 0.1 mm: configured, or
         the smallest nonzero step of the readings up to t_now (s) (the same whatever the
         batching of the input)."""
-        if self.cfg.odometer_resolution <= 0.0:
-            o = self._odo
-            i0 = int(np.searchsorted(o.t, self._odo_learnt_t, side="right"))
-            i1 = int(np.searchsorted(o.t, t_now, side="right"))
-            if i1 > i0:
-                dist = o.distance[i0:i1]
-                prev = self._odo_last
-                d = np.abs(np.diff(dist) if prev is None else _increments(prev, dist))
-                self._odo_last = float(dist[-1])
-                self._odo_learnt_t = float(o.t[i1 - 1])
-                steps = d[d > 1e-9]
-                if len(steps):
-                    q = float(steps.min())
-                    self._odo_quantum = q if self._odo_quantum <= 0.0 else min(self._odo_quantum, q)
-        return max(self._odo_quantum, 1e-4)
+        return float(self._odometer_resolutions(np.array([t_now]))[0])
+
+    def _odometer_resolutions(self, t_now: Array) -> Array:
+        """_odometer_resolution at each of the increasing times t_now (s)."""
+        if self.cfg.odometer_resolution > 0.0:
+            return np.full(len(t_now), max(self.cfg.odometer_resolution, 1e-4))
+        o = self._odo
+        i0 = int(np.searchsorted(o.t, self._odo_learnt_t, side="right"))
+        upto = np.searchsorted(o.t, t_now, side="right") - i0  # readings learnt from per time
+        quantum = self._odo_quantum if self._odo_quantum > 0.0 else math.inf
+        if upto[-1] <= 0:
+            return np.full(len(t_now), max(self._odo_quantum, 1e-4))
+        dist = o.distance[i0 : i0 + upto[-1]]
+        prev = self._odo_last
+        d = (
+            np.abs(_increments(prev, dist))
+            if prev is not None
+            else np.abs(np.diff(dist, prepend=dist[0]))
+        )
+        smallest = np.minimum.accumulate(np.where(d > 1e-9, d, math.inf))
+        learnt = np.r_[quantum, np.minimum(smallest, quantum)]  # [k]: after k readings
+        out = learnt[np.maximum(upto, 0)]
+        self._odo_last = float(dist[-1])
+        self._odo_learnt_t = float(o.t[i0 + upto[-1] - 1])
+        self._odo_quantum = float(learnt[-1]) if math.isfinite(learnt[-1]) else self._odo_quantum
+        return np.maximum(np.where(np.isfinite(out), out, 0.0), 1e-4)
 
     # ----------------------------------------------------------------- processing
     def _advance(self) -> None:
@@ -395,10 +403,16 @@ class Navigator:
                 if not self._try_align():
                     return
                 continue
-            end = self._next_epoch_end()
-            if end is None:
+            ends, marker_due = self._plan()
+            if not len(ends):
                 return
-            self._process_epoch(end)
+            if marker_due:
+                if len(ends) > 1:
+                    self._run_batch(ends[:-1])
+                    ends = ends[-1:] - (ends[-2] + 1)  # the buffer now starts after ends[-2]
+                self._run_marker_epoch(ends)
+            else:
+                self._run_batch(ends)
 
     def _odometer_at(self, t: Array) -> Array:
         """Odometer distance (m) interpolated at times t (sorted), from the buffered samples."""
@@ -485,7 +499,7 @@ class Navigator:
         lin = s
         if self.reference is not None:
             # the prior stays the alignment's; only the linearization point moves
-            lin = self.reference[0].copy()
+            lin = NavState.from_vector(self.reference[0])
             if abs(lin.t - s.t) > 1e-6:
                 raise ValueError("the reference trajectory does not start at the alignment epoch")
             lin.distance = 0.0
@@ -494,14 +508,15 @@ class Navigator:
         else:
             self.kf = ErrorStateKF(P0, cfg.gate_probability)
         self.state = s
-        self._carry = Carry.zero()
-        self._s_epoch_start = float(self._odometer_at(np.array([s.t]))[0])
+        self._sv = s.vector()
+        self._carry = np.zeros(6)
+        self._dyn = np.zeros(D_SIZE)
+        self._dyn[D_S_START] = float(self._odometer_at(np.array([s.t]))[0])
+        self._dyn[D_FREE] = not self._anchored
+        self._prm = parameters(cfg, self.imu_spec, self.lever_arm, self.earth_sign, self._mag_ref)
         self._counts["aligned_at_ms"] = int(round(s.t * 1000))
         if self.recording is not None:
-            zero = np.zeros(lay.n)
-            self._record_epoch(
-                None, None, zero, None, [], lin=lin, x_upd=self.kf.x, end_offset=zero
-            )
+            self._record_alignment(lin)
         self._drop_processed()
         self._emit()
 
@@ -543,7 +558,7 @@ class Navigator:
         else:
             G = -c.T @ att.skew(self.earth_sign * earth.earth_rate_n(s.lat))
             if not self._anchored:
-                G[:, 2] = 0.0  # see _process_epoch: no gyrocompassing before the anchoring
+                G[:, 2] = 0.0  # no gyrocompassing before the anchoring (epoch.py, heading_free)
             noise = imu.gyro_arw**2 / t_static + imu.gyro_bias_instability**2
             P[lay.bg, lay.bg] = G @ P_att @ G.T + np.eye(3) * noise
             P[lay.bg, lay.att] = G @ P_att
@@ -564,245 +579,134 @@ class Navigator:
             P[lay.gm, lay.gm] = np.diag(np.maximum(gm_var.reshape(9), 1e-12))
         return P
 
-    def _next_epoch_end(self) -> int | None:
+    def _plan(self) -> tuple[NDArray[np.int64], bool]:
+        """The next epochs' last IMU samples (indices into the buffer), at most MAX_BATCH, and
+        whether the last of them is a marker passage's epoch (then it is the only one with a
+        marker due)."""
         s = self.state
         assert s is not None
-        t = self._imu_t
-        if len(t) == 0:
-            return None
-        if self.epoch_times is not None:
-            i = int(np.searchsorted(self.epoch_times, s.t + 1e-9, side="right"))
-            target = self.epoch_times[i] - 1e-9 if i < len(self.epoch_times) else math.inf
-            end = int(np.searchsorted(t, target))
-        else:
-            target = s.t + 1.0 / self.cfg.filter_rate_hz - 1e-9
-            end = int(np.searchsorted(t, target))
-            pending = [m for m in self._markers if m.t > s.t]
-            if pending:
-                end = min(end, int(np.searchsorted(t, pending[0].t)))
-        if end >= len(t):
-            return None
-        t_end = t[end]
-        if self._horizon < t_end:
-            return None
-        o = self._odo
-        covered = len(o) and o.t[-1] >= t_end
-        if not covered and self._horizon < t_end + ODOMETER_TIMEOUT_S:
-            return None
-        return end
+        period = 1.0 / self.cfg.filter_rate_hz
+        times = self.epoch_times if self.epoch_times is not None else np.empty(0)
+        mk = np.array([m.t for m in self._markers]) if self._markers else np.empty(0)
+        odo_end = float(self._odo.t[-1]) if len(self._odo) else -math.inf
+        return _plan_epochs(
+            self._imu_t,
+            s.t,
+            period,
+            times,
+            mk,
+            self._horizon,
+            odo_end,
+            ODOMETER_TIMEOUT_S,
+            MAX_BATCH,
+        )
 
-    def _process_epoch(self, end: int) -> None:
-        cfg, lay = self.cfg, self.layout
-        kf = self.kf
-        assert self.state is not None and kf is not None
-        ref = self.reference
-        k_ep = self._epoch + 1
-        if ref is not None and k_ep >= len(ref):
-            raise ValueError("the data run past the end of the reference trajectory")
-        # linearization point at the block start: the reference, or the filter's own estimate
-        s0 = ref[k_ep - 1] if ref is not None else self.state
-        t = self._imu_t[: end + 1]
-        g = self._imu_g[: end + 1]
-        a = self._imu_a[: end + 1]
+    def _inputs(self, ends: NDArray[np.int64]) -> tuple:  # type: ignore[type-arg]
+        """Per epoch: odometer coverage, excluded (slip), encoder resolution, magnetometer
+        sample; per IMU sample: the odometer reading (run_epochs' arguments)."""
+        assert self.state is not None
+        t = self._imu_t[: ends[-1] + 1]
+        t_end = t[ends]
+        t_start = np.r_[self.state.t, t_end[:-1]]
         o = self._odo
-        has_odo = bool(len(o)) and o.t[-1] >= t[-1] and o.t[0] <= s0.t + ODOMETER_TIMEOUT_S
-        if not has_odo:
-            self._counts["epochs_without_odometer"] += 1
-        s_odo = self._odometer_at(t) if has_odo else np.full(len(t), self._s_epoch_start)
-        ds = _increments(self._s_epoch_start, s_odo)
-        if lay.has_vel:
-            s1, blk, carry = ins_block(s0, t, g, a, self._carry, self.earth_sign)
+        if len(o):
+            s_odo = np.interp(t, o.t, o.distance)
+            first = o.t[np.maximum(np.searchsorted(o.t, t_start) - 1, 0)]
+            has_odo = (o.t[-1] >= t_end) & (first <= t_start + ODOMETER_TIMEOUT_S)
         else:
-            s1, blk, carry = dr_block(s0, t, g, a, ds, self._carry, self.lever_arm, self.earth_sign)
-        T = blk.T
-        speed = float(ds.sum() / T)
-        w_yz = float(np.hypot(blk.omega_b[1], blk.omega_b[2]))
-        lever_known = bool(np.any(self.lever_arm))
-        bend_sigma = 0.0 if lever_known else 0.5 * cfg.pipe_diameter * w_yz * T
-        w_dt = _increments(s0.t, t)
-        gyro_mean = (g * w_dt[:, None]).sum(axis=0) / w_dt.sum()  # time-weighted, rad/s
-        stopped = (
-            has_odo
-            and abs(speed) < cfg.stop_speed_threshold
-            and abs(self._prev_speed) < cfg.stop_speed_threshold
-            and float(np.linalg.norm(gyro_mean - s1.bg)) < cfg.stop_gyro_threshold
-        )
-        # the linearization point at the block end, and the velocity at which the Jacobians
-        # that couple attitude and velocity are evaluated (first estimate; zero when stopped)
-        s_lin = ref[k_ep] if ref is not None else s1
-        v_jac = np.zeros(3) if stopped else s_lin.vel_n.copy()
-        dv_f = None
-        if lay.has_vel:
-            # specific-force increment consistent with the Jacobian velocities at both ends:
-            # dv_f + (v_jac(end) - v_nominal(end)) - (v_jac(start) - v_nominal(start))
-            dv_f = blk.dv_f + (v_jac - s1.vel_n) - (self._v_jac - s0.vel_n)
-        # Before the second marker anchors a heading taken from the markers, that heading can
-        # be tens of degrees off: the Earth rate's dependence on it (gyrocompassing, real but
-        # weak with a MEMS gyro) is then linearized too far from the truth and turns the
-        # heading during the leg, so that the re-anchoring rotation no longer fits the path.
-        # Until then the heading is left to the gyros alone.
-        free = not self._anchored
-        A = integrated_system_matrix(
-            s0, blk, lay, self.earth_sign, at_rest=stopped, dv_f=dv_f, heading_free=free
-        )
-        Q = continuous_noise(
-            s0,
-            blk,
-            lay,
-            self.imu_spec,
-            scale_rw=cfg.odometer_scale_rw,
-            dr_along_sigma=cfg.odometer_distance_sigma,
-            dr_lateral_sigma=cfg.dr_lateral_sigma,
-            bend_sigma=bend_sigma,
-            odometer_resolution=self._odometer_resolution(float(t[-1])),
-        )
-        phi, qd = discretize(A, Q, lay)
-        offset = s1.difference(s_lin, lay) if ref is not None else None
-        kf.predict(phi, qd, offset)
-        s1.distance = s0.distance + (1.0 + s0.k) * float(ds.sum())
-        s_pred = s1.copy()
-        s = s_lin.copy() if ref is not None else s1
-        due = [m for m in self._markers if m.t <= t[-1]]
+            s_odo, has_odo = np.zeros(len(t)), np.zeros(len(ends), dtype=bool)
+        ex = self.odometer_exclude
+        excluded = np.zeros(len(ends), dtype=bool)
+        if len(ex):
+            # some interval starts before the epoch's end and ends after its start
+            lo = np.searchsorted(ex[:, 0], t_end)
+            latest_end = np.maximum.accumulate(ex[:, 1])[np.maximum(lo - 1, 0)]
+            excluded = (lo > 0) & (latest_end > t_start)
+        mag_i = np.searchsorted(self._mag.t, t_end, side="right") - 1
+        ok = mag_i >= 0
+        ok[ok] = self._mag.t[mag_i[ok]] > t_start[ok] + 1e-9
+        mag_i = np.where(ok, mag_i, -1)
+        res = self._odometer_resolutions(t_end)
+        return s_odo, has_odo, excluded, res, mag_i
+
+    def _call(
+        self,
+        batch: Batch,
+        ends: NDArray[np.int64],
+        inputs: tuple,
+        markers: Array,  # type: ignore[type-arg]
+        *,
+        stop: bool = False,
+        resume: bool = False,
+    ) -> None:
+        kf = self.kf
+        assert kf is not None and self._prm is not None
+        ref = self.reference if self.reference is not None else np.empty((0, SV_SIZE))
+        n_imu = ends[-1] + 1
+        run_epochs(
+            stop, resume, self._epoch + 1, self._sv, kf.x, kf.P, self._carry, self._dyn,
+            self.layout.index, self._prm, ref, self._imu_t[:n_imu], self._imu_g[:n_imu],
+            self._imu_a[:n_imu], ends, *inputs, self._mag.t, self._mag.field, markers,
+            *batch.buffers(),
+        )  # fmt: skip
+
+    def _run_batch(self, ends: NDArray[np.int64]) -> None:
+        """Epochs without a marker passage, all in one call of the compiled loop."""
+        batch = Batch(len(ends), int(ends[-1]) + 1, self.layout.n)
+        self._call(batch, ends, self._inputs(ends), np.zeros((0, 7)))
+        self._finish(batch, ends)
+
+    def _run_marker_epoch(self, ends: NDArray[np.int64]) -> None:
+        """The epoch of a marker passage: prediction, then (Python) the heading re-anchoring
+        and the covariance recovery of _before_marker, then the updates with the marker fix."""
+        assert self.kf is not None and self.state is not None
+        t_end = self._imu_t[ends[-1]]
+        due = [m for m in self._markers if m.t <= t_end]
         for m in due:
             self._markers.remove(m)
+        batch = Batch(1, int(ends[-1]) + 1, self.layout.n, len(due))
+        inputs = self._inputs(ends)
+        self._call(batch, ends, inputs, np.zeros((0, 7)), stop=True)
+        s = NavState.from_vector(batch.ws_sv[S_LIN])
         due = [m for m in due if not self._late_marker(m, s)]
+        v_jac = batch.ws[W_VJAC : W_VJAC + 3]
         for m in due:
             s, rz = self._before_marker(m, s)
-            v_jac = rz @ v_jac  # the first-estimate velocity turns with the re-anchored state
-        x_pred = kf.x.copy()
-        P_pred = kf.P.copy() if self.recording is not None else None
-
-        # Every update of the epoch is linearized at s (the prediction, or the reference); the
-        # filter's mean error carries the corrections from one to the next (kalman.py), and
-        # the ordinary EKF injects them into its nominal once, at the end of the epoch.
-        def apply(m: meas.Measurement | None) -> None:
-            if m is not None:
-                kf.update(m)
-
-        if lay.has_vel and has_odo:
-            w, d = blk.omega_b, self.lever_arm
-            lever_rate = float(w[1] * d[2] - w[2] * d[1])  # (omega x d)_x
-            sigma_speed = math.hypot(
-                cfg.over_epoch(cfg.odometer_speed_sigma, T),
-                0.5 * cfg.pipe_diameter * w_yz * (not lever_known),
-            )
-            odo = meas.odometer_velocity(
-                s,
-                lay,
-                speed=speed,
-                vel_b_offset=blk.mean_vel_b - s1.c_nb.T @ s1.vel_n,
-                lever_rate=lever_rate,
-                sigma_speed=sigma_speed,
-                sigma_nhc=cfg.over_epoch(cfg.nhc_sigma, T),
-                vel_jac=v_jac,
-                epoch_s=T,
-            )
-            apply(odo.rows([1, 2], "nhc"))
-            if self._odometer_excluded(s0.t, t[-1]):
-                self._counts["odometer_excluded"] += 1
-            else:
-                apply(odo.rows([0], "odometer"))
-        if stopped:
-            if lay.has_vel:
-                apply(meas.zero_velocity(s, lay, cfg.zupt_sigma))
-            zaru_sigma = math.sqrt(self.imu_spec.gyro_arw**2 / T + cfg.zaru_sigma**2)
-            zaru = meas.zero_rate(
-                s, lay, gyro_mean=gyro_mean, sigma=zaru_sigma, earth_sign=self.earth_sign
-            )
-            if free:
-                zaru.H[:, lay.att.start + 2] = 0.0
-            apply(zaru)
-        if cfg.tilt_enabled() and has_odo:
-            self._tilt_update(s, blk, T, apply)
-        if cfg.mag_update:
-            self._mag_update(s, blk, apply)
-        for m in due:
-            mm = meas.marker_fix(s, lay, m, time_sigma=cfg.marker_time_sigma)
-            if self.recording is not None:
-                self.recording.marker_residuals[m.name] = mm.residual.copy()
-            apply(mm)
-
-        if ref is not None:
-            est = s_lin.inject(kf.x, lay)
-            est.distance = s_lin.distance
-            dx_rec = kf.x - x_pred
-            end_offset = s_lin.difference(s1, lay)
-        else:
-            est = s.inject(kf.x, lay)
-            kf.reset_mean()
-            dx_rec = est.difference(s_pred, lay)
-            end_offset = dx_rec
-        self._prev_speed = speed
-        self._prev_vel_mean = blk.dp / T
-        self._v_jac = v_jac
-        self._epoch = k_ep
-        self.state = est
-        self._carry = carry
-        self._s_epoch_start = float(s_odo[-1])
+            v_jac[:] = rz @ v_jac  # the first-estimate velocity turns with the re-anchored state
+        batch.ws_sv[S_LIN] = s.vector()
+        batch.ws_x[:] = self.kf.x  # the prediction as _before_marker left it
+        batch.P_pred[0] = self.kf.P
+        mk = np.array([marker_vector(m) for m in due]).reshape(-1, 7)
+        batch.marker_res = np.zeros((len(due), 3))
+        self._call(batch, ends, inputs, mk, resume=True)
         if self.recording is not None:
-            self._record_epoch(
-                P_pred, phi, dx_rec, blk, s_odo, lin=s_lin, x_upd=kf.x, end_offset=end_offset
-            )
-        self._counts["epochs"] += 1
-        self._drop_processed(end)
-        self._emit(status="static" if stopped else "moving", omega=blk.omega_b)
+            for m, r in zip(due, batch.marker_res, strict=True):
+                self.recording.marker_residuals[m.name] = r.copy()
+        self._dyn[D_FREE] = not self._anchored
+        self._finish(batch, ends)
 
-    def _odometer_excluded(self, t0: float, t1: float) -> bool:
-        ex = self.odometer_exclude
-        return bool(len(ex)) and bool(np.any((ex[:, 0] < t1) & (ex[:, 1] > t0)))
-
-    def _tilt_update(self, s: NavState, blk: BlockResult, T: float, apply) -> None:  # noqa: ANN001
-        cfg = self.cfg
-        vel_mean = blk.dp / T
-        if self._prev_vel_mean is None:
-            return
-        accel_n = (vel_mean - self._prev_vel_mean) / T
-        g = earth.gravity(s.lat, s.h)
-        f_norm = float(np.linalg.norm(blk.f_mean_n))
-        if abs(f_norm - g) > cfg.tilt_gate or float(np.linalg.norm(accel_n)) > cfg.tilt_gate:
-            self._counts["tilt_gated_motion"] += 1
-            return
-        apply(
-            meas.gravity_tilt(
-                s,
-                self.layout,
-                f_mean_n=blk.f_mean_n,
-                c_mean=blk.sum_c_dt / T,
-                accel_n=accel_n,
-                sigma=cfg.tilt_sigma,
-                c_f_mean=blk.sum_c_f_dt / T,
-            )
-        )
-
-    def _mag_update(self, s: NavState, blk: BlockResult, apply) -> None:  # noqa: ANN001
-        cfg = self.cfg
-        i = int(np.searchsorted(self._mag.t, blk.t[-1], side="right")) - 1
-        if i < 0 or self._mag.t[i] <= blk.t[-1] - blk.T + 1e-9 or self._mag_ref is None:
-            return
-        m_b = self._mag.field[i]
-        j = min(int(np.searchsorted(blk.t, self._mag.t[i])), len(blk.t) - 1)
-        # attitude at the sample, moved by the corrections applied since the block end
-        c_sample = att.dcm_from_quat(blk.q_nb[j])
-        ref_mag, ref_dip = self._mag_ref
-        mag_norm = float(np.linalg.norm(m_b))
-        m_n = c_sample @ m_b
-        dip = float(np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1])))
-        if (
-            abs(mag_norm / ref_mag - 1.0) > cfg.mag_magnitude_gate
-            or abs(dip - ref_dip) > cfg.mag_dip_gate
-        ):
-            self._counts["mag_disturbed"] += 1
-            return
-        apply(
-            meas.magnetic_heading(
-                s,
-                self.layout,
-                field_b=m_b,
-                c_nb=c_sample,
-                declination=cfg.mag_declination,
-                sigma=cfg.mag_heading_sigma,
-            )
-        )
+    def _finish(self, batch: Batch, ends: NDArray[np.int64]) -> None:
+        """Take a batch's results: state, counters, recording, estimates; drop its samples."""
+        kf = self.kf
+        assert kf is not None
+        nb = len(ends)
+        self.state = NavState.from_vector(self._sv)
+        for name, c in zip(COUNTERS, batch.counts, strict=True):
+            if c:
+                self._counts[name] += int(c)
+        st = kf.stats
+        for k, name in enumerate(KINDS):
+            if batch.acc[k] or batch.rej[k]:
+                st.accepted[name] += int(batch.acc[k])
+                st.rejected[name] += int(batch.rej[k])
+                st.nis_sum[name] += float(batch.nis[k])
+                st.dof_sum[name] += int(batch.dof[k])
+        if self.recording is not None:
+            self._record_batch(batch, ends)
+        if self.emit:
+            self._emit_batch(batch, nb)
+        self._epoch += nb
+        self._drop_processed()
 
     def _late_marker(self, m: Marker, s: NavState) -> bool:
         if m.t < s.t - 2.0:
@@ -866,6 +770,8 @@ class Navigator:
     def _emit(self, status: str = "static", omega: Array | None = None) -> None:
         s, kf, lay = self.state, self.kf, self.layout
         assert s is not None and kf is not None
+        if not self.emit:
+            return
         cov_pose = kf.P[self._pose_ix]
         cov_vel = (
             kf.P[lay.vel, lay.vel].copy()
@@ -888,39 +794,120 @@ class Navigator:
             )
         )
 
-    def _record_epoch(
-        self,
-        P_pred: Array | None,
-        phi: Array | None,
-        dx: Array,
-        blk: BlockResult | None,
-        s_odo: Array | list,
-        *,
-        lin: NavState,
-        x_upd: Array,
-        end_offset: Array,
-    ) -> None:
+    def _emit_batch(self, batch: Batch, nb: int) -> None:
+        lay = self.layout
+        cov_pose = batch.P_upd[:nb][:, self._pose_ix[0], self._pose_ix[1]]
+        if lay.vel is not None:
+            cov_vel = batch.P_upd[:nb, lay.vel, lay.vel]
+        else:
+            cov_vel = np.broadcast_to(np.eye(3) * self.cfg.odometer_speed_sigma**2, (nb, 3, 3))
+        for e in range(nb):
+            v = batch.sv[e]
+            self._out.append(
+                NavEstimate(
+                    t=float(v[SV_T]),
+                    lat=float(v[SV_LAT]),
+                    lon=float(v[SV_LON]),
+                    h=float(v[SV_H]),
+                    vel_n=v[SV_VEL].copy(),
+                    quat_nb=v[SV_Q].copy(),
+                    omega_b=batch.omega[e].copy(),
+                    cov_pose=cov_pose[e],
+                    cov_vel_n=cov_vel[e].copy(),
+                    distance=float(v[SV_DIST]),
+                    status="static" if batch.stopped[e] else "moving",
+                )
+            )
+
+    def _record_batch(self, batch: Batch, ends: NDArray[np.int64]) -> None:
         rec = self.recording
-        assert rec is not None and self.state is not None and self.kf is not None
+        assert rec is not None
+        nb = len(ends)
+        linearized = self.reference is not None
+        rec.add_epochs(
+            batch.sv[:nb],
+            dx=batch.dx[:nb],
+            P_upd=batch.P_upd[:nb],
+            P_pred=batch.P_pred[:nb],
+            phi=batch.phi[:nb],
+            lin=batch.lin[:nb] if linearized else None,
+            x_upd=batch.x_upd[:nb] if linearized else None,
+            end_offset=batch.end_offset[:nb] if linearized else None,
+        )
+        b = batch
+        rec.add_blocks(ends, self._imu_t, b.s_odo, b.lat, b.lon, b.h, b.q)
+
+    def _record_alignment(self, lin: NavState) -> None:
+        """Epoch 0 of the recording: the aligned state, its prior, no transition."""
+        rec, kf = self.recording, self.kf
+        assert rec is not None and kf is not None and self.state is not None
         n = self.layout.n
-        rec.t.append(self.state.t)
-        rec.states.append(self.state.copy())
-        rec.lin.append(lin.copy() if self.reference is not None else rec.states[-1])
-        rec.x_upd.append(x_upd.copy())
-        rec.P_upd.append(self.kf.P.copy())
-        rec.P_pred.append(self.kf.P.copy() if P_pred is None else P_pred)
-        rec.phi.append(np.eye(n) if phi is None else phi)
-        rec.dx.append(dx)
-        rec.end_offset.append(end_offset)
-        k = len(rec.t) - 1
-        if blk is not None:
-            rec.s_t.append(blk.t.copy())
-            rec.s_odo.append(np.asarray(s_odo, dtype=np.float64).copy())
-            rec.s_lat.append(blk.lat.copy())
-            rec.s_lon.append(blk.lon.copy())
-            rec.s_h.append(blk.h.copy())
-            rec.s_q.append(blk.q_nb.copy())
-            rec.s_epoch.append(np.full(len(blk.t), k))
+        zero = np.zeros(n)
+        linearized = self.reference is not None
+        rec.add_epoch(
+            self._sv.copy(),
+            dx=zero,
+            P_upd=kf.P,
+            P_pred=kf.P,
+            phi=np.eye(n),
+            lin=lin.vector() if linearized else None,
+            x_upd=kf.x.copy() if linearized else None,
+            end_offset=zero if linearized else None,
+        )
+
+
+@kernel
+def _plan_epochs(
+    t: Array,
+    t0: float,
+    period: float,
+    epoch_times: Array,
+    markers: Array,
+    horizon: float,
+    odo_end: float,
+    timeout: float,
+    max_epochs: int,
+) -> tuple[NDArray[np.int64], bool]:
+    """Navigator._plan: epochs end at the first sample at or after t_prev + period (or at the
+    given epoch_times), cut at the first pending marker passage (markers: sorted times, s);
+    an epoch waits for its samples (horizon s: stamp time up to which all data are in) and,
+    up to timeout s, for odometer coverage (odo_end: the last odometer stamp). Returns the
+    ends and whether the last epoch has a marker due (planning stops there)."""
+    ends = np.empty(max_epochs, dtype=np.int64)
+    nb = 0
+    t_prev = t0
+    due = False
+    while nb < max_epochs:
+        if epoch_times.shape[0] > 0:
+            i = np.searchsorted(epoch_times, t_prev + 1e-9, side="right")
+            target = epoch_times[i] - 1e-9 if i < epoch_times.shape[0] else np.inf
+            end = np.searchsorted(t, target)
+        else:
+            end = np.searchsorted(t, t_prev + period - 1e-9)
+            j = np.searchsorted(markers, t_prev, side="right")  # the first pending marker
+            if j < markers.shape[0]:
+                end = min(end, np.searchsorted(t, markers[j]))
+        if end >= t.shape[0]:
+            break
+        t_end = t[end]
+        if horizon < t_end or (odo_end < t_end and horizon < t_end + timeout):
+            break
+        ends[nb] = end
+        nb += 1
+        t_prev = t_end
+        if markers.shape[0] > 0 and markers[0] <= t_end:
+            due = True
+            break
+    return ends[:nb], due
+
+
+def _flat_states(states: Sequence[NavState] | Array | None) -> Array | None:
+    """States as a (K, SV_SIZE) array (NavState.vector rows)."""
+    if states is None:
+        return None
+    if isinstance(states, np.ndarray):
+        return np.ascontiguousarray(states, dtype=np.float64)
+    return np.array([s.vector() for s in states]).reshape(-1, SV_SIZE)
 
 
 def _increments(x0: float, x: Array) -> Array:

@@ -68,14 +68,12 @@ def _joseph_update(
     PHt = np.zeros((n, m))
     HP = np.zeros((m, n))
     for a in range(m):
-        for i in range(n):
-            acc_ph = 0.0
-            acc_hp = 0.0
-            for j in range(n):
-                acc_ph += P[i, j] * H[a, j]
-                acc_hp += H[a, j] * P[j, i]
-            PHt[i, a] = acc_ph
-            HP[a, i] = acc_hp
+        for j in range(n):
+            h = H[a, j]
+            if h != 0.0:  # H is sparse; skipping its zeros changes no sum
+                for i in range(n):
+                    PHt[i, a] += P[i, j] * h
+                    HP[a, i] += h * P[j, i]
     # solve S [y, Z] = [r, PHt^T] by Gaussian elimination with partial pivoting
     S = R.copy()
     for a in range(m):
@@ -117,9 +115,11 @@ def _joseph_update(
     if not np.isfinite(nis) or nis > nis_max:
         return nis, empty1, empty1, empty2
     K = np.empty((n, m))
+    KT = np.empty((m, n))  # K transposed: the inner loops below run along rows
     for i in range(n):
         for a in range(m):
             K[i, a] = rhs[a, i + 1]
+            KT[a, i] = rhs[a, i + 1]
     dx = np.zeros(n)
     for i in range(n):
         for a in range(m):
@@ -127,26 +127,81 @@ def _joseph_update(
     # B = (I - KH) P; P_new = B (I - KH)^T + K R K^T
     B = P.copy()
     for i in range(n):
-        for j in range(n):
-            for a in range(m):
-                B[i, j] -= K[i, a] * HP[a, j]
+        for a in range(m):
+            k = K[i, a]
+            for j in range(n):
+                B[i, j] -= k * HP[a, j]
     BHt = np.zeros((n, m))
     KR = np.zeros((n, m))
+    for a in range(m):
+        for j in range(n):
+            h = H[a, j]
+            if h != 0.0:
+                for i in range(n):
+                    BHt[i, a] += B[i, j] * h
     for i in range(n):
         for a in range(m):
-            for j in range(n):
-                BHt[i, a] += B[i, j] * H[a, j]
             for b in range(m):
                 KR[i, a] += K[i, b] * R[b, a]
     for i in range(n):
-        for j in range(n):
-            for a in range(m):
-                B[i, j] += KR[i, a] * K[j, a] - BHt[i, a] * K[j, a]
+        for a in range(m):
+            c1, c2 = KR[i, a], BHt[i, a]
+            for j in range(n):
+                B[i, j] += c1 * KT[a, j] - c2 * KT[a, j]
     P_new = np.empty((n, n))
     for i in range(n):
         for j in range(n):
             P_new[i, j] = 0.5 * (B[i, j] + B[j, i])
     return nis, dx, x + dx, P_new
+
+
+@kernel
+def predict_k(x: Array, P: Array, phi: Array, qd: Array, offset: Array) -> None:
+    """In place: x <- phi x + offset; P <- phi P phi^T + qd, symmetrized (P symmetric).
+
+    Only the rows of phi that differ from the identity's (the attitude, velocity and position
+    errors, some 11 of 40) are multiplied out: the rest of P is carried over as it is."""
+    n = x.shape[0]
+    rows = np.empty(n, dtype=np.int64)
+    moved = np.zeros(n, dtype=np.bool_)
+    nr = 0
+    for i in range(n):
+        for j in range(n):
+            if phi[i, j] != (1.0 if i == j else 0.0):
+                rows[nr] = i
+                moved[i] = True
+                nr += 1
+                break
+    M = np.zeros((nr, n))  # rows of phi P
+    xn = x.copy()
+    for a in range(nr):
+        i = rows[a]
+        acc = 0.0
+        for k in range(n):
+            f = phi[i, k]
+            if f != 0.0:
+                acc += f * x[k]
+                for j in range(n):
+                    M[a, j] += f * P[k, j]
+        xn[i] = acc
+    Pn = P.copy()
+    for a in range(nr):
+        i = rows[a]
+        for j in range(n):
+            if moved[j]:
+                acc = 0.0
+                for k in range(n):
+                    acc += M[a, k] * phi[j, k]
+                Pn[i, j] = acc
+            else:
+                Pn[i, j] = M[a, j]
+                Pn[j, i] = M[a, j]
+    for i in range(n):
+        x[i] = xn[i] + offset[i]
+        for j in range(i, n):
+            v = 0.5 * ((Pn[i, j] + qd[i, j]) + (Pn[j, i] + qd[j, i]))
+            P[i, j] = v
+            P[j, i] = v
 
 
 class ErrorStateKF:
@@ -167,9 +222,8 @@ class ErrorStateKF:
     def predict(self, phi: Array, qd: Array, offset: Array | None = None) -> None:
         """x <- phi x + offset (offset: the nominal transition's miss of the new linearization
         point, zero when the nominal is propagated itself); P <- phi P phi^T + qd."""
-        self.x = phi @ self.x if offset is None else phi @ self.x + offset
-        P = phi @ self.P @ phi.T + qd
-        self.P = 0.5 * (P + P.T)
+        off = np.zeros(len(self.x)) if offset is None else np.asarray(offset, dtype=np.float64)
+        predict_k(self.x, self.P, np.ascontiguousarray(phi), np.ascontiguousarray(qd), off)
 
     def reset_mean(self) -> None:
         """The caller has injected x into its nominal state."""

@@ -8,6 +8,10 @@ Each model returns a :class:`Measurement` with
 - ``R`` (m, m) the noise covariance, in the measurement's units.
 
 Frames: ENU navigation frame, base_link body frame (FLU). Units SI, angles rad.
+
+Each model is a compiled kernel (``*_k``: flat state and layout index array, see
+:mod:`pipe_nav_core.state`) returning (residual, H, R), which the engine's compiled epoch calls
+directly; the functions without the suffix wrap it for NavState callers.
 """
 
 from __future__ import annotations
@@ -17,11 +21,38 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from . import attitude as att
 from . import earth
-from .state import Layout, NavState, odometer_axis, skew3
+from .jit import kernel
+from .state import (
+    I_BG,
+    I_ODOQ,
+    I_Q,
+    I_VEL,
+    L_AM,
+    L_ATT,
+    L_BA,
+    L_BG,
+    L_BORE,
+    L_K,
+    L_N,
+    L_ODOQ,
+    L_POS,
+    L_VEL,
+    SV_H,
+    SV_K,
+    SV_LAT,
+    SV_LON,
+    SV_T,
+    Layout,
+    NavState,
+    odometer_axis,
+)
 from .types import Marker
 
 Array = NDArray[np.float64]
+Index = NDArray[np.int64]
+Model = tuple[Array, Array, Array]  # residual (m,), H (m, n), R (m, m)
 
 
 @dataclass
@@ -36,6 +67,65 @@ class Measurement:
     def rows(self, idx: list[int], name: str) -> Measurement:
         """The measurement restricted to some of its components, renamed."""
         return Measurement(name, self.residual[idx], self.H[idx], self.R[idx][:, idx])
+
+
+@kernel
+def _dcm(sv: Array) -> Array:
+    c = np.empty((3, 3))
+    att.dcm_into((sv[I_Q], sv[I_Q + 1], sv[I_Q + 2], sv[I_Q + 3]), c)
+    return c
+
+
+@kernel
+def _skew(v0: float, v1: float, v2: float) -> Array:
+    out = np.zeros((3, 3))
+    out[0, 1], out[0, 2], out[1, 2] = -v2, v1, -v0
+    out[1, 0], out[2, 0], out[2, 1] = v2, -v1, v0
+    return out
+
+
+@kernel
+def _put(H: Array, col: int, block: Array) -> None:
+    """H[:, col:col + block.shape[1]] = block."""
+    for r in range(block.shape[0]):
+        for j in range(block.shape[1]):
+            H[r, col + j] = block[r, j]
+
+
+@kernel
+def odometer_velocity_k(
+    sv: Array,
+    L: Index,
+    speed: float,
+    vel_b_offset: Array,
+    lever_rate: float,
+    sigma_speed: float,
+    sigma_nhc: float,
+    vel_jac: Array,
+    epoch_s: float,
+) -> Model:
+    """:func:`odometer_velocity` on a flat state (vel_jac required)."""
+    c = _dcm(sv)
+    u, du = odometer_axis(sv[18:20])
+    k = sv[SV_K]
+    quantized = L[L_ODOQ] >= 0 and epoch_s > 0.0
+    if quantized:
+        speed = speed - (sv[I_ODOQ + 1] - sv[I_ODOQ]) / epoch_s
+    v_centre = (1.0 + k) * speed - lever_rate
+    vel = sv[I_VEL : I_VEL + 3]
+    h = c.T @ vel + vel_b_offset - u * v_centre
+    H = np.zeros((3, L[L_N]))
+    _put(H, L[L_VEL], c.T.copy())
+    _put(H, L[L_ATT], c.T @ _skew(vel_jac[0], vel_jac[1], vel_jac[2]))
+    for r in range(3):
+        H[r, L[L_K]] = -u[r] * speed
+        H[r, L[L_BORE]] = -v_centre * du[r, 0]
+        H[r, L[L_BORE] + 1] = -v_centre * du[r, 1]
+        if quantized:
+            H[r, L[L_ODOQ]] = -u[r] * (1.0 + k) / epoch_s
+            H[r, L[L_ODOQ] + 1] = u[r] * (1.0 + k) / epoch_s
+    R = np.diag(np.array([sigma_speed**2, sigma_nhc**2, sigma_nhc**2]))
+    return -h, H, R
 
 
 def odometer_velocity(
@@ -63,33 +153,49 @@ def odometer_velocity(
     has odometer reading errors (odoq, m), speed is corrected by -(odoq_end - odoq_start) /
     epoch_s (the quantization of the readings at both ends of the epoch).
     """
-    c = s.c_nb
-    u, du = odometer_axis(s.bore)
-    q = layout.odoq is not None and epoch_s > 0.0
-    if q:
-        speed = speed - (s.odoq[1] - s.odoq[0]) / epoch_s
-    v_centre = (1.0 + s.k) * speed - lever_rate
-    h = c.T @ s.vel_n + vel_b_offset - u * v_centre
-    H = np.zeros((3, layout.n))
     assert layout.vel is not None
-    H[:, layout.vel] = c.T
-    H[:, layout.att] = c.T @ skew3(s.vel_n if vel_jac is None else vel_jac)
-    H[:, layout.k] = (-u * speed)[:, None]
-    H[:, layout.bore] = -v_centre * du
-    if q:
-        assert layout.odoq is not None
-        H[:, layout.odoq.start] = -u * (1.0 + s.k) / epoch_s
-        H[:, layout.odoq.start + 1] = u * (1.0 + s.k) / epoch_s
-    R = np.diag([sigma_speed**2, sigma_nhc**2, sigma_nhc**2])
-    return Measurement("odometer", -h, H, R)
+    r, H, R = odometer_velocity_k(
+        s.vector(),
+        layout.index,
+        float(speed),
+        np.asarray(vel_b_offset, dtype=np.float64),
+        float(lever_rate),
+        float(sigma_speed),
+        float(sigma_nhc),
+        np.asarray(s.vel_n if vel_jac is None else vel_jac, dtype=np.float64),
+        float(epoch_s),
+    )
+    return Measurement("odometer", r, H, R)
+
+
+@kernel
+def zero_velocity_k(sv: Array, L: Index, sigma: float) -> Model:
+    """:func:`zero_velocity` on a flat state."""
+    H = np.zeros((3, L[L_N]))
+    for r in range(3):
+        H[r, L[L_VEL] + r] = 1.0
+    return -sv[I_VEL : I_VEL + 3].copy(), H, np.eye(3) * sigma**2
 
 
 def zero_velocity(s: NavState, layout: Layout, sigma: float) -> Measurement:
     """Zero velocity when stopped (INS mode): v_n = 0, m/s."""
     assert layout.vel is not None
-    H = np.zeros((3, layout.n))
-    H[:, layout.vel] = np.eye(3)
-    return Measurement("zupt", -s.vel_n.copy(), H, np.eye(3) * sigma**2)
+    return Measurement("zupt", *zero_velocity_k(s.vector(), layout.index, float(sigma)))
+
+
+@kernel
+def zero_rate_k(sv: Array, L: Index, gyro_mean: Array, sigma: float, earth_sign: float) -> Model:
+    """:func:`zero_rate` on a flat state."""
+    c = _dcm(sv)
+    lat = sv[SV_LAT]
+    w_ie = np.array([0.0, earth.OMEGA_IE * np.cos(lat), earth.OMEGA_IE * np.sin(lat)])
+    w_ie *= earth_sign
+    h = gyro_mean - sv[I_BG : I_BG + 3] - c.T @ w_ie
+    H = np.zeros((3, L[L_N]))
+    for r in range(3):
+        H[r, L[L_BG] + r] = -1.0
+    _put(H, L[L_ATT], -(c.T @ _skew(w_ie[0], w_ie[1], w_ie[2])))
+    return -h, H, np.eye(3) * sigma**2
 
 
 def zero_rate(
@@ -97,13 +203,36 @@ def zero_rate(
 ) -> Measurement:
     """Zero angular rate when stopped: the mean gyro reading (rad/s, base_link) equals the
     Earth rate seen in the body plus the gyro bias."""
-    c = s.c_nb
-    w_ie = earth_sign * earth.earth_rate_n(s.lat)
-    h = gyro_mean - s.bg - c.T @ w_ie
-    H = np.zeros((3, layout.n))
-    H[:, layout.bg] = -np.eye(3)
-    H[:, layout.att] = -c.T @ skew3(w_ie)
-    return Measurement("zaru", -h, H, np.eye(3) * sigma**2)
+    r, H, R = zero_rate_k(
+        s.vector(),
+        layout.index,
+        np.asarray(gyro_mean, dtype=np.float64),
+        float(sigma),
+        float(earth_sign),
+    )
+    return Measurement("zaru", r, H, R)
+
+
+@kernel
+def gravity_tilt_k(
+    sv: Array,
+    L: Index,
+    f_mean_n: Array,
+    c_mean: Array,
+    accel_n: Array,
+    sigma: float,
+    c_f_mean: Array,
+) -> Model:
+    """:func:`gravity_tilt` on a flat state (c_f_mean (3, 9), or (0, 9) for none)."""
+    g = earth._gravity(sv[SV_LAT], sv[SV_H])
+    d = f_mean_n - accel_n
+    h = d - np.array([0.0, 0.0, g])
+    H = np.zeros((3, L[L_N]))
+    _put(H, L[L_ATT], -_skew(d[0], d[1], d[2]))
+    _put(H, L[L_BA], -c_mean)
+    if L[L_AM] >= 0 and c_f_mean.shape[0] == 3:
+        _put(H, L[L_AM], -c_f_mean)
+    return -h, H, np.eye(3) * sigma**2
 
 
 def gravity_tilt(
@@ -127,14 +256,34 @@ def gravity_tilt(
     C_nb[:, i] f_j over the epoch, the coupling of the accelerometer error matrix (when the
     layout has it).
     """
-    g = earth.gravity(s.lat, s.h)
-    h = f_mean_n - accel_n - np.array([0.0, 0.0, g])
-    H = np.zeros((3, layout.n))
-    H[:, layout.att] = -skew3(f_mean_n - accel_n)
-    H[:, layout.ba] = -c_mean
-    if layout.am is not None and c_f_mean is not None:
-        H[:, layout.am] = -c_f_mean
-    return Measurement("tilt", -h, H, np.eye(3) * sigma**2)
+    f = np.asarray
+    r, H, R = gravity_tilt_k(
+        s.vector(),
+        layout.index,
+        f(f_mean_n, dtype=np.float64),
+        f(c_mean, dtype=np.float64),
+        f(accel_n, dtype=np.float64),
+        float(sigma),
+        np.zeros((0, 9)) if c_f_mean is None else f(c_f_mean, dtype=np.float64),
+    )
+    return Measurement("tilt", r, H, R)
+
+
+@kernel
+def magnetic_heading_k(
+    sv: Array, L: Index, field_b: Array, c_nb: Array, declination: float, sigma: float
+) -> Model:
+    """:func:`magnetic_heading` on a flat state."""
+    m = c_nb @ field_b
+    rho2 = m[0] ** 2 + m[1] ** 2
+    x = np.arctan2(m[0], m[1]) - declination
+    h = np.array([np.arctan2(np.sin(x), np.cos(x))])
+    g = np.array([m[1], -m[0], 0.0]) / rho2
+    H = np.zeros((1, L[L_N]))
+    row = g @ _skew(m[0], m[1], m[2])
+    for j in range(3):
+        H[0, L[L_ATT] + j] = -row[j]
+    return -h, H, np.array([[sigma**2]])
 
 
 def magnetic_heading(
@@ -150,14 +299,39 @@ def magnetic_heading(
     rotated into ENU with the estimated attitude, equals magnetic north (declination east of
     true north positive), rad. field_b: hard-iron corrected field in base_link (tesla);
     c_nb: the attitude at the magnetometer sample time."""
-    m = c_nb @ field_b
-    rho2 = m[0] ** 2 + m[1] ** 2
-    az = np.arctan2(m[0], m[1])
-    h = np.array([np.angle(np.exp(1j * (az - declination)))])
-    g = np.array([m[1], -m[0], 0.0]) / rho2
-    H = np.zeros((1, layout.n))
-    H[0, layout.att] = -g @ skew3(m)
-    return Measurement("mag", -h, H, np.array([[sigma**2]]))
+    r, H, R = magnetic_heading_k(
+        s.vector(),
+        layout.index,
+        np.asarray(field_b, dtype=np.float64),
+        np.ascontiguousarray(c_nb, dtype=np.float64),
+        float(declination),
+        float(sigma),
+    )
+    return Measurement("mag", r, H, R)
+
+
+@kernel
+def marker_fix_k(sv: Array, L: Index, marker: Array, time_sigma: float) -> Model:
+    """:func:`marker_fix` on a flat state; marker = [t s, lat rad, lon rad, alt m, sigma E, N,
+    U m] (:func:`marker_vector`)."""
+    dt = marker[0] - sv[SV_T]
+    lat, h = sv[SV_LAT], sv[SV_H]
+    rm, rn = earth._radii(lat)
+    vel = sv[I_VEL : I_VEL + 3]
+    d_enu = np.empty(3)
+    d_enu[0] = (marker[2] - sv[SV_LON]) * (rn + h) * np.cos(lat) - vel[0] * dt
+    d_enu[1] = (marker[1] - lat) * (rm + h) - vel[1] * dt
+    d_enu[2] = marker[3] - h - vel[2] * dt
+    H = np.zeros((3, L[L_N]))
+    for r in range(3):
+        H[r, L[L_POS] + r] = 1.0
+    R = np.diag(marker[4:7] ** 2) + time_sigma**2 * np.outer(vel, vel)
+    return d_enu, H, R
+
+
+def marker_vector(m: Marker) -> Array:
+    """A marker as the flat vector marker_fix_k takes."""
+    return np.array([m.t, m.lat, m.lon, m.alt, *m.sigma_enu], dtype=np.float64)
 
 
 def marker_fix(s: NavState, layout: Layout, marker: Marker, *, time_sigma: float) -> Measurement:
@@ -167,19 +341,5 @@ def marker_fix(s: NavState, layout: Layout, marker: Marker, *, time_sigma: float
     (|marker.t - s.t| is at most one IMU interval here); the passage-time uncertainty adds
     speed * time_sigma along the track.
     """
-    dt = marker.t - s.t
-    rm, rn = earth.radii(s.lat)
-    d_enu = (
-        np.array(
-            [
-                (marker.lon - s.lon) * (rn + s.h) * np.cos(s.lat),
-                (marker.lat - s.lat) * (rm + s.h),
-                marker.alt - s.h,
-            ]
-        )
-        - s.vel_n * dt
-    )
-    H = np.zeros((3, layout.n))
-    H[:, layout.pos] = np.eye(3)
-    R = np.diag(np.square(marker.sigma_enu)) + time_sigma**2 * np.outer(s.vel_n, s.vel_n)
-    return Measurement("marker", d_enu, H, R)
+    r, H, R = marker_fix_k(s.vector(), layout.index, marker_vector(marker), float(time_sigma))
+    return Measurement("marker", r, H, R)

@@ -28,11 +28,30 @@ from numpy.typing import NDArray
 from . import attitude as att
 from . import earth
 from .jit import kernel
-from .state import NavState, odometer_axis
+from .state import (
+    I_AM,
+    I_BA,
+    I_BG,
+    I_BORE,
+    I_GM,
+    I_ODOQ,
+    I_Q,
+    I_VEL,
+    SV_H,
+    SV_K,
+    SV_LAT,
+    SV_LON,
+    SV_T,
+    NavState,
+    odometer_axis,
+)
 
 Array = NDArray[np.float64]
-Vec3 = tuple[float, float, float]
-Quat = tuple[float, float, float, float]  # [x, y, z, w]
+# what ins_step_k and dr_step_k return: the flat state at the block end; per sample q_nb (M, 4),
+# lat, lon (M,) rad, h (M,) m, vel (M, 3) m/s ENU; T s; path m; the sums (sum_c_dt, sum_c_w_dt,
+# sum_c_f_dt, dv_f, dp, dp_dk, dp_dbore) and means (omega_b, f_mean_n, mean_vel_b, w_in) of
+# BlockResult; the carry (6,) for the next block
+Step = tuple
 
 
 @dataclass
@@ -84,74 +103,6 @@ class BlockResult:
     sum_c_f_dt: Array
 
 
-# --- scalar helpers of the kernels (3-vectors and quaternions as tuples, no allocation) ---
-
-
-@kernel
-def _cross(a: Vec3 | Array, b: Vec3 | Array) -> Vec3:
-    """a x b of two 3-vectors (tuples or arrays)."""
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-@kernel
-def _quat_mul(p: Quat, q: Quat) -> Quat:
-    """Hamilton product p * q of scalar-last quaternions (as attitude.quat_mul)."""
-    px, py, pz, pw = p
-    qx, qy, qz, qw = q
-    return (
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-        pw * qw - px * qx - py * qy - pz * qz,
-    )
-
-
-@kernel
-def _quat_from_rotvec(x: float, y: float, z: float) -> Quat:
-    """Quaternion of the rotation vector (x, y, z), rad (as attitude.quat_from_rotvec)."""
-    th2 = x * x + y * y + z * z
-    th = np.sqrt(th2)
-    if th < 1e-6:
-        k = 0.5 - th2 / 48.0
-        w = 1.0 - th2 / 8.0
-    else:
-        k = np.sin(0.5 * th) / th
-        w = np.cos(0.5 * th)
-    return (x * k, y * k, z * k, w)
-
-
-@kernel
-def _dcm_into(q: Quat, c: Array) -> None:
-    """Write the rotation matrix of the unit quaternion q [x, y, z, w] into c (3, 3)."""
-    x, y, z, w = q
-    c[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    c[0, 1] = 2.0 * (x * y - w * z)
-    c[0, 2] = 2.0 * (x * z + w * y)
-    c[1, 0] = 2.0 * (x * y + w * z)
-    c[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    c[1, 2] = 2.0 * (y * z - w * x)
-    c[2, 0] = 2.0 * (x * z - w * y)
-    c[2, 1] = 2.0 * (y * z + w * x)
-    c[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-
-
-@kernel
-def _inv3(a: Array) -> Array:
-    """Inverse of a 3x3 matrix (adjugate over determinant)."""
-    inv = np.empty((3, 3))
-    inv[0, 0] = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
-    inv[1, 0] = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
-    inv[2, 0] = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
-    inv[0, 1] = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
-    inv[1, 1] = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
-    inv[2, 1] = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
-    inv[0, 2] = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
-    inv[1, 2] = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
-    inv[2, 2] = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
-    det = a[0, 0] * inv[0, 0] + a[0, 1] * inv[1, 0] + a[0, 2] * inv[2, 0]
-    return inv / det
-
-
 @kernel
 def _corrected(raw: Array, bias: Array, err: Array) -> Array:
     """Sensor samples corrected for bias and error matrix: (I + err)^-1 (raw - bias), (M, 3).
@@ -159,7 +110,7 @@ def _corrected(raw: Array, bias: Array, err: Array) -> Array:
     raw (M, 3), bias (3,), err (3, 3): the gyro (rad/s) or accelerometer (m/s^2) model
     raw = (I + err) x + bias, base_link.
     """
-    inv = _inv3(np.eye(3) + err)
+    inv = att.inv3(np.eye(3) + err)
     out = np.empty_like(raw)
     for i in range(raw.shape[0]):
         x0 = raw[i, 0] - bias[0]
@@ -207,7 +158,7 @@ def _attitude_kernel(
     dt = np.empty(m)
     sum_c_dt = np.zeros((3, 3))
     sum_c_w_dt = np.zeros((3, 9))
-    _dcm_into((q0[0], q0[1], q0[2], q0[3]), c[0])
+    att.dcm_into((q0[0], q0[1], q0[2], q0[3]), c[0])
     body = (q0[0], q0[1], q0[2], q0[3])
     before = (carry_dtheta[0], carry_dtheta[1], carry_dtheta[2])
     t_prev = t0
@@ -215,17 +166,17 @@ def _attitude_kernel(
         dt[k] = t[k] - t_prev
         t_prev = t[k]
         d = (rate[k, 0] * dt[k], rate[k, 1] * dt[k], rate[k, 2] * dt[k])
-        cone = _cross(before, d)
-        dq = _quat_from_rotvec(d[0] + cone[0] / 12.0, d[1] + cone[1] / 12.0, d[2] + cone[2] / 12.0)
-        body = _quat_mul(body, dq)
+        cone = att.cross3(before, d)
+        dq = att.qrotvec(d[0] + cone[0] / 12.0, d[1] + cone[1] / 12.0, d[2] + cone[2] / 12.0)
+        body = att.qmul(body, dq)
         tau = t[k] - t0
-        nav = _quat_from_rotvec(-(tau * w_in[0]), -(tau * w_in[1]), -(tau * w_in[2]))
-        qk = _quat_mul(nav, body)
+        nav = att.qrotvec(-(tau * w_in[0]), -(tau * w_in[1]), -(tau * w_in[2]))
+        qk = att.qmul(nav, body)
         for a in range(4):
             q[k, a] = qk[a]
         for a in range(3):
             dtheta[k, a] = d[a]
-        _dcm_into(qk, c[k + 1])
+        att.dcm_into(qk, c[k + 1])
         for a in range(3):
             for i in range(3):
                 c_mid = 0.5 * (c[k + 1, a, i] + c[k, a, i])
@@ -270,7 +221,7 @@ def _ins_kernel(
     """
     m = dt.shape[0]
     f = _corrected(accel, ba, am)
-    coriolis = _cross(w_cor, vel0)
+    coriolis = att.cross3(w_cor, vel0)
     cor = (g[0] - coriolis[0], g[1] - coriolis[1], g[2] - coriolis[2])
     vel = np.empty((m, 3))
     p = np.empty((m, 3))
@@ -287,9 +238,9 @@ def _ins_kernel(
     for k in range(m):
         d = (dtheta[k, 0], dtheta[k, 1], dtheta[k, 2])
         dv = (f[k, 0] * dt[k], f[k, 1] * dt[k], f[k, 2] * dt[k])
-        rot = _cross(d, dv)
-        s1 = _cross(th_before, dv)
-        s2 = _cross(dv_before, d)
+        rot = att.cross3(d, dv)
+        s1 = att.cross3(th_before, dv)
+        s2 = att.cross3(dv_before, d)
         dv_b = (
             dv[0] + 0.5 * rot[0] + (s1[0] + s2[0]) / 12.0,
             dv[1] + 0.5 * rot[1] + (s1[1] + s2[1]) / 12.0,
@@ -406,10 +357,135 @@ def _f64(a: Array) -> Array:
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
-def _geodetic(s: NavState, p: Array) -> tuple[Array, Array, Array]:
-    """Latitude, longitude (rad) and height (m) at ENU displacements p (M, 3) from s."""
-    dlat, dlon, dh = earth.enu_to_geodetic_increment(p, s.lat, s.h)
-    return s.lat + dlat, s.lon + dlon, s.h + dh
+@kernel
+def _rates(sv: Array, earth_sign: float) -> tuple[Array, Array, float, float]:
+    """Earth rate and transport rate (rad/s ENU) and the radii R_M, R_N (m) at the flat state."""
+    lat, h = sv[SV_LAT], sv[SV_H]
+    w_ie = np.array([0.0, earth.OMEGA_IE * np.cos(lat), earth.OMEGA_IE * np.sin(lat)])
+    w_ie *= earth_sign
+    rm, rn = earth._radii(lat)
+    ve, vn = sv[I_VEL], sv[I_VEL + 1]
+    w_en = np.array([-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)])
+    return w_ie, w_en, rm, rn
+
+
+@kernel
+def _end_state(
+    sv: Array, t: Array, q: Array, p: Array, rm: float, rn: float
+) -> tuple[Array, Array, Array, Array]:
+    """Per-sample geodetic position (lat, lon rad, h m) at ENU displacements p (M, 3) from sv,
+    and sv moved to the last sample (time, attitude, position)."""
+    lat0, h0 = sv[SV_LAT], sv[SV_H]
+    lat = lat0 + p[:, 1] / (rm + h0)
+    lon = sv[SV_LON] + p[:, 0] / ((rn + h0) * np.cos(lat0))
+    h = h0 + p[:, 2]
+    out = sv.copy()
+    out[SV_T] = t[-1]
+    qn = att.qnormalize((q[-1, 0], q[-1, 1], q[-1, 2], q[-1, 3]))
+    for i in range(4):
+        out[I_Q + i] = qn[i]
+    out[SV_LAT], out[SV_LON], out[SV_H] = lat[-1], lon[-1], h[-1]
+    return lat, lon, h, out
+
+
+@kernel
+def ins_step_k(
+    sv: Array, t: Array, gyro: Array, accel: Array, carry: Array, earth_sign: float
+) -> Step:
+    """The strapdown INS over one block from the flat state sv (see :func:`ins_block`;
+    carry (6,) = the previous block's last dtheta, dvel). Returns :data:`Step`."""
+    w_ie, w_en, rm, rn = _rates(sv, earth_sign)
+    w_in = w_ie + w_en
+    gm = sv[I_GM : I_GM + 9].copy().reshape(3, 3)
+    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
+        sv[I_Q : I_Q + 4], sv[SV_T], t, gyro, sv[I_BG : I_BG + 3], gm, carry[:3], w_in
+    )
+    g = np.array([0.0, 0.0, -earth._gravity(sv[SV_LAT], sv[SV_H])])
+    am = sv[I_AM : I_AM + 9].copy().reshape(3, 3)
+    vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt = _ins_kernel(
+        c,
+        dtheta,
+        dt,
+        accel,
+        sv[I_BA : I_BA + 3],
+        am,
+        carry[:3],
+        carry[3:],
+        sv[I_VEL : I_VEL + 3],
+        g,
+        2.0 * w_ie + w_en,
+    )
+    lat, lon, h, out = _end_state(sv, t, q, p, rm, rn)
+    out[I_ODOQ], out[I_ODOQ + 1] = sv[I_ODOQ + 1], 0.0  # this epoch's end starts the next one
+    out[I_VEL : I_VEL + 3] = vel[-1]
+    T = t[-1] - sv[SV_T]
+    carry_new = np.concatenate((dtheta[-1], dvel[-1]))
+    sums = (sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, p[-1].copy(), np.zeros(3), np.zeros((3, 2)))
+    means = (dtheta.sum(axis=0) / T, dv_f / T, vel_b_dt / T, w_in)
+    return out, q, lat, lon, h, vel, T, path, sums, means, carry_new
+
+
+@kernel
+def dr_step_k(
+    sv: Array,
+    t: Array,
+    gyro: Array,
+    accel: Array,
+    ds: Array,
+    carry: Array,
+    lever_arm: Array,
+    earth_sign: float,
+) -> Step:
+    """Odometer dead reckoning over one block from the flat state sv (see :func:`dr_block`;
+    carry (6,) = the previous block's last dtheta, dvel). Returns :data:`Step`."""
+    w_ie, w_en, rm, rn = _rates(sv, earth_sign)
+    w_in = w_ie + w_en
+    gm = sv[I_GM : I_GM + 9].copy().reshape(3, 3)
+    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
+        sv[I_Q : I_Q + 4], sv[SV_T], t, gyro, sv[I_BG : I_BG + 3], gm, carry[:3], w_in
+    )
+    u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
+    am = sv[I_AM : I_AM + 9].copy().reshape(3, 3)
+    vel, p, dvel, dv_f, ds_c_sum, path, dp_dk, dp_dbore, sum_c_f_dt = _dr_kernel(
+        c, dtheta, dt, accel, sv[I_BA : I_BA + 3], am, ds, 1.0 + sv[SV_K], lever_arm, u, du
+    )
+    lat, lon, h, out = _end_state(sv, t, q, p, rm, rn)
+    T = t[-1] - sv[SV_T]
+    out[I_VEL : I_VEL + 3] = p[-1] / T
+    carry_new = np.concatenate((dtheta[-1], dvel[-1]))
+    sums = (sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, p[-1].copy(), dp_dk, dp_dbore)
+    means = (dtheta.sum(axis=0) / T, dv_f / T, u * (ds_c_sum / T), w_in)
+    return out, q, lat, lon, h, vel, T, path, sums, means, carry_new
+
+
+def _block(s: NavState, t: Array, step: tuple) -> tuple[NavState, BlockResult, Carry]:  # type: ignore[type-arg]
+    out, q, lat, lon, h, vel, T, path, sums, means, carry = step
+    sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, dp, dp_dk, dp_dbore = sums
+    omega_b, f_mean_n, mean_vel_b, w_in = means
+    new = NavState.from_vector(out)
+    new.distance = s.distance
+    res = BlockResult(
+        t=t,
+        q_nb=q,
+        lat=lat,
+        lon=lon,
+        h=h,
+        vel_n=vel,
+        T=float(T),
+        sum_c_dt=sum_c_dt,
+        dv_f=dv_f,
+        dp=dp,
+        omega_b=omega_b,
+        f_mean_n=f_mean_n,
+        mean_vel_b=mean_vel_b,
+        w_in=w_in,
+        dp_dk=dp_dk,
+        dp_dbore=dp_dbore,
+        path=float(path),
+        sum_c_w_dt=sum_c_w_dt,
+        sum_c_f_dt=sum_c_f_dt,
+    )
+    return new, res, Carry(carry[:3].copy(), carry[3:].copy())
 
 
 def ins_block(
@@ -423,47 +499,8 @@ def ins_block(
     per-sample trajectory and block sums, and the carry for the next block.
     """
     t = _f64(t)
-    w_ie = earth_sign * earth.earth_rate_n(s.lat)
-    w_en = earth.transport_rate_n(s.lat, s.h, s.vel_n)
-    w_in = w_ie + w_en
-    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
-        s.q_nb, float(s.t), t, _f64(gyro), s.bg, s.gm, carry.dtheta, w_in
-    )
-    g = earth.gravity_n(s.lat, s.h)
-    w_cor = 2.0 * w_ie + w_en
-    vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt = _ins_kernel(
-        c, dtheta, dt, _f64(accel), s.ba, s.am, carry.dtheta, carry.dvel, s.vel_n, g, w_cor
-    )
-    lat, lon, h = _geodetic(s, p)
-    T = float(t[-1] - s.t)
-    new = s.copy()
-    new.t = float(t[-1])
-    new.odoq = np.array([s.odoq[1], 0.0])  # the end of this epoch starts the next one
-    new.q_nb = att.quat_normalize(q[-1])
-    new.vel_n = vel[-1].copy()
-    new.lat, new.lon, new.h = float(lat[-1]), float(lon[-1]), float(h[-1])
-    res = BlockResult(
-        t=t,
-        q_nb=q,
-        lat=lat,
-        lon=lon,
-        h=h,
-        vel_n=vel,
-        T=T,
-        sum_c_dt=sum_c_dt,
-        dv_f=dv_f,
-        dp=p[-1].copy(),
-        omega_b=dtheta.sum(axis=0) / T,
-        f_mean_n=dv_f / T,
-        mean_vel_b=vel_b_dt / T,
-        w_in=w_in,
-        dp_dk=np.zeros(3),
-        dp_dbore=np.zeros((3, 2)),
-        path=float(path),
-        sum_c_w_dt=sum_c_w_dt,
-        sum_c_f_dt=sum_c_f_dt,
-    )
-    return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())
+    c = np.concatenate([carry.dtheta, carry.dvel])
+    return _block(s, t, ins_step_k(s.vector(), t, _f64(gyro), _f64(accel), c, earth_sign))
 
 
 def dr_block(
@@ -486,41 +523,8 @@ def dr_block(
     data. Returns the state at t[-1], the per-sample trajectory and block sums, and the carry.
     """
     t = _f64(t)
-    w_ie = earth_sign * earth.earth_rate_n(s.lat)
-    w_in = w_ie + earth.transport_rate_n(s.lat, s.h, s.vel_n)
-    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
-        s.q_nb, float(s.t), t, _f64(gyro), s.bg, s.gm, carry.dtheta, w_in
+    c = np.concatenate([carry.dtheta, carry.dvel])
+    step = dr_step_k(
+        s.vector(), t, _f64(gyro), _f64(accel), _f64(ds), c, _f64(lever_arm), earth_sign
     )
-    u, du = odometer_axis(s.bore)
-    vel, p, dvel, dv_f, ds_c_sum, path, dp_dk, dp_dbore, sum_c_f_dt = _dr_kernel(
-        c, dtheta, dt, _f64(accel), s.ba, s.am, _f64(ds), 1.0 + float(s.k), _f64(lever_arm), u, du
-    )
-    lat, lon, h = _geodetic(s, p)
-    T = float(t[-1] - s.t)
-    new = s.copy()
-    new.t = float(t[-1])
-    new.q_nb = att.quat_normalize(q[-1])
-    new.vel_n = p[-1] / T
-    new.lat, new.lon, new.h = float(lat[-1]), float(lon[-1]), float(h[-1])
-    res = BlockResult(
-        t=t,
-        q_nb=q,
-        lat=lat,
-        lon=lon,
-        h=h,
-        vel_n=vel,
-        T=T,
-        sum_c_dt=sum_c_dt,
-        dv_f=dv_f,
-        dp=p[-1].copy(),
-        omega_b=dtheta.sum(axis=0) / T,
-        f_mean_n=dv_f / T,
-        mean_vel_b=u * (ds_c_sum / T),
-        w_in=w_in,
-        dp_dk=dp_dk,
-        dp_dbore=dp_dbore,
-        path=float(path),
-        sum_c_w_dt=sum_c_w_dt,
-        sum_c_f_dt=sum_c_f_dt,
-    )
-    return new, res, Carry(dtheta[-1].copy(), dvel[-1].copy())
+    return _block(s, t, step)

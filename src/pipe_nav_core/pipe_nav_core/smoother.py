@@ -35,9 +35,25 @@ from numpy.typing import NDArray
 from . import attitude as att
 from . import earth
 from .config import NOISE_EPOCH_S, NavConfig
-from .engine import Navigator, Recording
-from .smoothing import fuse_covariance, rts
-from .state import Layout, NavState, layout_for
+from .engine import Navigator
+from .recording import Recording
+from .smoothing import rts_packed
+from .state import (
+    SV_BG,
+    SV_DIST,
+    SV_H,
+    SV_K,
+    SV_LAT,
+    SV_LON,
+    SV_Q,
+    SV_T,
+    SV_VEL,
+    Layout,
+    NavState,
+    difference_many,
+    inject_many,
+    layout_for,
+)
 from .types import (
     Datum,
     ImuSamples,
@@ -111,13 +127,8 @@ def _flip(layout: Layout) -> Array:
     return s
 
 
-def _flip_state(x: NavState) -> NavState:
-    y = x.copy()
-    y.vel_n = -y.vel_n
-    y.bg = -y.bg
-    return y
-
-
+# a forward pass feeds the log to the engine in this many time slices (identical results): the
+# engine holds its input buffers for one slice at a time, and a caller can show the progress
 PROGRESS_SLICES = 40
 # receives the fraction (0..1) of each forward pass done, while a caller shows progress
 _FRACTION: contextvars.ContextVar[Callable[[float], None] | None] = contextvars.ContextVar(
@@ -157,14 +168,17 @@ def run_forward(
     reverse: bool = False,
     epoch_times: Array | None = None,
     odometer_exclude: Array | None = None,
-    reference: list[NavState] | None = None,
+    reference: Array | None = None,
     initial_azimuth: float | None = None,
+    record: bool = True,
 ) -> Navigator:
-    """One recorded filter pass over a time-sorted log."""
+    """One filter pass over a time-sorted log (recorded for the smoothers unless record=False;
+    reference: flat states (K, SV_SIZE), see Navigator)."""
     nav = Navigator(
         config,
         survey=log.markers,
-        record=True,
+        record=record,
+        emit=False,
         reverse=reverse,
         initial=initial,
         epoch_times=epoch_times,
@@ -173,16 +187,16 @@ def run_forward(
         initial_azimuth=initial_azimuth,
     )
     report = _FRACTION.get()
-    if report is None or len(log.imu) < 2:
+    if len(log.imu) < 2:
         nav.run(log)
-    else:  # in time slices, to report progress; the engine gives identical results
+    else:
         edges = np.linspace(log.imu.t[0], log.imu.t[-1], PROGRESS_SLICES + 1)
         for i in range(PROGRESS_SLICES):
             last = i == PROGRESS_SLICES - 1
             nav.run(slice_log(log, edges[i], math.inf if last else edges[i + 1]), final=last)
-            report((i + 1) / PROGRESS_SLICES)
-    nav.poll()
-    if nav.recording is None or not nav.recording.t:
+            if report is not None:
+                report((i + 1) / PROGRESS_SLICES)
+    if nav.state is None:
         raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
     return nav
 
@@ -215,18 +229,18 @@ def smooth_log(
     if method != "forward" and config.heading_source == "markers" and len(markers) >= 2:
         # the live filter up to the second marker is all the re-anchoring needs
         say("forward filter up to the second marker")
-        head = run_forward(_truncate(log, markers[1].t + 1.0), config)
+        head = run_forward(_truncate(log, markers[1].t + 1.0), config, record=False)
         cfg = anchored_config(log, config, head, say)
     say("forward filter" if cfg is config else "forward filter (re-anchored heading)")
     nav = run_forward(log, cfg)
     assert nav.recording is not None
-    forward = _forward_trajectory(nav.recording, layout)
+    forward = _forward_trajectory(nav.recording)
     first = nav.recording.states[0]
-    datum = nav.datum or Datum(first.lat, first.lon, first.h)
+    datum = nav.datum or Datum(float(first[SV_LAT]), float(first[SV_LON]), float(first[SV_H]))
     if method == "forward":
         rec = nav.recording
-        e = np.zeros((len(rec.t), layout.n))
-        centre = _centreline(rec, e, _variances(rec.P_upd), layout)
+        e = np.zeros((len(rec), layout.n))
+        centre = _centreline(rec, e, rec.variances(), layout)
         result = SmoothResult(
             centre,
             forward,
@@ -239,18 +253,22 @@ def smooth_log(
         result.summary.update(passes=1, passes_run=1)
         return result
     exclude: Array | None = None
-    reference: list[NavState] | None = None
+    reference: Array | None = None
     best: tuple[int, SmoothResult] | None = None
     n_pass = max(1, iterations)
     for it in range(n_pass):
+        if it:
+            say(f"forward filter about the smoothed trajectory (pass {it + 1})")
+            nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude)
         rec = nav.recording
         assert rec is not None
         if method == "rts":
             say(f"RTS smoother (pass {it + 1})")
-            e, var = rts(rec.P_upd, rec.P_pred, rec.phi, rec.dx, full=False)
+            e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
         else:
             say(f"backward filter (pass {it + 1})")
             e, var = _two_filter(log, cfg, rec, layout, exclude)
+        rec.close()  # the covariances are no longer needed
         centre = _centreline(rec, e, var, layout)
         result = SmoothResult(
             centre,
@@ -286,10 +304,7 @@ def smooth_log(
             break
         reference = smoothed_states(rec, e, layout)
         exclude = new_exclude
-        nav.recording = None  # free this pass's recording before the next one is made
-        del rec, e, var
-        say(f"forward filter about the smoothed trajectory (pass {it + 2})")
-        nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude)
+        del nav, rec, e, var, centre, result  # free this pass before the next
     assert best is not None
     best[1].summary["passes_run"] = it + 1
     return best[1]
@@ -320,11 +335,11 @@ def anchored_config(
         head = _truncate(log, markers[1].t + 1.0)
         dr = replace(config, mode="dr")
         # secant iteration on f(azimuth) = the rotation the re-anchoring asks for
-        az_prev, f_prev = az, run_forward(head, dr, initial_azimuth=az).reanchor_rad
+        az_prev, f_prev = az, run_forward(head, dr, initial_azimuth=az, record=False).reanchor_rad
         az = az + f_prev
         for i in range(ANCHOR_PASSES):
             say(f"re-anchoring the initial heading (pass {i + 1})")
-            f = run_forward(head, dr, initial_azimuth=az).reanchor_rad
+            f = run_forward(head, dr, initial_azimuth=az, record=False).reanchor_rad
             if abs(f) < ANCHOR_RAD:
                 az += f
                 break
@@ -349,15 +364,15 @@ def _truncate(log: SensorLog, t_end: float) -> SensorLog:
     )
 
 
-def smoothed_states(rec: Recording, e: Array, layout: Layout) -> list[NavState]:
-    """The smoothed state of every epoch: lin[k] (+) (x_upd[k] + e[k])."""
-    return [lin.inject(xu + ek, layout) for lin, xu, ek in zip(rec.lin, rec.x_upd, e, strict=True)]
+def smoothed_states(rec: Recording, e: Array, layout: Layout) -> Array:
+    """The smoothed state of every epoch, flat (K, SV_SIZE): lin[k] (+) (x_upd[k] + e[k])."""
+    return inject_many(rec.lin, rec.x_upd + e, layout)
 
 
 def step_size(rec: Recording, e: Array, layout: Layout) -> tuple[float, float]:
     """Largest smoothed correction of the position (m) and attitude (rad) relative to the
     pass's linearization points: the Gauss-Newton step of that pass."""
-    d = np.asarray(rec.x_upd) + e
+    d = rec.x_upd + e
     pos = float(np.max(np.linalg.norm(d[:, layout.pos], axis=1)))
     att_ = float(np.max(np.linalg.norm(d[:, layout.att], axis=1)))
     return pos, att_
@@ -374,19 +389,20 @@ def find_slips(
     than n_sigma sigmas of an epoch's odometer distance (wheel slip or spin), widened by one
     epoch on each side, as (N, 2) time intervals in s. The sigma combines the white speed noise
     over the epoch and the quantization of the two readings that bound it (resolution m per
-    count: variance resolution^2 / 6); with a coarse encoder the latter dominates."""
+    count: variance resolution^2 / 6); with a coarse encoder the latter dominates.
+    centre: the centreline of rec (:func:`_centreline`, one row per recorded sample)."""
     enu = earth.geodetic_to_enu(
         centre.lat, centre.lon, centre.h, centre.lat[0], centre.lon[0], centre.h[0]
     )
     step = np.linalg.norm(np.diff(enu, axis=0, prepend=enu[:1]), axis=1)
-    k = np.concatenate(rec.s_epoch)
-    n_ep = len(rec.t)
+    k = rec.s_epoch
+    n_ep = len(rec)
     path = np.bincount(k, weights=step, minlength=n_ep)
-    s_odo = np.concatenate(rec.s_odo)
+    s_odo = rec.s_odo
     d_odo = np.diff(s_odo, prepend=s_odo[:1])
-    scale = 1.0 + np.array([st.k for st in rec.states])
+    scale = 1.0 + rec.states[:, SV_K]
     odo = np.bincount(k, weights=d_odo, minlength=n_ep) * scale
-    t = np.asarray(rec.t)
+    t = rec.t
     T = np.diff(t, prepend=t[:1])
     white = config.odometer_speed_sigma * np.sqrt(NOISE_EPOCH_S * T)  # sigma_T * T
     sigma = np.sqrt(white**2 + resolution**2 / 6.0)
@@ -396,6 +412,9 @@ def find_slips(
     idx = np.nonzero(bad)[0]
     idx = idx[idx > 0]
     return np.stack([t[idx - 1], t[idx]], axis=-1) if len(idx) else np.zeros((0, 2))
+
+
+FUSE_BATCH = 1024  # epochs fused at once by the two-filter smoother
 
 
 def _two_filter(
@@ -412,8 +431,8 @@ def _two_filter(
     and leaves out the same odometer epochs. Returns the corrections to the forward estimates
     and the variances (K, n) of the fused covariances.
     """
-    t_f = np.asarray(rec.t)
-    _, _, az_end = att.euler_from_dcm(rec.states[-1].c_nb)
+    t_f = rec.t
+    _, _, az_end = att.euler_from_dcm(NavState.from_vector(rec.states[-1]).c_nb)
     cfg_b = replace(config, heading_source="fixed", initial_azimuth=float(az_end))
     ex_b = None if exclude is None else -np.asarray(exclude)[::-1, ::-1]
     back = run_forward(
@@ -421,85 +440,101 @@ def _two_filter(
     )
     rb = back.recording
     assert rb is not None
-    t_b = -np.asarray(rb.t)
+    # the backward epoch j at the time of forward epoch k (to the microsecond; the backward
+    # epochs run backwards in time), where there is one other than its alignment
+    key_b = np.round(-rb.t * 1e6)[::-1]
+    key_f = np.round(t_f * 1e6)
+    i = np.minimum(np.searchsorted(key_b, key_f), len(key_b) - 1)
+    j = len(key_b) - 1 - i
+    ks = np.flatnonzero((key_b[i] == key_f) & (j > 0))
+    js = j[ks]
+    # the backward prediction, in forward terms (velocity and gyro bias negate)
+    xb = inject_many(rb.states[js], -rb.dx[js], layout)
+    xb[:, SV_VEL] *= -1.0
+    xb[:, SV_BG] *= -1.0
+    d = difference_many(xb, rec.states[ks], layout)
     flip = _flip(layout)
     e = np.zeros((len(t_f), layout.n))
-    var = _variances(rec.P_upd)
-    j_of = {round(tb * 1e6): j for j, tb in enumerate(t_b)}
-    for k, tk in enumerate(t_f):
-        j = j_of.get(round(tk * 1e6))
-        if j is None or j == 0:
-            continue  # no independent backward estimate here (its alignment or beyond)
-        xb = _flip_state(rb.states[j].inject(-rb.dx[j], layout))  # backward prediction
-        Pb = rb.P_pred[j] * np.outer(flip, flip)
+    var = rec.variances()
+    for b in range(0, len(ks), FUSE_BATCH):
+        sel = slice(b, b + FUSE_BATCH)
+        P_f = rec.covariances(ks[sel], "upd")
+        P_b = rb.covariances(js[sel], "pred") * np.outer(flip, flip)
+        d_b = d[sel]
         if layout.odoq is not None:
             # its reading error at the start of a reversed epoch is a later reading's: unknown
-            i = layout.odoq.start
-            Pb[i, :] = 0.0
-            Pb[:, i] = 0.0
-            Pb[i, i] = 1.0
-        d = xb.difference(rec.states[k], layout)
-        if layout.odoq is not None:
-            d[layout.odoq.start] = 0.0
-        e[k], P_k = fuse_covariance(np.zeros(layout.n), rec.P_upd[k], d, Pb)
-        var[k] = np.diag(P_k)
+            q = layout.odoq.start
+            P_b[:, q, :] = 0.0
+            P_b[:, :, q] = 0.0
+            P_b[:, q, q] = 1.0
+            d_b[:, q] = 0.0
+        # inverse-covariance weighting (smoothing.fuse_covariance) of every epoch at once
+        gain = np.linalg.solve(P_f + P_b, P_f).transpose(0, 2, 1)
+        e[ks[sel]] = (gain @ d_b[:, :, None])[:, :, 0]
+        var[ks[sel]] = np.diagonal(P_f - gain @ P_f, axis1=1, axis2=2)
+    rb.close()
     return e, var
 
 
-def _variances(P: list[Array]) -> Array:
-    """The diagonals (K, n) of K covariance matrices, without stacking them."""
-    return np.array([p.diagonal() for p in P])
+SAMPLE_BATCH = 1 << 18  # samples corrected at once by _centreline (bounds its temporaries)
 
 
 def _centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Trajectory:
     """Apply the smoothed corrections to the per-sample nominal trajectory.
 
     e (K, n): smoothed corrections to the filter's estimates, var (K, n) their variances; the
-    correction relative to the
-    linearization point of epoch k is x_upd[k] + e[k]; a block's nominal starts on lin[k - 1]
-    and ends end_offset[k] short of lin[k]; in between the correction is interpolated in time.
+    correction relative to the linearization point of epoch k is x_upd[k] + e[k]; a block's
+    nominal starts on lin[k - 1] and ends end_offset[k] short of lin[k]; in between the
+    correction is interpolated in time.
     """
-    t = np.concatenate(rec.s_t)
-    k = np.concatenate(rec.s_epoch)
-    t_ep = np.asarray(rec.t)
-    frac = (t - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
-    d_lin = np.asarray(rec.x_upd) + e
-    d_end = d_lin + np.asarray(rec.end_offset)
-    corr = (1.0 - frac)[:, None] * d_lin[k - 1] + frac[:, None] * d_end[k]
-    lat = np.concatenate(rec.s_lat)
-    lon = np.concatenate(rec.s_lon)
-    h = np.concatenate(rec.s_h)
-    dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, layout.pos], lat, h)
-    lat, lon, h = lat + dlat, lon + dlon, h + dh
-    q = att.quat_normalize(
-        att.quat_mul(att.quat_from_rotvec(corr[:, layout.att]), np.concatenate(rec.s_q))
-    )
-    var_s = (1.0 - frac)[:, None] * var[k - 1] + frac[:, None] * var[k]
-    sig_p = np.sqrt(np.maximum(var_s[:, layout.pos], 0.0))
-    sig_a = np.sqrt(np.maximum(var_s[:, layout.att], 0.0))
-    kvals = np.array([s.k for s in rec.lin]) + d_lin[:, layout.k.start]
-    k_s = (1.0 - frac) * kvals[k - 1] + frac * kvals[k]
-    s_odo = np.concatenate(rec.s_odo)
-    ds = np.diff(np.r_[s_odo[0], s_odo])
-    distance = np.cumsum((1.0 + k_s) * ds)
+    cols = np.r_[layout.pos, layout.att, layout.k]  # the corrections the centreline needs
+    P, A, Kc = slice(0, 3), slice(3, 6), 6
+    d_lin = rec.x_upd[:, cols] + e[:, cols]
+    d_end = d_lin + rec.end_offset[:, cols]
+    var_c = var[:, cols]
+    k_lin = rec.lin[:, SV_K] + d_lin[:, Kc]
+    t_ep = rec.t
+    t = rec.s_t.copy()
+    N = len(t)
+    lat, lon, h = np.empty(N), np.empty(N), np.empty(N)
+    q = np.empty((N, 4))
+    sig_p, sig_a = np.empty((N, 3)), np.empty((N, 3))
+    scale = np.empty(N)
+    for b in range(0, N, SAMPLE_BATCH):
+        s = slice(b, b + SAMPLE_BATCH)
+        k = rec.s_epoch[s]
+        frac = (t[s] - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
+        w0, w1 = (1.0 - frac)[:, None], frac[:, None]
+        corr = w0 * d_lin[k - 1] + w1 * d_end[k]
+        dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, P], rec.s_lat[s], rec.s_h[s])
+        lat[s], lon[s], h[s] = rec.s_lat[s] + dlat, rec.s_lon[s] + dlon, rec.s_h[s] + dh
+        q[s] = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(corr[:, A]), rec.s_q[s]))
+        var_s = w0 * var_c[k - 1] + w1 * var_c[k]
+        sig_p[s] = np.sqrt(np.maximum(var_s[:, P], 0.0))
+        sig_a[s] = np.sqrt(np.maximum(var_s[:, A], 0.0))
+        scale[s] = 1.0 + ((1.0 - frac) * k_lin[k - 1] + frac * k_lin[k])
+    s_odo = rec.s_odo
+    distance = np.cumsum(scale * np.diff(np.r_[s_odo[0], s_odo]))
     enu = earth.geodetic_to_enu(lat, lon, h, lat[0], lon[0], h[0])
-    vel = np.gradient(enu, t, axis=0) if len(t) > 1 else np.zeros((len(t), 3))
+    vel = np.gradient(enu, t, axis=0) if N > 1 else np.zeros((N, 3))
     return Trajectory(t, lat, lon, h, vel, q, distance, sig_p, sig_a)
 
 
-def _forward_trajectory(rec: Recording, layout: Layout) -> Trajectory:
+def _forward_trajectory(rec: Recording) -> Trajectory:
+    """The forward filter's estimates, one per epoch (copies: the recording may go)."""
     st = rec.states
-    var = _variances(rec.P_upd)
+    var = rec.variances()
+    lay = rec.layout
     return Trajectory(
-        t=np.asarray(rec.t),
-        lat=np.array([s.lat for s in st]),
-        lon=np.array([s.lon for s in st]),
-        h=np.array([s.h for s in st]),
-        vel_n=np.array([s.vel_n for s in st]),
-        quat_nb=np.array([s.q_nb for s in st]),
-        distance=np.array([s.distance for s in st]),
-        sigma_enu=np.sqrt(var[:, layout.pos]),
-        sigma_att=np.sqrt(var[:, layout.att]),
+        t=st[:, SV_T].copy(),
+        lat=st[:, SV_LAT].copy(),
+        lon=st[:, SV_LON].copy(),
+        h=st[:, SV_H].copy(),
+        vel_n=st[:, SV_VEL].copy(),
+        quat_nb=st[:, SV_Q].copy(),
+        distance=st[:, SV_DIST].copy(),
+        sigma_enu=np.sqrt(var[:, lay.pos]),
+        sigma_att=np.sqrt(var[:, lay.att]),
     )
 
 
@@ -516,8 +551,10 @@ def marker_residuals(traj: Trajectory, markers: list[Marker]) -> dict[str, Array
         return out
     for m in markers:
         if traj.t[0] <= m.t <= traj.t[-1]:
-            d = Datum(m.lat, m.lon, m.alt)
-            out[m.name] = interpolate_enu(traj, np.array([m.t]), d)[0]
+            i = int(np.searchsorted(traj.t, m.t))
+            s = slice(max(i - 1, 0), i + 1)  # the samples around the passage
+            enu = earth.geodetic_to_enu(traj.lat[s], traj.lon[s], traj.h[s], m.lat, m.lon, m.alt)
+            out[m.name] = np.array([np.interp(m.t, traj.t[s], enu[:, c]) for c in range(3)])
     return out
 
 

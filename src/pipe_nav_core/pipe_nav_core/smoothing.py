@@ -1,8 +1,9 @@
 """Smoothers over a recorded forward filter.
 
-- :func:`rts`: Rauch-Tung-Striebel (seed 001) in error-state form: the filter's state after
-  each update is the linearization point, so the filtered error is zero and the smoothed
-  error is carried back through the gains;
+- :func:`rts_packed` (and :func:`rts` over lists of matrices): Rauch-Tung-Striebel (seed 001)
+  in error-state form, compiled: the filter's state after each update is the linearization
+  point, so the filtered error is zero and the smoothed error is carried back through the
+  gains;
 - :func:`backward_information` + :func:`fuse_information`: the two-filter smoother (seed 001
   RTS-FC, seed 004), forward estimate fused with a backward filter by inverse-covariance
   weighting; the backward filter is in information form so it starts without a prior;
@@ -13,12 +14,279 @@ On a linear Gaussian problem both equal the batch least-squares solution (tests)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .jit import kernel
+
 Array = NDArray[np.float64]
+
+
+class EpochRows:
+    """The packed form of one epoch that :func:`rts_packed` reads: one float64 row of
+    ``width`` values, [upper triangle of P_upd | upper triangle of P_pred | Phi[phi_rows]],
+    triangles row-major (the order of np.triu_indices), Phi rows row-major. The rows of Phi
+    not in phi_rows are the identity's (n: error-state size; phi_rows: sorted row indices).
+    """
+
+    def __init__(self, n: int, phi_rows: Sequence[int]) -> None:
+        self.n = n
+        self.phi_rows = np.asarray(phi_rows, dtype=np.int64)
+        self.m = n * (n + 1) // 2
+        self.width = 2 * self.m + len(self.phi_rows) * n
+        self.iu = np.triu_indices(n)
+        self.diag = np.cumsum(np.r_[0, np.arange(n, 1, -1)])  # of (i, i) in a triangle
+
+    def pack(self, out: Array, P_upd: Array, P_pred: Array, phi: Array) -> None:
+        """Write B epochs' (B, n, n) matrices into the rows out (B, width). ValueError if a
+        row of phi outside phi_rows is not the identity's (it would be lost)."""
+        mats = [np.ascontiguousarray(x, dtype=np.float64) for x in (P_upd, P_pred, phi)]
+        if not _pack(*mats, self.phi_rows, out):
+            raise ValueError("a row of Phi outside the stored rows differs from the identity")
+
+    def covariances(self, rows: Array, which: str = "upd") -> Array:
+        """The (B, n, n) covariances P_upd ("upd") or P_pred ("pred") of rows (B, width)."""
+        seg = rows[:, : self.m] if which == "upd" else rows[:, self.m : 2 * self.m]
+        out = np.empty((len(rows), self.n, self.n))
+        out[:, self.iu[0], self.iu[1]] = seg
+        out[:, self.iu[1], self.iu[0]] = seg
+        return out
+
+    def transitions(self, rows: Array) -> Array:
+        """The (B, n, n) transitions Phi of rows (B, width)."""
+        out = np.tile(np.eye(self.n), (len(rows), 1, 1))
+        out[:, self.phi_rows] = rows[:, 2 * self.m :].reshape(len(rows), -1, self.n)
+        return out
+
+    def variances(self, rows: Array) -> Array:
+        """The diagonals (B, n) of the P_upd of rows (B, width)."""
+        return rows[:, self.diag]
+
+
+@kernel
+def _pack(P_upd: Array, P_pred: Array, phi: Array, phi_rows: NDArray[np.int64], out: Array) -> bool:
+    """EpochRows.pack; False if a row of phi outside phi_rows is not the identity's."""
+    B, n = P_upd.shape[0], P_upd.shape[1]
+    m = n * (n + 1) // 2
+    stored = np.zeros(n, dtype=np.bool_)
+    stored[phi_rows] = True
+    for b in range(B):
+        idx = 0
+        for i in range(n):
+            for j in range(i, n):
+                out[b, idx] = P_upd[b, i, j]
+                out[b, m + idx] = P_pred[b, i, j]
+                idx += 1
+        for a in range(phi_rows.shape[0]):
+            for j in range(n):
+                out[b, 2 * m + a * n + j] = phi[b, phi_rows[a], j]
+        for i in range(n):
+            if not stored[i]:
+                for j in range(n):
+                    if phi[b, i, j] != (1.0 if i == j else 0.0):
+                        return False
+    return True
+
+
+@kernel
+def _unpack(row: Array, start: int, P: Array) -> None:
+    """P (n, n) <- the symmetric matrix whose upper triangle is row[start:] (row-major)."""
+    n = P.shape[0]
+    idx = start
+    for i in range(n):
+        for j in range(i, n):
+            P[i, j] = row[idx]
+            P[j, i] = row[idx]
+            idx += 1
+
+
+@kernel
+def _cholesky(A: Array, L: Array) -> bool:
+    """L <- the lower Cholesky factor of A (symmetric); False if A is not positive definite."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for p in range(j):
+            s -= L[j, p] * L[j, p]
+        if not s > 0.0:
+            return False
+        d = np.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for p in range(j):
+                s -= L[i, p] * L[j, p]
+            L[i, j] = s / d
+    return True
+
+
+@kernel
+def _cho_solve(L: Array, B: Array) -> None:
+    """B <- (L L^T)^-1 B in place (L lower triangular (n, n), B (n, m))."""
+    n, m = B.shape
+    for i in range(n):
+        for p in range(i):
+            f = L[i, p]
+            for c in range(m):
+                B[i, c] -= f * B[p, c]
+        inv = 1.0 / L[i, i]
+        for c in range(m):
+            B[i, c] *= inv
+    for i in range(n - 1, -1, -1):
+        for p in range(i + 1, n):
+            f = L[p, i]
+            for c in range(m):
+                B[i, c] -= f * B[p, c]
+        inv = 1.0 / L[i, i]
+        for c in range(m):
+            B[i, c] *= inv
+
+
+@kernel(nogil=True)
+def _rts_gains(rows: Array, next_row: Array, phi_rows: NDArray[np.int64], G: Array) -> None:
+    """G[i] <- the transposed RTS gain of the epoch of rows[i] (EpochRows form),
+    P_pred[k+1]^-1 Phi[k+1] P_upd[k], for every row that has a next epoch (rows[i + 1], or
+    next_row for the last; next_row empty: the last row is the last epoch, G[-1] untouched)."""
+    n = G.shape[1]
+    m = n * (n + 1) // 2
+    r = phi_rows.shape[0]
+    Pu, Pp, L = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    phi_r, Bp = np.empty((r, n)), np.empty((r, n))
+    for i in range(rows.shape[0]):
+        nxt = rows[i + 1] if i + 1 < rows.shape[0] else next_row
+        if nxt.shape[0] == 0:
+            continue
+        _unpack(rows[i], 0, Pu)
+        _unpack(nxt, m, Pp)
+        for a in range(r):
+            for j in range(n):
+                phi_r[a, j] = nxt[2 * m + a * n + j]
+        # B = Phi[k+1] P_upd[k] (the rows of Phi outside phi_rows are the identity's)
+        B = G[i]
+        B[:, :] = Pu
+        np.dot(phi_r, Pu, Bp)
+        for a in range(r):
+            B[phi_rows[a], :] = Bp[a]
+        if _cholesky(Pp, L):
+            _cho_solve(L, B)
+        elif np.all(np.isfinite(Pp)):  # singular or indefinite: least squares
+            B[:, :] = np.linalg.lstsq(Pp, B)[0]
+        else:  # a diverged filter: its smoothing is undefined too
+            B[:, :] = np.nan
+
+
+@kernel(nogil=True)
+def _rts_backward(
+    rows: Array,
+    k0: int,
+    G: Array,
+    dx: Array,
+    e: Array,
+    var: Array,
+    P_full: Array,
+    Ps: Array,
+    Pp: Array,
+) -> None:
+    """The RTS recursion over the epochs k0 .. k0 + len(rows) - 1 (rows in the EpochRows form,
+    G from :func:`_rts_gains`), from the last to the first. Carried between calls (in place):
+    Ps and Pp, the smoothed and the predicted covariance of the epoch after the rows. Writes
+    e[k], var[k] and, if P_full has rows, P_full[k]."""
+    n = Ps.shape[0]
+    m = n * (n + 1) // 2
+    K = e.shape[0]
+    Pu, D = np.empty((n, n)), np.empty((n, n))
+    GD, GDG = np.empty((n, n)), np.empty((n, n))
+    for i in range(rows.shape[0] - 1, -1, -1):
+        k = k0 + i
+        row = rows[i]
+        _unpack(row, 0, Pu)
+        if k == K - 1:
+            Ps[:, :] = Pu
+            e[k, :] = 0.0
+        else:
+            Gt = G[i]  # G^T
+            e[k, :] = 0.0
+            for p in range(n):
+                v = e[k + 1, p] + dx[k + 1, p]
+                for j in range(n):
+                    e[k, j] += Gt[p, j] * v
+            # Ps[k] = P_upd[k] + G (Ps[k+1] - P_pred[k+1]) G^T, symmetrized
+            for a in range(n):
+                for b in range(n):
+                    D[a, b] = Ps[a, b] - Pp[a, b]
+            np.dot(Gt.T, D, GD)
+            np.dot(GD, Gt, GDG)
+            for a in range(n):
+                for b in range(a, n):
+                    x = 0.5 * ((Pu[a, b] + GDG[a, b]) + (Pu[b, a] + GDG[b, a]))
+                    Ps[a, b] = x
+                    Ps[b, a] = x
+        for a in range(n):
+            var[k, a] = Ps[a, a]
+        if P_full.shape[0]:
+            P_full[k] = Ps
+        _unpack(row, m, Pp)
+
+
+PIECE_EPOCHS = 512  # epochs per call of the RTS kernels
+
+
+def rts_packed(
+    chunks: Iterable[tuple[int, Array]],
+    dx: Array,
+    fmt: EpochRows,
+    *,
+    full: bool = False,
+) -> tuple[Array, Array]:
+    """Error-state RTS smoother over packed epochs, compiled.
+
+    chunks: (index of the first epoch, rows (C, fmt.width)) from the last epochs to the
+    first, contiguous, covering epochs 0 .. K - 1 (a recording too large for memory is read
+    back chunk by chunk); epoch k's row holds P_upd[k] and (for k >= 1) P_pred[k] and Phi
+    from k-1 to k; dx (K, n): dx[k] = x_upd[k] (-) x_pred[k]. The gain
+    G = P_upd[k] Phi^T P_pred[k+1]^-1 is solved through a Cholesky factor of P_pred; the gains
+    of the next piece of epochs are computed in a second thread while the recursion runs.
+    Returns e (K, n): the smoothed correction to x_upd[k], and the smoothed variances (K, n)
+    (in the error state's units), or with full=True the smoothed covariances (K, n, n).
+    """
+    dx = np.ascontiguousarray(dx, dtype=np.float64)
+    K, n = dx.shape
+    e = np.zeros((K, n))
+    var = np.zeros((K, n))
+    P_full = np.zeros((K if full else 0, n, n))
+    Ps, Pp = np.zeros((n, n)), np.zeros((n, n))
+    gains = [np.empty((PIECE_EPOCHS, n, n)) for _ in range(2)]
+    pieces = (
+        (k0 + a, np.ascontiguousarray(rows[a : a + PIECE_EPOCHS], dtype=np.float64))
+        for k0, rows in chunks
+        for a in range(((len(rows) - 1) // PIECE_EPOCHS) * PIECE_EPOCHS, -1, -PIECE_EPOCHS)
+    )
+    end, next_row = K, np.zeros(0)
+    pending: tuple[int, Array, Future[None], Array] | None = None
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for b, (k0, rows) in enumerate(pieces):
+            if k0 + len(rows) != end or not len(rows):
+                raise ValueError("rts_packed: chunks must run from the last epoch back")
+            G = gains[b % 2]
+            job = pool.submit(_rts_gains, rows, next_row, fmt.phi_rows, G)
+            if pending is not None:  # the piece after this one, while its gains are made
+                _recursion(pending, dx, e, var, P_full, Ps, Pp)
+            pending = (k0, rows, job, G)
+            end, next_row = k0, rows[0]
+        if pending is not None:
+            _recursion(pending, dx, e, var, P_full, Ps, Pp)
+    if end != 0:
+        raise ValueError("rts_packed: the chunks do not reach epoch 0")
+    return e, (P_full if full else var)
+
+
+def _recursion(piece: tuple[int, Array, Future[None], Array], *arrays: Array) -> None:
+    k0, rows, job, G = piece
+    job.result()
+    _rts_backward(rows, k0, G, *arrays)
 
 
 def rts(
@@ -29,35 +297,16 @@ def rts(
     *,
     full: bool = True,
 ) -> tuple[Array, Array]:
-    """Error-state RTS smoother.
-
-    Epoch k has the updated covariance P_upd[k], and (for k >= 1) the predicted covariance
-    P_pred[k], the transition phi[k] from k-1 to k, and dx[k] = x_upd[k] (-) x_pred[k].
-    Returns e (K, n): the smoothed correction to x_upd[k], and the smoothed covariances
-    P_s (K, n, n), or with full=False only their diagonals (K, n) (the variances, in the
-    error state's units; a long run's K full covariances take gigabytes).
-    """
+    """:func:`rts_packed` over lists of matrices: epoch k has the updated covariance P_upd[k],
+    and (for k >= 1) the predicted covariance P_pred[k], the transition phi[k] from k-1 to k,
+    and dx[k] = x_upd[k] (-) x_pred[k]. Returns e (K, n) and the smoothed covariances
+    (K, n, n), or with full=False their diagonals (K, n)."""
     K = len(P_upd)
-    n = P_upd[0].shape[0]
-    e = np.zeros((K, n))
-    out = np.empty((K, n, n) if full else (K, n))
-
-    def keep(k: int, P: Array) -> None:
-        out[k] = P if full else P.diagonal()
-
-    P_next = P_upd[-1]
-    keep(K - 1, P_next)
-    for k in range(K - 2, -1, -1):
-        Pp = P_pred[k + 1]
-        try:
-            G = np.linalg.solve(Pp, phi[k + 1] @ P_upd[k]).T
-        except np.linalg.LinAlgError:
-            G = np.linalg.lstsq(Pp, phi[k + 1] @ P_upd[k], rcond=None)[0].T
-        e[k] = G @ (e[k + 1] + dx[k + 1])
-        Ps = P_upd[k] + G @ (P_next - Pp) @ G.T
-        P_next = 0.5 * (Ps + Ps.T)
-        keep(k, P_next)
-    return e, out
+    n = np.shape(P_upd[0])[0]
+    fmt = EpochRows(n, range(n))
+    rows = np.empty((K, fmt.width))
+    fmt.pack(rows, P_upd, [P_upd[0], *P_pred[1:]], [np.eye(n), *phi[1:]])
+    return rts_packed([(0, rows)], np.asarray(dx, dtype=np.float64).reshape(K, n), fmt, full=full)
 
 
 def backward_information(

@@ -22,7 +22,6 @@ Error state (truth minus estimate), navigation frame ENU:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +30,7 @@ from numpy.typing import NDArray
 from . import attitude as att
 from . import earth
 from .config import NavConfig
+from .jit import kernel
 
 Array = NDArray[np.float64]
 
@@ -76,26 +76,34 @@ class Layout:
         self.odoq = self.slices.get("odoq")
         self.gm = self.slices.get("gm")
         self.am = self.slices.get("am")
+        # the layout for the compiled kernels: block starts in L_* order (-1: absent), then n
+        starts = [self.slices[b].start if b in self.slices else -1 for b in _BLOCKS]
+        self.index = np.array([*starts, self.n], dtype=np.int64)
 
     @property
     def has_vel(self) -> bool:
         return self.vel is not None
 
 
+
 # The nominal state as one flat float64 vector (NavState.vector / NavState.from_vector): the
-# form the compiled kernels and the Recording use. Indices:
+# form the compiled kernels and the Recording use. Scalars and the starts of the blocks:
 SV_T, SV_LAT, SV_LON, SV_H = 0, 1, 2, 3  # s, rad, rad, m
-SV_VEL = slice(4, 7)  # m/s ENU
-SV_Q = slice(7, 11)  # [x, y, z, w] base_link -> ENU
-SV_BG = slice(11, 14)  # rad/s base_link
-SV_BA = slice(14, 17)  # m/s^2 base_link
-SV_K = 17  # odometer scale error
-SV_BORE = slice(18, 20)  # rad (yaw, pitch)
-SV_DIST = 20  # m calibrated chainage
-SV_GM = slice(21, 30)  # gyro error matrix M, row-major
-SV_ODOQ = slice(30, 32)  # m odometer reading errors (start, end of the epoch)
-SV_AM = slice(32, 41)  # accelerometer error matrix N, row-major
+I_VEL, I_Q, I_BG, I_BA = 4, 7, 11, 14  # m/s ENU (3); [x, y, z, w] base_link -> ENU (4);
+# gyro bias rad/s base_link (3); accelerometer bias m/s^2 base_link (3)
+SV_K, I_BORE, SV_DIST = 17, 18, 20  # odometer scale error; boresight rad (2); chainage m
+I_GM, I_ODOQ, I_AM = 21, 30, 32  # gyro error matrix (9, row-major); odometer reading errors
+# m (start, end of the epoch); accelerometer error matrix (9)
 SV_SIZE = 41
+SV_VEL, SV_Q = slice(I_VEL, I_VEL + 3), slice(I_Q, I_Q + 4)
+SV_BG, SV_BA = slice(I_BG, I_BG + 3), slice(I_BA, I_BA + 3)
+SV_BORE, SV_GM = slice(I_BORE, I_BORE + 2), slice(I_GM, I_GM + 9)
+SV_ODOQ, SV_AM = slice(I_ODOQ, I_ODOQ + 2), slice(I_AM, I_AM + 9)
+
+# The error-state layout as an int array for the kernels (Layout.index): the start of each
+# block, -1 where the layout has none, and n last.
+L_ATT, L_VEL, L_POS, L_BG, L_BA, L_K, L_BORE, L_ODOQ, L_GM, L_AM, L_N = range(11)
+_BLOCKS = ("att", "vel", "pos", "bg", "ba", "k", "bore", "odoq", "gm", "am")
 
 
 def skew3(v: Array) -> Array:
@@ -117,14 +125,81 @@ def dcm1(q: Array) -> Array:
     )
 
 
+@kernel
 def odometer_axis(bore: Array) -> tuple[Array, Array]:
     """Unit odometer axis u in base_link for boresight (yaw, pitch) and du/d(yaw, pitch) (3, 2)."""
-    yaw, pitch = float(bore[0]), float(bore[1])
-    norm = math.sqrt(1.0 + yaw * yaw + pitch * pitch)
+    yaw, pitch = bore[0], bore[1]
+    norm = np.sqrt(1.0 + yaw * yaw + pitch * pitch)
     ux, uy, uz = 1.0 / norm, yaw / norm, pitch / norm
     # du = (d_raw - u (u^T d_raw)) / norm with d_raw = d[1, yaw, pitch] / d(yaw, pitch)
-    du = np.array([[-ux * uy, -ux * uz], [1.0 - uy * uy, -uy * uz], [-uz * uy, 1.0 - uz * uz]])
-    return np.array([ux, uy, uz]), du / norm
+    du = np.empty((3, 2))
+    du[0, 0], du[0, 1] = -ux * uy / norm, -ux * uz / norm
+    du[1, 0], du[1, 1] = (1.0 - uy * uy) / norm, -uy * uz / norm
+    du[2, 0], du[2, 1] = -uz * uy / norm, (1.0 - uz * uz) / norm
+    return np.array([ux, uy, uz]), du
+
+
+@kernel
+def inject_k(sv: Array, dx: Array, L: NDArray[np.int64]) -> Array:
+    """Flat state sv (SV_SIZE,) corrected by the error state dx (n,) of layout L (Layout.index):
+    truth = estimate (+) dx (NavState.inject)."""
+    out = sv.copy()
+    a, p = L[L_ATT], L[L_POS]
+    dq = att.qrotvec(dx[a], dx[a + 1], dx[a + 2])
+    q = att.qnormalize(att.qmul(dq, (sv[I_Q], sv[I_Q + 1], sv[I_Q + 2], sv[I_Q + 3])))
+    for i in range(4):
+        out[I_Q + i] = q[i]
+    lat, h = sv[SV_LAT], sv[SV_H]
+    rm, rn = earth._radii(lat)
+    out[SV_LAT] = lat + dx[p + 1] / (rm + h)
+    out[SV_LON] = sv[SV_LON] + dx[p] / ((rn + h) * np.cos(lat))
+    out[SV_H] = h + dx[p + 2]
+    for block, at, size in (
+        (L_VEL, I_VEL, 3),
+        (L_BG, I_BG, 3),
+        (L_BA, I_BA, 3),
+        (L_K, SV_K, 1),
+        (L_BORE, I_BORE, 2),
+        (L_ODOQ, I_ODOQ, 2),
+        (L_GM, I_GM, 9),
+        (L_AM, I_AM, 9),
+    ):
+        j = L[block]
+        if j >= 0:
+            for i in range(size):
+                out[at + i] += dx[j + i]
+    return out
+
+
+@kernel
+def difference_k(sa: Array, sb: Array, L: NDArray[np.int64]) -> Array:
+    """Error state dx (n,) with sa = sb (+) dx, flat states (first order in position)."""
+    dx = np.zeros(L[L_N])
+    qa = (sa[I_Q], sa[I_Q + 1], sa[I_Q + 2], sa[I_Q + 3])
+    qb = (-sb[I_Q], -sb[I_Q + 1], -sb[I_Q + 2], sb[I_Q + 3])
+    r = att.rotvec_of(att.qmul(qa, qb))
+    a, p = L[L_ATT], L[L_POS]
+    for i in range(3):
+        dx[a + i] = r[i]
+    rm, rn = earth._radii(sb[SV_LAT])
+    dx[p] = (sa[SV_LON] - sb[SV_LON]) * (rn + sb[SV_H]) * np.cos(sb[SV_LAT])
+    dx[p + 1] = (sa[SV_LAT] - sb[SV_LAT]) * (rm + sb[SV_H])
+    dx[p + 2] = sa[SV_H] - sb[SV_H]
+    for block, at, size in (
+        (L_VEL, I_VEL, 3),
+        (L_BG, I_BG, 3),
+        (L_BA, I_BA, 3),
+        (L_K, SV_K, 1),
+        (L_BORE, I_BORE, 2),
+        (L_ODOQ, I_ODOQ, 2),
+        (L_GM, I_GM, 9),
+        (L_AM, I_AM, 9),
+    ):
+        j = L[block]
+        if j >= 0:
+            for i in range(size):
+                dx[j + i] = sa[at + i] - sb[at + i]
+    return dx
 
 
 @dataclass
@@ -218,49 +293,11 @@ class NavState:
 
     def inject(self, dx: Array, layout: Layout) -> NavState:
         """The state corrected by the error-state vector dx (truth = estimate (+) dx)."""
-        q_nb = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(dx[layout.att]), self.q_nb))
-        dlat, dlon, dh = earth.enu_to_geodetic_increment(dx[layout.pos], self.lat, self.h)
-        gm, am = self.gm, self.am
-        return NavState(
-            t=self.t,
-            lat=float(self.lat + dlat),
-            lon=float(self.lon + dlon),
-            h=float(self.h + dh),
-            vel_n=self.vel_n + dx[layout.vel] if layout.vel is not None else self.vel_n.copy(),
-            q_nb=q_nb,
-            bg=self.bg + dx[layout.bg],
-            ba=self.ba + dx[layout.ba],
-            k=self.k + float(dx[layout.k.start]),
-            bore=self.bore + dx[layout.bore],
-            distance=self.distance,
-            gm=gm + dx[layout.gm].reshape(3, 3) if layout.gm is not None else gm.copy(),
-            odoq=self.odoq + dx[layout.odoq] if layout.odoq is not None else self.odoq.copy(),
-            am=am + dx[layout.am].reshape(3, 3) if layout.am is not None else am.copy(),
-        )
+        return NavState.from_vector(inject_k(self.vector(), np.asarray(dx, float), layout.index))
 
     def difference(self, other: NavState, layout: Layout) -> Array:
         """Error-state vector dx with self = other (+) dx (first order in position)."""
-        dx = np.zeros(layout.n)
-        dq = att.quat_mul(self.q_nb, att.quat_conj(other.q_nb))
-        dx[layout.att] = att.rotvec_from_quat(dq)
-        if layout.vel is not None:
-            dx[layout.vel] = self.vel_n - other.vel_n
-        rm, rn = earth.radii(float(other.lat))
-        p = layout.pos.start
-        dx[p] = (self.lon - other.lon) * (rn + other.h) * math.cos(other.lat)
-        dx[p + 1] = (self.lat - other.lat) * (rm + other.h)
-        dx[p + 2] = self.h - other.h
-        dx[layout.bg] = self.bg - other.bg
-        dx[layout.ba] = self.ba - other.ba
-        dx[layout.k.start] = self.k - other.k
-        dx[layout.bore] = self.bore - other.bore
-        if layout.odoq is not None:
-            dx[layout.odoq] = self.odoq - other.odoq
-        if layout.gm is not None:
-            dx[layout.gm] = (self.gm - other.gm).reshape(9)
-        if layout.am is not None:
-            dx[layout.am] = (self.am - other.am).reshape(9)
-        return dx
+        return difference_k(self.vector(), other.vector(), layout.index)
 
 
 def inject_many(states: Array, dx: Array, layout: Layout) -> Array:
@@ -274,22 +311,41 @@ def inject_many(states: Array, dx: Array, layout: Layout) -> Array:
     out[:, SV_LAT] += dlat
     out[:, SV_LON] += dlon
     out[:, SV_H] += dh
+    for src, dst in _additive_blocks(layout):
+        out[:, dst] += d[:, src]
+    return out
+
+
+def difference_many(a: Array, b: Array, layout: Layout) -> Array:
+    """Error-state vectors dx (K, n) with a = b (+) dx for flat states a, b (K, SV_SIZE):
+    NavState.difference of every row at once (first order in position)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    dx = np.zeros((len(a), layout.n))
+    dx[:, layout.att] = att.rotvec_from_quat(att.quat_mul(a[:, SV_Q], att.quat_conj(b[:, SV_Q])))
+    rm, rn = earth.radii(b[:, SV_LAT])
+    p = layout.pos.start
+    dx[:, p] = (a[:, SV_LON] - b[:, SV_LON]) * (rn + b[:, SV_H]) * np.cos(b[:, SV_LAT])
+    dx[:, p + 1] = (a[:, SV_LAT] - b[:, SV_LAT]) * (rm + b[:, SV_H])
+    dx[:, p + 2] = a[:, SV_H] - b[:, SV_H]
+    for src, dst in _additive_blocks(layout):
+        dx[:, src] = a[:, dst] - b[:, dst]
+    return dx
+
+
+def _additive_blocks(layout: Layout) -> list[tuple[slice, slice]]:
+    """(error-state slice, flat-state slice) of the blocks whose error is a plain difference."""
     pairs = [
         (layout.vel, SV_VEL),
         (layout.bg, SV_BG),
         (layout.ba, SV_BA),
         (layout.k, slice(SV_K, SV_K + 1)),
-    ]
-    pairs += [
         (layout.bore, SV_BORE),
         (layout.gm, SV_GM),
         (layout.odoq, SV_ODOQ),
         (layout.am, SV_AM),
     ]
-    for src, dst in pairs:
-        if src is not None:
-            out[:, dst] += d[:, src]
-    return out
+    return [(src, dst) for src, dst in pairs if src is not None]
 
 
 def layout_for(config: NavConfig) -> Layout:

@@ -1,0 +1,648 @@
+"""The filter epoch, compiled: mechanize the block of IMU samples, propagate the covariance,
+apply the gated updates, inject the correction, write what the smoothers need.
+
+:class:`pipe_nav_core.engine.Navigator` decides where epochs end, prepares the per-epoch inputs
+(odometer coverage and distance, encoder resolution, excluded slips, magnetometer sample) for a
+batch of epochs, and calls :func:`run_epochs` once per batch; the rare events (alignment, the
+heading re-anchoring and covariance recovery at a marker passage) stay in Python between
+:func:`run_epochs` with ``stop`` (prediction only) and with ``resume`` (updates only). Every
+model is the shared one (:mod:`process`, :mod:`measurements`, :mod:`kalman`, :mod:`state`).
+
+Arrays and indices (all float64 unless said):
+- ``sv`` (SV_SIZE,) the filter's nominal state, ``x`` (n,) its mean error relative to the
+  linearization point, ``P`` (n, n), ``carry`` (6,) the last increments of the previous block,
+  ``dyn`` (D_SIZE,) the rest of the filter's memory: all updated in place;
+- ``prm`` (P_SIZE,) settings (:func:`parameters`); ``L`` the layout (Layout.index);
+- ``ref`` (K, SV_SIZE) the reference trajectory (empty without one) and ``k0`` the epoch number
+  of the batch's first epoch;
+- the IMU samples (base_link) from just after the state's time, ``ends`` (B,) int64 the index
+  of each epoch's last sample, ``s_odo`` (N,) the odometer reading at every sample, and per
+  epoch ``has_odo``, ``excluded`` (bool), ``resolution`` m, ``mag_i`` (int64, -1 none) into
+  ``mag_t`` / ``mag_f``;
+- outputs per epoch (:class:`Batch`) and per sample (lat, lon, h, q_nb, odometer reading).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import attitude as att
+from . import earth
+from . import measurements as meas
+from .config import NOISE_EPOCH_S, NavConfig
+from .jit import kernel
+from .kalman import _joseph_update, chi2_threshold, predict_k
+from .mechanization import dr_step_k, ins_step_k
+from .process import discretize_k, imu_noise, process_noise_k, system_matrix_k
+from .sensors import ImuSpec
+from .state import (
+    I_BG,
+    I_Q,
+    I_VEL,
+    L_ATT,
+    L_N,
+    L_VEL,
+    SV_DIST,
+    SV_H,
+    SV_K,
+    SV_LAT,
+    SV_SIZE,
+    SV_T,
+    difference_k,
+    inject_k,
+)
+
+Array = NDArray[np.float64]
+Index = NDArray[np.int64]
+
+# measurement kinds (rows of the update statistics)
+KINDS = ("nhc", "odometer", "zupt", "zaru", "tilt", "mag", "marker")
+K_NHC, K_ODO, K_ZUPT, K_ZARU, K_TILT, K_MAG, K_MARKER = range(7)
+# event counters
+COUNTERS = (
+    "epochs",
+    "epochs_without_odometer",
+    "odometer_excluded",
+    "tilt_gated_motion",
+    "mag_disturbed",
+    "marker_covariance_inflations",
+)
+C_EPOCHS, C_NO_ODO, C_EXCLUDED, C_TILT_GATED, C_MAG_DISTURBED, C_INFLATED = range(6)
+
+# settings (prm)
+P_EARTH_SIGN, P_PIPE_D, P_LEVER, P_LEVER_KNOWN = 0, 1, 2, 5  # P_LEVER: 3 values
+P_STOP_SPEED, P_STOP_GYRO, P_ODO_SIGMA, P_NHC_SIGMA, P_ZUPT, P_ZARU = 6, 7, 8, 9, 10, 11
+P_TILT_ON, P_TILT_GATE, P_TILT_SIGMA = 12, 13, 14
+P_MAG_ON, P_MAG_NORM_GATE, P_MAG_DIP_GATE, P_MAG_DECL, P_MAG_SIGMA = 15, 16, 17, 18, 19
+P_MAG_REF, P_MAG_DIP, P_MAG_REF_OK = 20, 21, 22
+P_SCALE_RW, P_DR_ALONG, P_DR_LATERAL, P_MARKER_TIME = 23, 24, 25, 26
+P_CHI2 = 27  # 3: gates for 1, 2, 3 rows
+P_IMU = 30  # 6: process_noise_k's IMU densities
+P_ARW = P_IMU  # gyro angle random walk, rad/sqrt(s)
+P_SIZE = 36
+
+# the filter's memory besides sv, x, P, carry (dyn)
+D_PREV_SPEED, D_HAS_PREV_VEL, D_PREV_VEL, D_S_START, D_FREE, D_V_JAC = 0, 1, 2, 5, 6, 7
+D_SIZE = 10
+
+# the prediction's results the updates use (ws)
+W_T, W_SPEED, W_STOPPED, W_HAS_ODO, W_EXCLUDED, W_LEVER_RATE, W_W_YZ = 0, 1, 2, 3, 4, 5, 6
+W_I0, W_I1, W_MAG_I = 7, 8, 9
+W_GYRO, W_OMEGA, W_MVB, W_FMN, W_DP, W_VJAC = 10, 13, 16, 19, 22, 25
+W_SIZE = 28
+S_MECH, S_LIN = 0, 1  # rows of ws_sv: the mechanized state, the updates' linearization point
+
+
+def parameters(
+    config: NavConfig,
+    imu: ImuSpec,
+    lever_arm: Array,
+    earth_sign: float,
+    mag_ref: tuple[float, float] | None,
+) -> Array:
+    """The settings array of the kernels."""
+    c = config
+    p = np.zeros(P_SIZE)
+    p[P_EARTH_SIGN] = earth_sign
+    p[P_PIPE_D] = c.pipe_diameter
+    p[P_LEVER : P_LEVER + 3] = lever_arm
+    p[P_LEVER_KNOWN] = float(np.any(lever_arm))
+    p[P_STOP_SPEED], p[P_STOP_GYRO] = c.stop_speed_threshold, c.stop_gyro_threshold
+    p[P_ODO_SIGMA], p[P_NHC_SIGMA] = c.odometer_speed_sigma, c.nhc_sigma
+    p[P_ZUPT], p[P_ZARU] = c.zupt_sigma, c.zaru_sigma
+    p[P_TILT_ON], p[P_TILT_GATE], p[P_TILT_SIGMA] = c.tilt_enabled(), c.tilt_gate, c.tilt_sigma
+    p[P_MAG_ON], p[P_MAG_NORM_GATE] = c.mag_update, c.mag_magnitude_gate
+    p[P_MAG_DIP_GATE], p[P_MAG_DECL] = c.mag_dip_gate, c.mag_declination
+    p[P_MAG_SIGMA] = c.mag_heading_sigma
+    if mag_ref is not None:
+        p[P_MAG_REF], p[P_MAG_DIP], p[P_MAG_REF_OK] = mag_ref[0], mag_ref[1], 1.0
+    p[P_SCALE_RW], p[P_DR_ALONG] = c.odometer_scale_rw, c.odometer_distance_sigma
+    p[P_DR_LATERAL], p[P_MARKER_TIME] = c.dr_lateral_sigma, c.marker_time_sigma
+    for m in (1, 2, 3):
+        p[P_CHI2 + m - 1] = chi2_threshold(c.gate_probability, m)
+    p[P_IMU : P_IMU + 6] = imu_noise(imu)
+    return p
+
+
+class Batch:
+    """Output buffers of :func:`run_epochs` for up to ``size`` epochs and ``samples`` IMU
+    samples: per epoch the estimate ``sv`` (after the update), the linearization point ``lin``,
+    ``x_upd`` (the filter's mean error after the updates), ``dx`` (what the updates moved,
+    the RTS smoother's correction), ``end_offset``, ``P_pred``, ``P_upd``, ``phi``, ``stopped``,
+    ``omega`` (rad/s base_link); per sample ``lat``, ``lon`` (rad), ``h`` (m), ``q`` and the
+    odometer reading ``s_odo`` (m); marker residuals (ENU m) per marker of the call; counters
+    and update statistics (``acc``, ``rej``, ``nis``, ``dof`` per kind of KINDS)."""
+
+    def __init__(self, size: int, samples: int, n: int, markers: int = 0) -> None:
+        self.sv = np.zeros((size, SV_SIZE))
+        self.lin = np.zeros((size, SV_SIZE))
+        self.x_upd = np.zeros((size, n))
+        self.dx = np.zeros((size, n))
+        self.end_offset = np.zeros((size, n))
+        self.P_pred = np.zeros((size, n, n))
+        self.P_upd = np.zeros((size, n, n))
+        self.phi = np.zeros((size, n, n))
+        self.stopped = np.zeros(size, dtype=np.bool_)
+        self.omega = np.zeros((size, 3))
+        self.lat = np.zeros(samples)
+        self.lon = np.zeros(samples)
+        self.h = np.zeros(samples)
+        self.q = np.zeros((samples, 4))
+        self.s_odo = np.zeros(samples)
+        self.marker_res = np.zeros((markers, 3))
+        self.counts = np.zeros(len(COUNTERS), dtype=np.int64)
+        self.acc = np.zeros(len(KINDS), dtype=np.int64)
+        self.rej = np.zeros(len(KINDS), dtype=np.int64)
+        self.nis = np.zeros(len(KINDS))
+        self.dof = np.zeros(len(KINDS), dtype=np.int64)
+        self.ws = np.zeros(W_SIZE)
+        self.ws_sv = np.zeros((2, SV_SIZE))
+        self.ws_x = np.zeros(n)
+        self.ws_m = np.zeros((3, 12))
+
+    def buffers(self) -> tuple:  # type: ignore[type-arg]
+        """The arrays in run_epochs' order."""
+        return (
+            self.sv,
+            self.lin,
+            self.x_upd,
+            self.dx,
+            self.end_offset,
+            self.P_pred,
+            self.P_upd,
+            self.phi,
+            self.stopped,
+            self.omega,
+            self.lat,
+            self.lon,
+            self.h,
+            self.q,
+            self.s_odo,
+            self.marker_res,
+            self.counts,
+            self.acc,
+            self.rej,
+            self.nis,
+            self.dof,
+            self.ws,
+            self.ws_sv,
+            self.ws_x,
+            self.ws_m,
+        )
+
+
+@kernel
+def _update(
+    kind: int,
+    r: Array,
+    H: Array,
+    R: Array,
+    x: Array,
+    P: Array,
+    prm: Array,
+    acc: NDArray[np.int64],
+    rej: NDArray[np.int64],
+    nis_sum: Array,
+    dof_sum: NDArray[np.int64],
+) -> None:
+    """One gated update of (x, P) in place, counted under kind."""
+    m = r.shape[0]
+    nis, dx, x_new, P_new = _joseph_update(P, x, H, R, r, prm[P_CHI2 + m - 1])
+    if dx.shape[0] == 0:
+        rej[kind] += 1
+        return
+    x[:] = x_new
+    P[:] = P_new
+    acc[kind] += 1
+    nis_sum[kind] += nis
+    dof_sum[kind] += m
+
+
+@kernel
+def _predict(
+    e: int,
+    k_ep: int,
+    sv: Array,
+    x: Array,
+    P: Array,
+    carry: Array,
+    dyn: Array,
+    L: Index,
+    prm: Array,
+    ref: Array,
+    imu_t: Array,
+    imu_g: Array,
+    imu_a: Array,
+    ends: Index,
+    s_odo: Array,
+    has_odo: NDArray[np.bool_],
+    excluded: NDArray[np.bool_],
+    resolution: Array,
+    mag_i: Index,
+    o_lat: Array,
+    o_lon: Array,
+    o_h: Array,
+    o_q: Array,
+    o_s_odo: Array,
+    o_P_pred: Array,
+    o_phi: Array,
+    ws: Array,
+    ws_sv: Array,
+    ws_x: Array,
+    ws_m: Array,
+) -> None:
+    """Epoch e of the batch up to the prediction: mechanization, stop detection, transition,
+    process noise, covariance propagation (Navigator's epoch, first half)."""
+    has_ref = ref.shape[0] > 0
+    s0 = ref[k_ep - 1] if has_ref else sv.copy()
+    i0 = ends[e - 1] + 1 if e > 0 else 0
+    i1 = ends[e] + 1
+    t = imu_t[i0:i1]
+    g = imu_g[i0:i1]
+    odo_ok = has_odo[e]
+    s_start = dyn[D_S_START]
+    for i in range(i0, i1):
+        o_s_odo[i] = s_odo[i] if odo_ok else s_start
+    ds = np.empty(i1 - i0)
+    prev = s_start
+    for i in range(i1 - i0):
+        ds[i] = o_s_odo[i0 + i] - prev
+        prev = o_s_odo[i0 + i]
+    ins = L[L_VEL] >= 0
+    earth_sign = prm[P_EARTH_SIGN]
+    if ins:
+        step = ins_step_k(s0, t, g, imu_a[i0:i1], carry, earth_sign)
+    else:
+        step = dr_step_k(s0, t, g, imu_a[i0:i1], ds, carry, prm[P_LEVER : P_LEVER + 3], earth_sign)
+    s1, q, lat, lon, h, _vel, T, path, sums, means, carry_new = step
+    sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, dp, dp_dk, dp_dbore = sums
+    omega_b, f_mean_n, mean_vel_b, w_in = means
+    carry[:] = carry_new
+    o_lat[i0:i1] = lat
+    o_lon[i0:i1] = lon
+    o_h[i0:i1] = h
+    o_q[i0:i1] = q
+    speed = ds.sum() / T
+    w_yz = np.hypot(omega_b[1], omega_b[2])
+    lever_known = prm[P_LEVER_KNOWN] != 0.0
+    bend_sigma = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * w_yz * T
+    # time-weighted mean gyro reading, rad/s
+    gyro_mean = np.zeros(3)
+    w_sum = 0.0
+    prev_t = s0[SV_T]
+    for i in range(i1 - i0):
+        w = t[i] - prev_t
+        prev_t = t[i]
+        w_sum += w
+        for a in range(3):
+            gyro_mean[a] += g[i, a] * w
+    gyro_mean /= w_sum
+    dg = gyro_mean - s1[I_BG : I_BG + 3]
+    thr = prm[P_STOP_SPEED]
+    stopped = (
+        odo_ok
+        and abs(speed) < thr
+        and abs(dyn[D_PREV_SPEED]) < thr
+        and np.sqrt(dg[0] ** 2 + dg[1] ** 2 + dg[2] ** 2) < prm[P_STOP_GYRO]
+    )
+    # the linearization point at the block end and the first-estimate Jacobian velocity
+    s_lin = ref[k_ep] if has_ref else s1
+    v_jac = np.zeros(3) if stopped else s_lin[I_VEL : I_VEL + 3].copy()
+    if ins:
+        dv_f = (
+            dv_f
+            + (v_jac - s1[I_VEL : I_VEL + 3])
+            - (dyn[D_V_JAC : D_V_JAC + 3] - s0[I_VEL : I_VEL + 3])
+        )
+    A = system_matrix_k(
+        s0,
+        L,
+        T,
+        w_in,
+        sum_c_dt,
+        sum_c_w_dt,
+        sum_c_f_dt,
+        dv_f,
+        dp,
+        dp_dk,
+        dp_dbore,
+        earth_sign,
+        stopped,
+        dyn[D_FREE] != 0.0,
+    )
+    Q = process_noise_k(
+        s0,
+        L,
+        T,
+        sum_c_dt,
+        path,
+        prm[P_IMU : P_IMU + 6],
+        prm[P_SCALE_RW],
+        prm[P_DR_ALONG],
+        prm[P_DR_LATERAL],
+        bend_sigma,
+        resolution[e],
+    )
+    phi, qd = discretize_k(A, Q, L)
+    offset = difference_k(s1, s_lin, L) if has_ref else np.zeros(L[L_N])
+    predict_k(x, P, phi, qd, offset)
+    s1[SV_DIST] = s0[SV_DIST] + (1.0 + s0[SV_K]) * ds.sum()
+    o_P_pred[e] = P
+    o_phi[e] = phi
+    ws_x[:] = x
+    ws_sv[S_MECH] = s1
+    ws_sv[S_LIN] = s_lin
+    ws[W_T], ws[W_SPEED], ws[W_STOPPED] = T, speed, stopped
+    ws[W_HAS_ODO], ws[W_EXCLUDED], ws[W_W_YZ] = odo_ok, excluded[e], w_yz
+    lever = prm[P_LEVER : P_LEVER + 3]
+    ws[W_LEVER_RATE] = omega_b[1] * lever[2] - omega_b[2] * lever[1]  # (omega x d)_x
+    ws[W_I0], ws[W_I1], ws[W_MAG_I] = i0, i1, mag_i[e]
+    ws[W_GYRO : W_GYRO + 3] = gyro_mean
+    ws[W_OMEGA : W_OMEGA + 3] = omega_b
+    ws[W_MVB : W_MVB + 3] = mean_vel_b
+    ws[W_FMN : W_FMN + 3] = f_mean_n
+    ws[W_DP : W_DP + 3] = dp
+    ws[W_VJAC : W_VJAC + 3] = v_jac
+    ws_m[:, :3] = sum_c_dt  # for the tilt update: C_mean and the accelerometer coupling
+    ws_m[:, 3:] = sum_c_f_dt
+
+
+@kernel
+def _updates(
+    e: int,
+    k_ep: int,
+    sv: Array,
+    x: Array,
+    P: Array,
+    dyn: Array,
+    L: Index,
+    prm: Array,
+    ref: Array,
+    imu_t: Array,
+    mag_t: Array,
+    mag_f: Array,
+    markers: Array,
+    o_sv: Array,
+    o_lin: Array,
+    o_x_upd: Array,
+    o_dx: Array,
+    o_end: Array,
+    o_P_upd: Array,
+    o_stopped: NDArray[np.bool_],
+    o_omega: Array,
+    o_q: Array,
+    o_s_odo: Array,
+    o_marker_res: Array,
+    counts: NDArray[np.int64],
+    acc: NDArray[np.int64],
+    rej: NDArray[np.int64],
+    nis: Array,
+    dof: NDArray[np.int64],
+    ws: Array,
+    ws_sv: Array,
+    ws_x: Array,
+    ws_m: Array,
+) -> None:
+    """Epoch e of the batch from the prediction on: the gated updates (odometer and NHC, zero
+    velocity and rate at stops, gravity tilt, magnetic heading, the markers given), injection
+    and the epoch's outputs (Navigator's epoch, second half)."""
+    has_ref = ref.shape[0] > 0
+    ins = L[L_VEL] >= 0
+    T, speed, stopped = ws[W_T], ws[W_SPEED], ws[W_STOPPED] != 0.0
+    odo_ok = ws[W_HAS_ODO] != 0.0
+    free = dyn[D_FREE] != 0.0
+    s1 = ws_sv[S_MECH]
+    s = ws_sv[S_LIN].copy()  # every update is linearized here
+    v_jac = ws[W_VJAC : W_VJAC + 3].copy()
+    omega = ws[W_OMEGA : W_OMEGA + 3]
+    dp = ws[W_DP : W_DP + 3]
+    if not odo_ok:
+        counts[C_NO_ODO] += 1
+    if ins and odo_ok:
+        lever_known = prm[P_LEVER_KNOWN] != 0.0
+        bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * ws[W_W_YZ]
+        over = np.sqrt(NOISE_EPOCH_S / max(T, 1e-3))  # NavConfig.over_epoch
+        sigma_speed = np.hypot(prm[P_ODO_SIGMA] * over, bend)
+        c1 = np.empty((3, 3))
+        att.dcm_into((s1[I_Q], s1[I_Q + 1], s1[I_Q + 2], s1[I_Q + 3]), c1)
+        vel_b_offset = ws[W_MVB : W_MVB + 3] - c1.T @ s1[I_VEL : I_VEL + 3]
+        r, H, R = meas.odometer_velocity_k(
+            s,
+            L,
+            speed,
+            vel_b_offset,
+            ws[W_LEVER_RATE],
+            sigma_speed,
+            prm[P_NHC_SIGMA] * over,
+            v_jac,
+            T,
+        )
+        _update(K_NHC, r[1:], H[1:].copy(), R[1:, 1:].copy(), x, P, prm, acc, rej, nis, dof)
+        if ws[W_EXCLUDED] != 0.0:
+            counts[C_EXCLUDED] += 1
+        else:
+            _update(K_ODO, r[:1], H[:1].copy(), R[:1, :1].copy(), x, P, prm, acc, rej, nis, dof)
+    if stopped:
+        if ins:
+            r, H, R = meas.zero_velocity_k(s, L, prm[P_ZUPT])
+            _update(K_ZUPT, r, H, R, x, P, prm, acc, rej, nis, dof)
+        sigma = np.sqrt(prm[P_ARW] ** 2 / T + prm[P_ZARU] ** 2)
+        gyro_mean = ws[W_GYRO : W_GYRO + 3].copy()
+        r, H, R = meas.zero_rate_k(s, L, gyro_mean, sigma, prm[P_EARTH_SIGN])
+        if free:
+            H[:, L[L_ATT] + 2] = 0.0
+        _update(K_ZARU, r, H, R, x, P, prm, acc, rej, nis, dof)
+    if prm[P_TILT_ON] != 0.0 and odo_ok and dyn[D_HAS_PREV_VEL] != 0.0:
+        accel_n = (dp / T - dyn[D_PREV_VEL : D_PREV_VEL + 3]) / T
+        f_mean_n = ws[W_FMN : W_FMN + 3].copy()
+        g = earth._gravity(s[SV_LAT], s[SV_H])
+        f_norm = np.sqrt(np.sum(f_mean_n**2))
+        gate = prm[P_TILT_GATE]
+        if abs(f_norm - g) > gate or np.sqrt(np.sum(accel_n**2)) > gate:
+            counts[C_TILT_GATED] += 1
+        else:
+            r, H, R = meas.gravity_tilt_k(
+                s, L, f_mean_n, ws_m[:, :3] / T, accel_n, prm[P_TILT_SIGMA], ws_m[:, 3:] / T
+            )
+            _update(K_TILT, r, H, R, x, P, prm, acc, rej, nis, dof)
+    i_mag = int(ws[W_MAG_I])
+    if prm[P_MAG_ON] != 0.0 and i_mag >= 0 and prm[P_MAG_REF_OK] != 0.0:
+        i0, i1 = int(ws[W_I0]), int(ws[W_I1])
+        j = i0
+        while j < i1 - 1 and imu_t[j] < mag_t[i_mag]:
+            j += 1
+        c = np.empty((3, 3))
+        att.dcm_into((o_q[j, 0], o_q[j, 1], o_q[j, 2], o_q[j, 3]), c)
+        m_b = mag_f[i_mag].copy()
+        m_n = c @ m_b
+        dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
+        norm = np.sqrt(np.sum(m_b**2))
+        if (
+            abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
+            or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE]
+        ):
+            counts[C_MAG_DISTURBED] += 1
+        else:
+            r, H, R = meas.magnetic_heading_k(s, L, m_b, c, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
+            _update(K_MAG, r, H, R, x, P, prm, acc, rej, nis, dof)
+    for j in range(markers.shape[0]):
+        r, H, R = meas.marker_fix_k(s, L, markers[j], prm[P_MARKER_TIME])
+        o_marker_res[j] = r
+        _update(K_MARKER, r, H, R, x, P, prm, acc, rej, nis, dof)
+    if has_ref:
+        lin = ref[k_ep]
+        est = inject_k(lin, x, L)
+        est[SV_DIST] = lin[SV_DIST]
+        o_dx[e] = x - ws_x
+        o_end[e] = difference_k(lin, s1, L)
+        o_x_upd[e] = x
+    else:
+        est = inject_k(s, x, L)
+        x[:] = 0.0  # injected: the filter relinearizes about its estimate
+        o_dx[e] = difference_k(est, s1, L)
+        o_end[e] = o_dx[e]
+        o_x_upd[e] = x
+        lin = est
+    dyn[D_PREV_SPEED] = speed
+    dyn[D_PREV_VEL : D_PREV_VEL + 3] = dp / T
+    dyn[D_HAS_PREV_VEL] = 1.0
+    dyn[D_V_JAC : D_V_JAC + 3] = v_jac
+    dyn[D_S_START] = o_s_odo[int(ws[W_I1]) - 1]
+    sv[:] = est
+    o_sv[e] = est
+    o_lin[e] = lin
+    o_P_upd[e] = P
+    o_stopped[e] = stopped
+    o_omega[e] = omega
+    counts[C_EPOCHS] += 1
+
+
+@kernel
+def run_epochs(
+    stop: bool,
+    resume: bool,
+    k0: int,
+    sv: Array,
+    x: Array,
+    P: Array,
+    carry: Array,
+    dyn: Array,
+    L: Index,
+    prm: Array,
+    ref: Array,
+    imu_t: Array,
+    imu_g: Array,
+    imu_a: Array,
+    ends: Index,
+    s_odo: Array,
+    has_odo: NDArray[np.bool_],
+    excluded: NDArray[np.bool_],
+    resolution: Array,
+    mag_i: Index,
+    mag_t: Array,
+    mag_f: Array,
+    markers: Array,
+    o_sv: Array,
+    o_lin: Array,
+    o_x_upd: Array,
+    o_dx: Array,
+    o_end: Array,
+    o_P_pred: Array,
+    o_P_upd: Array,
+    o_phi: Array,
+    o_stopped: NDArray[np.bool_],
+    o_omega: Array,
+    o_lat: Array,
+    o_lon: Array,
+    o_h: Array,
+    o_q: Array,
+    o_s_odo: Array,
+    o_marker_res: Array,
+    counts: NDArray[np.int64],
+    acc: NDArray[np.int64],
+    rej: NDArray[np.int64],
+    nis: Array,
+    dof: NDArray[np.int64],
+    ws: Array,
+    ws_sv: Array,
+    ws_x: Array,
+    ws_m: Array,
+) -> None:
+    """The epochs ending at ``ends`` (see the module docstring); epoch e is the filter's epoch
+    number k0 + e. stop: leave the last epoch after its prediction (its results in ws, ws_sv,
+    ws_x, ws_m); resume: the first epoch's prediction was left so. The markers (M, 7)
+    (:func:`measurements.marker_vector`) are applied in the last epoch."""
+    B = ends.shape[0]
+    for e in range(B):
+        if not (resume and e == 0):
+            _predict(
+                e,
+                k0 + e,
+                sv,
+                x,
+                P,
+                carry,
+                dyn,
+                L,
+                prm,
+                ref,
+                imu_t,
+                imu_g,
+                imu_a,
+                ends,
+                s_odo,
+                has_odo,
+                excluded,
+                resolution,
+                mag_i,
+                o_lat,
+                o_lon,
+                o_h,
+                o_q,
+                o_s_odo,
+                o_P_pred,
+                o_phi,
+                ws,
+                ws_sv,
+                ws_x,
+                ws_m,
+            )
+        if stop and e == B - 1:
+            return
+        mk = markers if e == B - 1 else markers[:0]
+        _updates(
+            e,
+            k0 + e,
+            sv,
+            x,
+            P,
+            dyn,
+            L,
+            prm,
+            ref,
+            imu_t,
+            mag_t,
+            mag_f,
+            mk,
+            o_sv,
+            o_lin,
+            o_x_upd,
+            o_dx,
+            o_end,
+            o_P_upd,
+            o_stopped,
+            o_omega,
+            o_q,
+            o_s_odo,
+            o_marker_res,
+            counts,
+            acc,
+            rej,
+            nis,
+            dof,
+            ws,
+            ws_sv,
+            ws_x,
+            ws_m,
+        )

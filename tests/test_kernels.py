@@ -1,0 +1,85 @@
+"""The compiled building blocks of the filter epoch equal their dense textbook formulas."""
+
+import numpy as np
+import pytest
+from pipe_nav_core.kalman import _joseph_update, predict_k
+from pipe_nav_core.process import discretize_k
+from pipe_nav_core.state import Layout
+
+from pipe_nav_core import jit
+
+
+def _system(rng: np.random.Generator, layout: Layout) -> tuple[np.ndarray, np.ndarray]:
+    """A sparse A with nonzero leading rows (att, vel, pos) as the engine builds, and a Q that
+    is diagonal plus a dense position block (DR)."""
+    n = layout.n
+    A = np.zeros((n, n))
+    rows = layout.pos.stop
+    mask = rng.random((rows, n)) < 0.4
+    A[:rows][mask] = rng.normal(0, 0.1, mask.sum())
+    Q = np.diag(rng.random(n) * 1e-3)
+    B = rng.normal(size=(3, 3))
+    Q[layout.pos, layout.pos] += B @ B.T * 1e-2
+    return A, Q
+
+
+@pytest.mark.parametrize("mode", ["ins", "dr"])
+def test_discretize_and_predict_equal_dense_formulas(mode):
+    rng = np.random.default_rng(1)
+    layout = Layout(mode, gyro_errors=True, accel_errors=True)
+    n = layout.n
+    A, Q = _system(rng, layout)
+    phi, qd = discretize_k(A, Q, layout.index)
+    phi_ref = np.eye(n) + A + 0.5 * A @ A
+    qd_ref = Q + 0.5 * (A @ Q + Q @ A.T) + A @ Q @ A.T / 3.0
+    if layout.odoq is not None:
+        i = layout.odoq.start
+        phi_ref[i : i + 2] = 0.0
+        phi_ref[i, i + 1] = 1.0
+    np.testing.assert_allclose(phi, phi_ref, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(qd, 0.5 * (qd_ref + qd_ref.T), rtol=0, atol=1e-15)
+    M = rng.normal(size=(n, n))
+    P = M @ M.T
+    x = rng.normal(size=n)
+    offset = rng.normal(size=n)
+    x1, P1 = x.copy(), P.copy()
+    predict_k(x1, P1, phi, qd, offset)
+    np.testing.assert_allclose(x1, phi @ x + offset, rtol=1e-13, atol=1e-13)
+    P_ref = phi @ P @ phi.T + qd
+    np.testing.assert_allclose(P1, 0.5 * (P_ref + P_ref.T), rtol=1e-12, atol=1e-12)
+    assert np.array_equal(P1, P1.T)
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_joseph_update_equals_dense_formula_and_gates(m):
+    rng = np.random.default_rng(m)
+    n = 38
+    M = rng.normal(size=(n, n))
+    P = M @ M.T + np.eye(n)
+    x = rng.normal(size=n)
+    H = rng.normal(size=(m, n)) * (rng.random((m, n)) < 0.3)
+    H[:, 0] = 1.0
+    R = np.diag(rng.random(m) + 0.1)
+    z = rng.normal(size=m)
+    nis, dx, x_new, P_new = _joseph_update(P, x, H, R, z, np.inf)
+    r = z - H @ x
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    IKH = np.eye(n) - K @ H
+    P_ref = IKH @ P @ IKH.T + K @ R @ K.T
+    np.testing.assert_allclose(nis, r @ np.linalg.solve(S, r), rtol=1e-10)
+    np.testing.assert_allclose(x_new, x + K @ r, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(P_new, 0.5 * (P_ref + P_ref.T), rtol=1e-9, atol=1e-9)
+    gated = _joseph_update(P, x, H, R, z, nis * 0.5)
+    assert len(gated[1]) == 0 and gated[0] == pytest.approx(nis)
+
+
+def test_compiled_kernels_are_recompiled_when_any_package_file_changes(tmp_path, monkeypatch):
+    for name in ("a.py", "sub/b.py"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("x = 1\n")
+    monkeypatch.setattr(jit, "_PACKAGE", tmp_path)
+    before = jit._package_stamp()
+    assert jit._package_stamp() == before
+    (tmp_path / "sub/b.py").write_text("x = 22\n")  # another module than the kernel's
+    assert jit._package_stamp() != before

@@ -1,0 +1,84 @@
+"""The compact Recording: packed covariances and transitions read back exactly, from memory or
+spilled to disk, and the RTS over its chunks equals the RTS over the full matrices."""
+
+import gc
+import os
+
+import numpy as np
+import pytest
+from pipe_nav_core.recording import Recording, phi_rows
+from pipe_nav_core.smoothing import rts, rts_packed
+from pipe_nav_core.state import SV_SIZE, Layout
+
+from pipe_nav_core import recording
+
+
+def _epochs(layout: Layout, K: int, seed: int = 0):
+    """K random epochs of consistent (positive-definite) covariances and transitions."""
+    rng = np.random.default_rng(seed)
+    n = layout.n
+    rows = phi_rows(layout)
+    out = []
+    P = np.eye(n)
+    for _ in range(K):
+        phi = np.eye(n)
+        phi[rows] += rng.normal(size=(len(rows), n)) * 0.05
+        a = rng.normal(size=(n, n)) * 0.05
+        P_pred = phi @ P @ phi.T + a @ a.T + 1e-3 * np.eye(n)
+        P = 0.9 * P_pred  # a stand-in for an update
+        out.append((rng.normal(size=SV_SIZE), rng.normal(size=n), P.copy(), P_pred, phi))
+    return out
+
+
+@pytest.mark.parametrize("budget", [recording.RAM_BUDGET_BYTES, 0])
+def test_recording_reads_back_what_was_stored(monkeypatch, budget):
+    """With a budget of 0 all but the two newest chunks go to disk; the values are the same,
+    and the temporary directory goes when the recording is closed."""
+    monkeypatch.setattr(recording, "CHUNK_EPOCHS", 16)
+    layout = Layout("ins", gyro_errors=True)
+    epochs = _epochs(layout, 75)
+    rec = Recording(layout, ram_budget=budget)
+    for state, dx, P_upd, P_pred, phi in epochs:
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+    rec._rows.flush()  # the spilled chunks are read back from their files
+    spill_dir = rec._rows._dir
+    assert (spill_dir is not None) == (budget == 0)
+    assert len(rec) == 75
+    np.testing.assert_array_equal(rec.states, [x[0] for x in epochs])
+    for k in (0, 17, 74, 3):
+        _, _, P_upd, P_pred, phi = epochs[k]
+        np.testing.assert_array_equal(rec.P_upd(k), np.triu(P_upd) + np.triu(P_upd, 1).T)
+        np.testing.assert_array_equal(rec.P_pred(k), np.triu(P_pred) + np.triu(P_pred, 1).T)
+        np.testing.assert_array_equal(rec.phi(k), phi)
+    np.testing.assert_array_equal(rec.variances(), [np.diag(x[2]) for x in epochs])
+    e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
+    P_upd, P_pred, phi = ([x[i] for x in epochs] for i in (2, 3, 4))
+    e_ref, P_ref = rts(P_upd, P_pred, phi, rec.dx)
+    np.testing.assert_allclose(e, e_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(var, np.diagonal(P_ref, axis1=1, axis2=2), rtol=1e-12)
+    rec.close()
+    if spill_dir is not None:
+        assert not os.path.exists(spill_dir)
+
+
+def test_spilled_chunks_go_with_the_recording(monkeypatch):
+    monkeypatch.setattr(recording, "CHUNK_EPOCHS", 4)
+    layout = Layout("dr")
+    rec = Recording(layout, ram_budget=0)
+    for state, dx, P_upd, P_pred, phi in _epochs(layout, 20):
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+    rec._rows.flush()
+    spill_dir = rec._rows._dir
+    assert spill_dir is not None and os.listdir(spill_dir)
+    del rec
+    gc.collect()
+    assert not os.path.exists(spill_dir)
+
+
+def test_transition_rows_outside_the_stored_ones_must_be_identity():
+    layout = Layout("ins")
+    rec = Recording(layout)
+    phi = np.eye(layout.n)
+    phi[layout.bg.start, layout.pos.start] = 1e-3  # a row the recording does not keep
+    with pytest.raises(ValueError, match="identity"):
+        rec.add_epoch(np.zeros(SV_SIZE), dx=np.zeros(layout.n), P_upd=phi, P_pred=phi, phi=phi)
