@@ -85,7 +85,6 @@ class Layout:
         return self.vel is not None
 
 
-
 # The nominal state as one flat float64 vector (NavState.vector / NavState.from_vector): the
 # form the compiled kernels and the Recording use. Scalars and the starts of the blocks:
 SV_T, SV_LAT, SV_LON, SV_H = 0, 1, 2, 3  # s, rad, rad, m
