@@ -188,6 +188,7 @@ class Navigator:
         self._carry = np.zeros(6)
         self._dyn = np.zeros(D_SIZE)
         self._prm: Array | None = None
+        self._batch: Batch | None = None
         self._out: list[NavEstimate] = []
         self._counts: dict[str, int] = defaultdict(int)
         self._first_marker: Marker | None = self.survey[0] if self.survey else None
@@ -650,9 +651,18 @@ class Navigator:
             *batch.buffers(),
         )  # fmt: skip
 
+    def _batch_for(self, epochs: int, samples: int) -> Batch:
+        """The output buffers, reused from batch to batch (fresh memory costs page faults)."""
+        b = self._batch
+        if b is None or len(b.sv) < epochs or len(b.lat) < samples:
+            size = max(epochs, MAX_BATCH if self.recording is not None else 1)
+            b = self._batch = Batch(size, max(samples, 2 * size * 20), self.layout.n)
+        b.reset()
+        return b
+
     def _run_batch(self, ends: NDArray[np.int64]) -> None:
         """Epochs without a marker passage, all in one call of the compiled loop."""
-        batch = Batch(len(ends), int(ends[-1]) + 1, self.layout.n)
+        batch = self._batch_for(len(ends), int(ends[-1]) + 1)
         self._call(batch, ends, self._inputs(ends), np.zeros((0, 7)))
         self._finish(batch, ends)
 
@@ -752,7 +762,7 @@ class Navigator:
         return s, rz
 
     # ----------------------------------------------------------------- bookkeeping
-    def _drop_processed(self, end: int | None = None) -> None:
+    def _drop_processed(self) -> None:
         s = self.state
         assert s is not None
         i = int(np.searchsorted(self._imu_t, s.t, side="right"))

@@ -161,6 +161,11 @@ class Batch:
         self.ws_x = np.zeros(n)
         self.ws_m = np.zeros((3, 12))
 
+    def reset(self) -> None:
+        """Zero the counters and statistics (before reusing the buffers)."""
+        for a in (self.counts, self.acc, self.rej, self.nis, self.dof):
+            a[:] = 0
+
     def buffers(self) -> tuple:  # type: ignore[type-arg]
         """The arrays in run_epochs' order."""
         return (

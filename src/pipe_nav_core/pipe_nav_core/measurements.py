@@ -26,6 +26,7 @@ from . import earth
 from .jit import kernel
 from .state import (
     I_BG,
+    I_BORE,
     I_ODOQ,
     I_Q,
     I_VEL,
@@ -63,10 +64,6 @@ class Measurement:
     residual: Array
     H: Array
     R: Array
-
-    def rows(self, idx: list[int], name: str) -> Measurement:
-        """The measurement restricted to some of its components, renamed."""
-        return Measurement(name, self.residual[idx], self.H[idx], self.R[idx][:, idx])
 
 
 @kernel
@@ -106,7 +103,7 @@ def odometer_velocity_k(
 ) -> Model:
     """:func:`odometer_velocity` on a flat state (vel_jac required)."""
     c = _dcm(sv)
-    u, du = odometer_axis(sv[18:20])
+    u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     k = sv[SV_K]
     quantized = L[L_ODOQ] >= 0 and epoch_s > 0.0
     if quantized:

@@ -3,9 +3,9 @@
 Built from the sums a mechanization block leaves (:class:`mechanization.BlockResult`), so that a
 pig rolling at several rad/s inside one epoch still gets the exact bias couplings
 (sum of C_nb dt over the samples), and then Phi = I + A + A^2 / 2 with A the integrated system
-matrix. Error-state conventions: :mod:`pipe_nav_core.state`. The ``*_k`` kernels are compiled
-(flat state, layout index array, see :mod:`pipe_nav_core.state`) and shared by the engine's
-compiled epoch; the functions without the suffix are their NavState / BlockResult front ends.
+matrix. Error-state conventions: :mod:`pipe_nav_core.state`. Compiled kernels on the flat
+state and the layout index array (:mod:`pipe_nav_core.state`), called by the engine's
+compiled epoch (:mod:`pipe_nav_core.epoch`).
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from numpy.typing import NDArray
 from . import attitude as att
 from . import earth
 from .jit import kernel
-from .mechanization import BlockResult
 from .sensors import ImuSpec
 from .state import (
+    I_BORE,
     I_Q,
     I_VEL,
     L_AM,
@@ -34,8 +34,6 @@ from .state import (
     L_VEL,
     SV_H,
     SV_LAT,
-    Layout,
-    NavState,
     odometer_axis,
 )
 
@@ -71,8 +69,20 @@ def system_matrix_k(
     at_rest: bool,
     heading_free: bool,
 ) -> Array:
-    """A = integral of F dt over the block (n, n) about the flat state sv (see
-    :func:`integrated_system_matrix`; dv_f is the specific-force increment to use, m/s ENU)."""
+    """A = integral of F dt over the block (n, n), linearized about the flat state sv (layout
+    L), from the block's sums (:class:`mechanization.BlockResult`, earth_sign -1 for reversed
+    time).
+
+    dv_f: the specific-force velocity increment (m/s, ENU) in the attitude-to-velocity
+    coupling: the engine's first-estimate value (see :class:`pipe_nav_core.engine.Navigator`).
+    at_rest: the pig is known to be stopped over the block; the couplings that multiply the
+    true body rate and specific force (gyro and accelerometer error matrices) then use their
+    exact values (the Earth rate and the gravity reaction (0, 0, g) m/s^2 ENU) instead of the
+    noisy measured ones: with a consumer-grade IMU the measured values of a pig at rest are
+    pure noise, and a Jacobian built from them, read against zero-velocity updates of 2 mm/s,
+    makes the heading look observable at rest when it is not.
+    heading_free: leave out the Earth rate's coupling of a heading error into the tilt (the
+    engine's live filter, while its heading is still tens of degrees off and unanchored)."""
     n = L[L_N]
     A = np.zeros((n, n))
     a, p = L[L_ATT], L[L_POS]
@@ -140,51 +150,6 @@ def system_matrix_k(
     return A
 
 
-def integrated_system_matrix(
-    s: NavState,
-    blk: BlockResult,
-    layout: Layout,
-    earth_sign: float = 1.0,
-    *,
-    at_rest: bool = False,
-    dv_f: Array | None = None,
-    heading_free: bool = False,
-) -> Array:
-    """A = integral of F dt over the block (n, n), linearized about the nominal state s.
-
-    at_rest: the pig is known to be stopped over the block; the couplings that multiply the
-    true specific force and the true body rate then use their exact values (gravity reaction
-    (0, 0, g) m/s^2 ENU and the Earth rate) instead of the noisy measured ones. With a
-    consumer-grade IMU the measured horizontal specific force of a pig at rest is pure noise
-    (about 1e-3 m/s per 0.1 s epoch), and a Jacobian built from it, read against zero-velocity
-    updates of 2 mm/s, makes the heading look observable at rest when it is not.
-    dv_f: the specific-force velocity increment (m/s, ENU) to use in the attitude-to-velocity
-    coupling instead of the block's own (the engine's first-estimate Jacobian, see
-    :meth:`pipe_nav_core.engine.Navigator`); overrides the at_rest value.
-    heading_free: leave out the Earth rate's coupling of a heading error into the tilt (the
-    engine's live filter, while its heading is still tens of degrees off and unanchored).
-    """
-    if dv_f is None:
-        g = float(earth.gravity(s.lat, s.h))
-        dv_f = np.array([0.0, 0.0, g * blk.T]) if at_rest else blk.dv_f
-    return system_matrix_k(
-        s.vector(),
-        layout.index,
-        blk.T,
-        blk.w_in,
-        blk.sum_c_dt,
-        blk.sum_c_w_dt,
-        blk.sum_c_f_dt,
-        np.asarray(dv_f, dtype=np.float64),
-        blk.dp,
-        blk.dp_dk,
-        blk.dp_dbore,
-        float(earth_sign),
-        bool(at_rest),
-        bool(heading_free),
-    )
-
-
 @kernel
 def process_noise_k(
     sv: Array,
@@ -199,9 +164,14 @@ def process_noise_k(
     bend_sigma: float,
     odometer_resolution: float,
 ) -> Array:
-    """Process noise over the block (n, n) (see :func:`continuous_noise`); imu = [gyro_arw,
-    accel_vrw, gyro_bias_instability, gyro_bias_corr_time, accel_bias_instability,
-    accel_bias_corr_time] (:func:`imu_noise`)."""
+    """Process noise accumulated over the block (n, n) before propagation through it.
+
+    imu: [gyro_arw, accel_vrw, gyro_bias_instability, gyro_bias_corr_time,
+    accel_bias_instability, accel_bias_corr_time] (:func:`imu_noise`); scale_rw 1/sqrt(s);
+    DR mode: dr_along_sigma and dr_lateral_sigma m/sqrt(m) of path, bend_sigma m of extra
+    along-track noise for wall-versus-centreline differences in bends (zero when the wheel
+    lever arm is known); odometer_resolution m per count: the fresh reading error at the epoch
+    end is uniform over one count (variance resolution^2 / 12)."""
     n = L[L_N]
     Q = np.zeros((n, n))
 
@@ -221,7 +191,7 @@ def process_noise_k(
     if L[L_ODOQ] >= 0:
         Q[L[L_ODOQ] + 1, L[L_ODOQ] + 1] = odometer_resolution**2 / 12.0
     if L[L_VEL] < 0:
-        u, _ = odometer_axis(sv[18:20])
+        u, _ = odometer_axis(sv[I_BORE : I_BORE + 2])
         u_n = np.zeros(3)
         for r in range(3):
             for i in range(3):
@@ -251,43 +221,14 @@ def imu_noise(imu: ImuSpec) -> Array:
     )
 
 
-def continuous_noise(
-    s: NavState,
-    blk: BlockResult,
-    layout: Layout,
-    imu: ImuSpec,
-    *,
-    scale_rw: float,
-    dr_along_sigma: float,
-    dr_lateral_sigma: float,
-    bend_sigma: float,
-    odometer_resolution: float = 0.0,
-) -> Array:
-    """Process noise accumulated over the block (n, n) before propagation through the block.
-
-    bend_sigma: m, extra along-track distance noise in DR mode for wall-versus-centreline
-    differences in bends (zero when the wheel lever arm is known and compensated).
-    odometer_resolution: m per count; the fresh reading error at the epoch end is uniform over
-    one count (variance resolution^2 / 12).
-    """
-    return process_noise_k(
-        s.vector(),
-        layout.index,
-        blk.T,
-        blk.sum_c_dt,
-        float(blk.path),
-        imu_noise(imu),
-        float(scale_rw),
-        float(dr_along_sigma),
-        float(dr_lateral_sigma),
-        float(bend_sigma),
-        float(odometer_resolution),
-    )
-
-
 @kernel
 def discretize_k(A: Array, Q: Array, L: Index) -> tuple[Array, Array]:
-    """Phi = I + A + A^2/2 and Qd = Q + (A Q + Q A^T)/2 + A Q A^T / 3 (see :func:`discretize`)."""
+    """Phi = I + A + A^2/2 and Qd = Q + (A Q + Q A^T)/2 + A Q A^T / 3.
+
+    Only the leading rows of A (the attitude, velocity and position errors) are nonzero, and
+    sparse: the products are taken over its nonzeros alone (the same sums). With a layout
+    that has odometer reading errors, their rows become the epoch shift (start <- end, end <-
+    fresh draw whose variance Q holds); A never couples them."""
     n = A.shape[0]
     r = 0  # A[r:] == 0
     for i in range(n):
@@ -329,15 +270,3 @@ def discretize_k(A: Array, Q: Array, L: Index) -> tuple[Array, Array]:
         phi[i : i + 2, :] = 0.0
         phi[i, i + 1] = 1.0
     return phi, 0.5 * (qd + qd.T)
-
-
-def discretize(A: Array, Q: Array, layout: Layout | None = None) -> tuple[Array, Array]:
-    """Phi = I + A + A^2/2 and Qd = Q + (A Q + Q A^T)/2 + A Q A^T / 3.
-
-    Only the leading rows of A (the attitude, velocity and position errors) are nonzero; the
-    products are taken over those rows alone (the same sums, without the zero terms).
-    With a layout that has odometer reading errors, their rows become the epoch shift
-    (start <- end, end <- fresh draw whose variance Q holds); A never couples them.
-    """
-    L = layout.index if layout is not None else np.array([-1] * 10 + [A.shape[0]], np.int64)
-    return discretize_k(np.ascontiguousarray(A, float), np.ascontiguousarray(Q, float), L)

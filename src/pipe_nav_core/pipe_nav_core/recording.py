@@ -39,7 +39,7 @@ SAMPLE_SPACING_S = 0.02
 
 def phi_rows(layout: Layout) -> Array:
     """The rows of the error-state transition that can differ from the identity: attitude,
-    velocity and position (the only nonzero rows of the system matrix; process.discretize)
+    velocity and position (the only nonzero rows of the system matrix; process.discretize_k)
     and the odometer reading errors (shifted each epoch)."""
     rows = np.arange(layout.pos.stop)
     if layout.odoq is not None:

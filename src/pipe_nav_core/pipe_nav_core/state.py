@@ -105,13 +105,6 @@ L_ATT, L_VEL, L_POS, L_BG, L_BA, L_K, L_BORE, L_ODOQ, L_GM, L_AM, L_N = range(11
 _BLOCKS = ("att", "vel", "pos", "bg", "ba", "k", "bore", "odoq", "gm", "am")
 
 
-def skew3(v: Array) -> Array:
-    """Cross-product matrix [v x] of one 3-vector (as attitude.skew, for the per-epoch
-    Jacobians, where numpy's stacking overhead dominated)."""
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
 def dcm1(q: Array) -> Array:
     """C_nb of one unit quaternion [x, y, z, w] (as attitude.dcm_from_quat, scalar path)."""
     x, y, z, w = np.asarray(q, dtype=np.float64).tolist()
