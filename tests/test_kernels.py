@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from pipe_nav_core.kalman import _joseph_update, predict_k
+from pipe_nav_core.kalman import _joseph_update, chi2_threshold, predict_k
 from pipe_nav_core.process import discretize_k
 from pipe_nav_core.state import Layout
 
@@ -83,3 +83,11 @@ def test_compiled_kernels_are_recompiled_when_any_package_file_changes(tmp_path,
     assert jit._package_stamp() == before
     (tmp_path / "sub/b.py").write_text("x = 22\n")  # another module than the kernel's
     assert jit._package_stamp() != before
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 6])
+def test_gate_is_the_chi_square_quantile(dof):
+    from scipy.stats import chi2
+
+    for p in (0.95, 0.999, 0.99999):
+        assert chi2_threshold(p, dof) == pytest.approx(chi2.ppf(p, dof), rel=1e-12)

@@ -203,9 +203,7 @@ class Navigator:
         self._odo_last: float | None = None
         self._odo_learnt_t = -math.inf
         self._static_epochs = 0
-        self.recording = (
-            Recording(self.layout, linearized=self.reference is not None) if self.record else None
-        )
+        self.recording = Recording(self.layout, reference=self.reference) if self.record else None
         self.datum: Datum | None = (
             Datum(self._first_marker.lat, self._first_marker.lon, self._first_marker.alt)
             if self._first_marker
@@ -517,7 +515,7 @@ class Navigator:
         self._prm = parameters(cfg, self.imu_spec, self.lever_arm, self.earth_sign, self._mag_ref)
         self._counts["aligned_at_ms"] = int(round(s.t * 1000))
         if self.recording is not None:
-            self._record_alignment(lin)
+            self._record_alignment()
         self._drop_processed()
         self._emit()
 
@@ -840,14 +838,13 @@ class Navigator:
             P_upd=batch.P_upd[:nb],
             P_pred=batch.P_pred[:nb],
             phi=batch.phi[:nb],
-            lin=batch.lin[:nb] if linearized else None,
             x_upd=batch.x_upd[:nb] if linearized else None,
             end_offset=batch.end_offset[:nb] if linearized else None,
         )
         b = batch
         rec.add_blocks(ends, self._imu_t, b.s_odo, b.lat, b.lon, b.h, b.q)
 
-    def _record_alignment(self, lin: NavState) -> None:
+    def _record_alignment(self) -> None:
         """Epoch 0 of the recording: the aligned state, its prior, no transition."""
         rec, kf = self.recording, self.kf
         assert rec is not None and kf is not None and self.state is not None
@@ -860,7 +857,6 @@ class Navigator:
             P_upd=kf.P,
             P_pred=kf.P,
             phi=np.eye(n),
-            lin=lin.vector() if linearized else None,
             x_upd=kf.x.copy() if linearized else None,
             end_offset=zero if linearized else None,
         )

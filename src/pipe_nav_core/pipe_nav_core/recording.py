@@ -186,21 +186,25 @@ class Recording:
     ``s_lon`` rad, ``s_h`` m, ``s_q`` [x, y, z, w] base_link -> ENU, and ``s_epoch``: the
     epoch whose block the sample belongs to (the block of epoch k starts at lin[k - 1]).
 
-    linearized: the filter runs about a reference trajectory (lin, x_upd and end_offset are
-    then stored; without one they follow from states and dx).
+    reference: the trajectory (K, SV_SIZE) the filter runs about, if any: it is lin (not
+    copied), and x_upd and end_offset are stored; without one they follow from states and dx.
     """
 
     def __init__(
-        self, layout: Layout, *, linearized: bool = False, ram_budget: int = RAM_BUDGET_BYTES
+        self,
+        layout: Layout,
+        *,
+        reference: Array | None = None,
+        ram_budget: int = RAM_BUDGET_BYTES,
     ) -> None:
         self.layout = layout
-        self.linearized = linearized
+        self._reference = reference
+        linearized = self.linearized = reference is not None
         self.format = EpochRows(layout.n, phi_rows(layout))
         self._rows = _Chunks(self.format.width, ram_budget)
         n = layout.n
         self._states = _Growable((SV_SIZE,))
         self._dx = _Growable((n,))
-        self._lin = _Growable((SV_SIZE,)) if linearized else None
         self._x_upd = _Growable((n,)) if linearized else None
         self._end_offset = _Growable((n,)) if linearized else None
         self._s = {name: _Growable() for name in ("t", "odo", "lat", "lon", "h")}
@@ -220,21 +224,18 @@ class Recording:
         P_upd: Array,
         P_pred: Array,
         phi: Array,
-        lin: Array | None = None,
         x_upd: Array | None = None,
         end_offset: Array | None = None,
     ) -> None:
         """B epochs: states (B, SV_SIZE); dx, x_upd, end_offset (B, n); P_upd, P_pred, phi
-        (B, n, n) (rows of phi outside :func:`phi_rows` must be the identity's). lin, x_upd
-        and end_offset only for a linearized recording."""
+        (B, n, n) (rows of phi outside :func:`phi_rows` must be the identity's). x_upd and
+        end_offset only for a recording about a reference."""
         for a, b, out in self._rows.claim(len(states)):
             self.format.pack(out, P_upd[a:b], P_pred[a:b], phi[a:b])
         self._states.extend(states)
         self._dx.extend(dx)
         if self.linearized:
-            assert self._lin is not None and self._x_upd is not None
-            assert self._end_offset is not None
-            self._lin.extend(lin)
+            assert self._x_upd is not None and self._end_offset is not None
             self._x_upd.extend(x_upd)
             self._end_offset.extend(end_offset)
 
@@ -292,7 +293,7 @@ class Recording:
 
     @property
     def lin(self) -> Array:
-        return self._lin.data if self._lin is not None else self.states
+        return self._reference[: len(self.states)] if self._reference is not None else self.states
 
     @property
     def dx(self) -> Array:
