@@ -8,7 +8,7 @@ to compare.
 from __future__ import annotations
 
 import dataclasses
-import resource
+import os
 import subprocess
 import sys
 import tempfile
@@ -88,28 +88,20 @@ def smooth_stages(bag: Path, duration: float) -> dict[str, float]:
 
 
 def peak_memory_mb(bag: Path) -> tuple[float, float]:
-    """Peak resident memory (MB) and wall time (s) of a whole ``pipe-nav smooth`` process."""
+    """Peak resident memory (MB) and wall time (s) of a whole ``pipe-nav smooth`` process
+    (its own peak: os.wait4 reports that child alone, where RUSAGE_CHILDREN would report the
+    largest of every child so far)."""
     with tempfile.TemporaryDirectory() as tmp:
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        cmd = [sys.executable, "-m", "pipe_nav_core.cli", "smooth", str(bag)]
+        cmd += ["--out", f"{tmp}/", "--quiet", "--imu-grade", "tactical"]
         t0 = time.perf_counter()
-        subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "pipe_nav_core.cli",
-                "smooth",
-                str(bag),
-                "--out",
-                f"{tmp}/",
-                "--quiet",
-                "--imu-grade",
-                "tactical",
-            ],
-            check=True,
-        )
+        child = subprocess.Popen(cmd)
+        _, status, usage = os.wait4(child.pid, 0)
         wall = time.perf_counter() - t0
-        peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return max(peak, before) / 1024.0, wall
+        child.returncode = os.waitstatus_to_exitcode(status)
+        if child.returncode:
+            raise subprocess.CalledProcessError(child.returncode, cmd)
+    return usage.ru_maxrss / 1024.0, wall
 
 
 def online_cost(seconds: float = 60.0) -> dict[str, float]:
