@@ -11,11 +11,12 @@ SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 
 
 def test_peak_memory_is_the_smooth_process_own():
+    speed.peak_memory_mb(SAMPLE)  # a cold numba cache compiles (hundreds of MB) in this one
     # an earlier, larger child must not count (RUSAGE_CHILDREN would report its peak)
-    code = "b = bytearray(900 * 2**20); b[::4096] = b'x' * len(b[::4096])"
+    code = "b = bytearray(1500 * 2**20); b[::4096] = b'x' * len(b[::4096])"
     subprocess.run([sys.executable, "-c", code], check=True)
     peak, wall = speed.peak_memory_mb(SAMPLE)
-    assert 50.0 < peak < 850.0
+    assert 50.0 < peak < 1200.0
     assert wall > 0.0
 
 
