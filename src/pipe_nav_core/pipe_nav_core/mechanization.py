@@ -389,6 +389,16 @@ def _end_state(
 
 
 @kernel
+def _attitude(
+    sv: Array, t: Array, gyro: Array, carry: Array, w_in: Array
+) -> tuple[Array, Array, Array, Array, Array, Array]:
+    """_attitude_kernel from the flat state sv (its attitude, time, gyro bias and matrix)."""
+    gm = sv[I_GM : I_GM + 9].copy().reshape(3, 3)
+    q0, bg = sv[I_Q : I_Q + 4], sv[I_BG : I_BG + 3]
+    return _attitude_kernel(q0, sv[SV_T], t, gyro, bg, gm, carry[:3], w_in)
+
+
+@kernel
 def ins_step_k(
     sv: Array, t: Array, gyro: Array, accel: Array, carry: Array, earth_sign: float
 ) -> Step:
@@ -396,10 +406,7 @@ def ins_step_k(
     carry (6,) = the previous block's last dtheta, dvel). Returns :data:`Step`."""
     w_ie, w_en, rm, rn = _rates(sv, earth_sign)
     w_in = w_ie + w_en
-    gm = sv[I_GM : I_GM + 9].copy().reshape(3, 3)
-    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
-        sv[I_Q : I_Q + 4], sv[SV_T], t, gyro, sv[I_BG : I_BG + 3], gm, carry[:3], w_in
-    )
+    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude(sv, t, gyro, carry, w_in)
     g = np.array([0.0, 0.0, -earth._gravity(sv[SV_LAT], sv[SV_H])])
     am = sv[I_AM : I_AM + 9].copy().reshape(3, 3)
     vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt = _ins_kernel(
@@ -440,10 +447,7 @@ def dr_step_k(
     carry (6,) = the previous block's last dtheta, dvel). Returns :data:`Step`."""
     w_ie, w_en, rm, rn = _rates(sv, earth_sign)
     w_in = w_ie + w_en
-    gm = sv[I_GM : I_GM + 9].copy().reshape(3, 3)
-    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude_kernel(
-        sv[I_Q : I_Q + 4], sv[SV_T], t, gyro, sv[I_BG : I_BG + 3], gm, carry[:3], w_in
-    )
+    q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude(sv, t, gyro, carry, w_in)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     am = sv[I_AM : I_AM + 9].copy().reshape(3, 3)
     vel, p, dvel, dv_f, ds_c_sum, path, dp_dk, dp_dbore, sum_c_f_dt = _dr_kernel(

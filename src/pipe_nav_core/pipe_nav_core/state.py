@@ -131,6 +131,19 @@ def odometer_axis(bore: Array) -> tuple[Array, Array]:
     return np.array([ux, uy, uz]), du
 
 
+# the blocks whose error is a plain difference: (layout block, start in the flat state, size)
+_ADDITIVE = (
+    (L_VEL, I_VEL, 3),
+    (L_BG, I_BG, 3),
+    (L_BA, I_BA, 3),
+    (L_K, SV_K, 1),
+    (L_BORE, I_BORE, 2),
+    (L_ODOQ, I_ODOQ, 2),
+    (L_GM, I_GM, 9),
+    (L_AM, I_AM, 9),
+)
+
+
 @kernel
 def inject_k(sv: Array, dx: Array, L: NDArray[np.int64]) -> Array:
     """Flat state sv (SV_SIZE,) corrected by the error state dx (n,) of layout L (Layout.index):
@@ -146,16 +159,7 @@ def inject_k(sv: Array, dx: Array, L: NDArray[np.int64]) -> Array:
     out[SV_LAT] = lat + dx[p + 1] / (rm + h)
     out[SV_LON] = sv[SV_LON] + dx[p] / ((rn + h) * np.cos(lat))
     out[SV_H] = h + dx[p + 2]
-    for block, at, size in (
-        (L_VEL, I_VEL, 3),
-        (L_BG, I_BG, 3),
-        (L_BA, I_BA, 3),
-        (L_K, SV_K, 1),
-        (L_BORE, I_BORE, 2),
-        (L_ODOQ, I_ODOQ, 2),
-        (L_GM, I_GM, 9),
-        (L_AM, I_AM, 9),
-    ):
+    for block, at, size in _ADDITIVE:
         j = L[block]
         if j >= 0:
             for i in range(size):
@@ -177,16 +181,7 @@ def difference_k(sa: Array, sb: Array, L: NDArray[np.int64]) -> Array:
     dx[p] = (sa[SV_LON] - sb[SV_LON]) * (rn + sb[SV_H]) * np.cos(sb[SV_LAT])
     dx[p + 1] = (sa[SV_LAT] - sb[SV_LAT]) * (rm + sb[SV_H])
     dx[p + 2] = sa[SV_H] - sb[SV_H]
-    for block, at, size in (
-        (L_VEL, I_VEL, 3),
-        (L_BG, I_BG, 3),
-        (L_BA, I_BA, 3),
-        (L_K, SV_K, 1),
-        (L_BORE, I_BORE, 2),
-        (L_ODOQ, I_ODOQ, 2),
-        (L_GM, I_GM, 9),
-        (L_AM, I_AM, 9),
-    ):
+    for block, at, size in _ADDITIVE:
         j = L[block]
         if j >= 0:
             for i in range(size):
