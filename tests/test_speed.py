@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from pipe_nav_core import speed
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
@@ -12,10 +14,13 @@ SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 
 def test_peak_memory_is_the_smooth_process_own():
     speed.peak_memory_mb(SAMPLE)  # a cold numba cache compiles (hundreds of MB) in this one
-    # an earlier, larger child must not count (RUSAGE_CHILDREN would report its peak)
+    # neither an earlier, larger child nor this (large) process may count: the rusage of
+    # children reports the largest child, and a child starts from its parent's peak at fork
     code = "b = bytearray(1500 * 2**20); b[::4096] = b'x' * len(b[::4096])"
     subprocess.run([sys.executable, "-c", code], check=True)
+    ballast = np.ones(1500 * 2**17)  # 1.5 GB resident in this process
     peak, wall = speed.peak_memory_mb(SAMPLE)
+    assert ballast[-1] == 1.0
     assert 50.0 < peak < 1200.0
     assert wall > 0.0
 

@@ -87,12 +87,31 @@ def smooth_stages(bag: Path, duration: float) -> dict[str, float]:
     return out
 
 
+# run in the measured child: pipe-nav smooth, then its own high-water mark (VmHWM, kB) into
+# the file argv[1]. The rusage of a child is no measure: Linux starts it from the parent's
+# peak at fork, so a large benchmark process would report its own size.
+_CHILD = """
+import sys
+from pipe_nav_core.cli import main
+rc = main(sys.argv[2:])
+try:
+    with open("/proc/self/status") as f:
+        hwm = next(line.split()[1] for line in f if line.startswith("VmHWM:"))
+    with open(sys.argv[1], "w") as f:
+        f.write(hwm)
+except (OSError, StopIteration):
+    pass
+sys.exit(rc)
+"""
+
+
 def peak_memory_mb(bag: Path) -> tuple[float, float]:
     """Peak resident memory (MB) and wall time (s) of a whole ``pipe-nav smooth`` process
-    (its own peak: os.wait4 reports that child alone, where RUSAGE_CHILDREN would report the
-    largest of every child so far)."""
+    (its own high-water mark on Linux; elsewhere the child's rusage, which can include the
+    parent's size at fork)."""
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "pipe_nav_core.cli", "smooth", str(bag)]
+        hwm = Path(tmp) / "hwm"
+        cmd = [sys.executable, "-c", _CHILD, str(hwm), "smooth", str(bag)]
         cmd += ["--out", f"{tmp}/", "--quiet", "--imu-grade", "tactical"]
         t0 = time.perf_counter()
         child = subprocess.Popen(cmd)
@@ -101,7 +120,8 @@ def peak_memory_mb(bag: Path) -> tuple[float, float]:
         child.returncode = os.waitstatus_to_exitcode(status)
         if child.returncode:
             raise subprocess.CalledProcessError(child.returncode, cmd)
-    return usage.ru_maxrss / 1024.0, wall
+        kb = float(hwm.read_text()) if hwm.exists() else float(usage.ru_maxrss)
+    return kb / 1024.0, wall
 
 
 def online_cost(seconds: float = 60.0) -> dict[str, float]:
