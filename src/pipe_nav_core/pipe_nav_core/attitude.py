@@ -229,6 +229,15 @@ def cross3(a: Vec3 | Array, b: Vec3 | Array) -> Vec3:
 
 
 @kernel
+def skew_k(v: Vec3 | Array) -> Array:
+    """Cross-product matrix [v x] (3, 3) of one 3-vector (as skew)."""
+    out = np.zeros((3, 3))
+    out[0, 1], out[0, 2], out[1, 2] = -v[2], v[1], -v[0]
+    out[1, 0], out[2, 0], out[2, 1] = v[2], -v[1], v[0]
+    return out
+
+
+@kernel
 def qmul(p: Quat, q: Quat) -> Quat:
     """Hamilton product p * q of scalar-last quaternions (as attitude.quat_mul)."""
     px, py, pz, pw = p

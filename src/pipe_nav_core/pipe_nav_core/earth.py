@@ -44,6 +44,21 @@ def _gravity(lat, h):  # noqa: ANN001, ANN202
     return g0 * (1.0 - 2.0 / A * (1.0 + F + M_RATIO - 2.0 * F * s2) * h + 3.0 / A**2 * (h * h))
 
 
+@kernel
+def earth_rate_k(lat: float, sign: float = 1.0) -> Array:
+    """Earth rotation rate omega_ie in ENU (rad/s, (3,)) at latitude lat (rad); sign -1 for
+    time-reversed data."""
+    return np.array([0.0, sign * OMEGA_IE * np.cos(lat), sign * OMEGA_IE * np.sin(lat)])
+
+
+@kernel
+def transport_rate_k(lat: float, h: float, ve: float, vn: float) -> Array:
+    """Transport rate omega_en in ENU (rad/s, (3,)) at lat (rad), h (m) for east and north
+    velocity ve, vn (m/s)."""
+    rm, rn = _radii(lat)
+    return np.array([-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)])
+
+
 def _f(x: ArrayLike) -> float | Array:
     return x if isinstance(x, float) else np.asarray(x, dtype=np.float64)
 
@@ -76,7 +91,7 @@ def gravity_n(lat: ArrayLike, h: ArrayLike) -> Array:
 def earth_rate_n(lat: ArrayLike) -> Array:
     """Earth rotation rate omega_ie in ENU (rad/s), shape (..., 3)."""
     if isinstance(lat, float):
-        return np.array([0.0, OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)])
+        return earth_rate_k(lat)
     lat = np.asarray(lat, dtype=np.float64)
     return np.stack([np.zeros_like(lat), OMEGA_IE * np.cos(lat), OMEGA_IE * np.sin(lat)], axis=-1)
 
@@ -84,10 +99,9 @@ def earth_rate_n(lat: ArrayLike) -> Array:
 def transport_rate_n(lat: ArrayLike, h: ArrayLike, vel_n: ArrayLike) -> Array:
     """Transport rate omega_en in ENU (rad/s) for ENU velocity vel_n (m/s), shape (..., 3)."""
     v = np.asarray(vel_n, dtype=np.float64)
-    rm, rn = radii(lat)
     if isinstance(lat, float) and isinstance(h, float) and v.ndim == 1:
-        ve, vn = float(v[0]), float(v[1])
-        return np.array([-vn / (rm + h), ve / (rn + h), ve * math.tan(lat) / (rn + h)])
+        return transport_rate_k(lat, h, float(v[0]), float(v[1]))
+    rm, rn = radii(lat)
     ve, vn = v[..., 0], v[..., 1]
     return np.stack([-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)], axis=-1)
 

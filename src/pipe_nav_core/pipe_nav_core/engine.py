@@ -517,7 +517,8 @@ class Navigator:
         if self.recording is not None:
             self._record_alignment()
         self._drop_processed()
-        self._emit()
+        if self.emit:
+            self._out.append(self._estimate(self._sv, self.kf.P, np.zeros(3), "static"))
 
     def _initial_covariance(self, s: NavState, t_static: float, az_sigma: float) -> Array:
         """P0 with the couplings static alignment creates: levelled tilt absorbs the horizontal
@@ -608,12 +609,12 @@ class Navigator:
         t_end = t[ends]
         t_start = np.r_[self.state.t, t_end[:-1]]
         o = self._odo
+        s_odo = self._odometer_at(t)
         if len(o):
-            s_odo = np.interp(t, o.t, o.distance)
             first = o.t[np.maximum(np.searchsorted(o.t, t_start) - 1, 0)]
             has_odo = (o.t[-1] >= t_end) & (first <= t_start + ODOMETER_TIMEOUT_S)
         else:
-            s_odo, has_odo = np.zeros(len(t)), np.zeros(len(ends), dtype=bool)
+            has_odo = np.zeros(len(ends), dtype=bool)
         ex = self.odometer_exclude
         excluded = np.zeros(len(ends), dtype=bool)
         if len(ex):
@@ -672,7 +673,7 @@ class Navigator:
         due = [m for m in self._markers if m.t <= t_end]
         for m in due:
             self._markers.remove(m)
-        batch = Batch(1, int(ends[-1]) + 1, self.layout.n, len(due))
+        batch = Batch(1, int(ends[-1]) + 1, self.layout.n)
         inputs = self._inputs(ends)
         self._call(batch, ends, inputs, np.zeros((0, 7)), stop=True)
         s = NavState.from_vector(batch.ws_sv[S_LIN])
@@ -775,57 +776,32 @@ class Navigator:
         if i > 0:
             self._mag = mg.slice(slice(i, None))
 
-    def _emit(self, status: str = "static", omega: Array | None = None) -> None:
-        s, kf, lay = self.state, self.kf, self.layout
-        assert s is not None and kf is not None
-        if not self.emit:
-            return
-        cov_pose = kf.P[self._pose_ix]
+    def _estimate(self, v: Array, P: Array, omega: Array, status: str) -> NavEstimate:
+        """The estimate of flat state v with covariance P (n, n) and body rate omega."""
+        lay = self.layout
         cov_vel = (
-            kf.P[lay.vel, lay.vel].copy()
+            P[lay.vel, lay.vel].copy()
             if lay.vel is not None
             else np.eye(3) * self.cfg.odometer_speed_sigma**2
         )
-        self._out.append(
-            NavEstimate(
-                t=s.t,
-                lat=s.lat,
-                lon=s.lon,
-                h=s.h,
-                vel_n=s.vel_n.copy(),
-                quat_nb=s.q_nb.copy(),
-                omega_b=np.zeros(3) if omega is None else omega.copy(),
-                cov_pose=cov_pose,
-                cov_vel_n=cov_vel,
-                distance=s.distance,
-                status=status,
-            )
+        return NavEstimate(
+            t=float(v[SV_T]),
+            lat=float(v[SV_LAT]),
+            lon=float(v[SV_LON]),
+            h=float(v[SV_H]),
+            vel_n=v[SV_VEL].copy(),
+            quat_nb=v[SV_Q].copy(),
+            omega_b=omega.copy(),
+            cov_pose=P[self._pose_ix],
+            cov_vel_n=cov_vel,
+            distance=float(v[SV_DIST]),
+            status=status,
         )
 
     def _emit_batch(self, batch: Batch, nb: int) -> None:
-        lay = self.layout
-        cov_pose = batch.P_upd[:nb][:, self._pose_ix[0], self._pose_ix[1]]
-        if lay.vel is not None:
-            cov_vel = batch.P_upd[:nb, lay.vel, lay.vel]
-        else:
-            cov_vel = np.broadcast_to(np.eye(3) * self.cfg.odometer_speed_sigma**2, (nb, 3, 3))
         for e in range(nb):
-            v = batch.sv[e]
-            self._out.append(
-                NavEstimate(
-                    t=float(v[SV_T]),
-                    lat=float(v[SV_LAT]),
-                    lon=float(v[SV_LON]),
-                    h=float(v[SV_H]),
-                    vel_n=v[SV_VEL].copy(),
-                    quat_nb=v[SV_Q].copy(),
-                    omega_b=batch.omega[e].copy(),
-                    cov_pose=cov_pose[e],
-                    cov_vel_n=cov_vel[e].copy(),
-                    distance=float(v[SV_DIST]),
-                    status="static" if batch.stopped[e] else "moving",
-                )
-            )
+            status = "static" if batch.stopped[e] else "moving"
+            self._out.append(self._estimate(batch.sv[e], batch.P_upd[e], batch.omega[e], status))
 
     def _record_batch(self, batch: Batch, ends: NDArray[np.int64]) -> None:
         rec = self.recording

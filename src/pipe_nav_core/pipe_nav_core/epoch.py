@@ -38,7 +38,6 @@ from .process import discretize_k, imu_noise, process_noise_k, system_matrix_k
 from .sensors import ImuSpec
 from .state import (
     I_BG,
-    I_Q,
     I_VEL,
     L_ATT,
     L_N,
@@ -49,6 +48,7 @@ from .state import (
     SV_LAT,
     SV_SIZE,
     SV_T,
+    c_nb_k,
     difference_k,
     inject_k,
 )
@@ -66,9 +66,8 @@ COUNTERS = (
     "odometer_excluded",
     "tilt_gated_motion",
     "mag_disturbed",
-    "marker_covariance_inflations",
 )
-C_EPOCHS, C_NO_ODO, C_EXCLUDED, C_TILT_GATED, C_MAG_DISTURBED, C_INFLATED = range(6)
+C_EPOCHS, C_NO_ODO, C_EXCLUDED, C_TILT_GATED, C_MAG_DISTURBED = range(5)
 
 # settings (prm)
 P_EARTH_SIGN, P_PIPE_D, P_LEVER, P_LEVER_KNOWN = 0, 1, 2, 5  # P_LEVER: 3 values
@@ -127,16 +126,15 @@ def parameters(
 
 class Batch:
     """Output buffers of :func:`run_epochs` for up to ``size`` epochs and ``samples`` IMU
-    samples: per epoch the estimate ``sv`` (after the update), the linearization point ``lin``,
-    ``x_upd`` (the filter's mean error after the updates), ``dx`` (what the updates moved,
-    the RTS smoother's correction), ``end_offset``, ``P_pred``, ``P_upd``, ``phi``, ``stopped``,
-    ``omega`` (rad/s base_link); per sample ``lat``, ``lon`` (rad), ``h`` (m), ``q`` and the
-    odometer reading ``s_odo`` (m); marker residuals (ENU m) per marker of the call; counters
-    and update statistics (``acc``, ``rej``, ``nis``, ``dof`` per kind of KINDS)."""
+    samples: per epoch the estimate ``sv`` (after the update), ``x_upd`` (the filter's mean
+    error after the updates), ``dx`` (what the updates moved, the RTS smoother's
+    correction), ``end_offset``, ``P_pred``, ``P_upd``, ``phi``, ``stopped``, ``omega``
+    (rad/s base_link); per sample ``lat``, ``lon`` (rad), ``h`` (m), ``q`` and the odometer
+    reading ``s_odo`` (m); marker residuals (ENU m) per marker of the call; counters and
+    update statistics (``acc``, ``rej``, ``nis``, ``dof`` per kind of KINDS)."""
 
-    def __init__(self, size: int, samples: int, n: int, markers: int = 0) -> None:
+    def __init__(self, size: int, samples: int, n: int) -> None:
         self.sv = np.zeros((size, SV_SIZE))
-        self.lin = np.zeros((size, SV_SIZE))
         self.x_upd = np.zeros((size, n))
         self.dx = np.zeros((size, n))
         self.end_offset = np.zeros((size, n))
@@ -150,7 +148,7 @@ class Batch:
         self.h = np.zeros(samples)
         self.q = np.zeros((samples, 4))
         self.s_odo = np.zeros(samples)
-        self.marker_res = np.zeros((markers, 3))
+        self.marker_res = np.zeros((0, 3))  # set per call with markers
         self.counts = np.zeros(len(COUNTERS), dtype=np.int64)
         self.acc = np.zeros(len(KINDS), dtype=np.int64)
         self.rej = np.zeros(len(KINDS), dtype=np.int64)
@@ -170,7 +168,6 @@ class Batch:
         """The arrays in run_epochs' order."""
         return (
             self.sv,
-            self.lin,
             self.x_upd,
             self.dx,
             self.end_offset,
@@ -389,7 +386,6 @@ def _updates(
     mag_f: Array,
     markers: Array,
     o_sv: Array,
-    o_lin: Array,
     o_x_upd: Array,
     o_dx: Array,
     o_end: Array,
@@ -429,9 +425,7 @@ def _updates(
         bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * ws[W_W_YZ]
         over = np.sqrt(NOISE_EPOCH_S / max(T, 1e-3))  # NavConfig.over_epoch
         sigma_speed = np.hypot(prm[P_ODO_SIGMA] * over, bend)
-        c1 = np.empty((3, 3))
-        att.dcm_into((s1[I_Q], s1[I_Q + 1], s1[I_Q + 2], s1[I_Q + 3]), c1)
-        vel_b_offset = ws[W_MVB : W_MVB + 3] - c1.T @ s1[I_VEL : I_VEL + 3]
+        vel_b_offset = ws[W_MVB : W_MVB + 3] - c_nb_k(s1).T @ s1[I_VEL : I_VEL + 3]
         r, H, R = meas.odometer_velocity_k(
             s,
             L,
@@ -508,7 +502,6 @@ def _updates(
         o_dx[e] = difference_k(est, s1, L)
         o_end[e] = o_dx[e]
         o_x_upd[e] = x
-        lin = est
     dyn[D_PREV_SPEED] = speed
     dyn[D_PREV_VEL : D_PREV_VEL + 3] = dp / T
     dyn[D_HAS_PREV_VEL] = 1.0
@@ -516,7 +509,6 @@ def _updates(
     dyn[D_S_START] = o_s_odo[int(ws[W_I1]) - 1]
     sv[:] = est
     o_sv[e] = est
-    o_lin[e] = lin
     o_P_upd[e] = P
     o_stopped[e] = stopped
     o_omega[e] = omega
@@ -549,7 +541,6 @@ def run_epochs(
     mag_f: Array,
     markers: Array,
     o_sv: Array,
-    o_lin: Array,
     o_x_upd: Array,
     o_dx: Array,
     o_end: Array,
@@ -631,7 +622,6 @@ def run_epochs(
             mag_f,
             mk,
             o_sv,
-            o_lin,
             o_x_upd,
             o_dx,
             o_end,

@@ -28,7 +28,6 @@ from .state import (
     I_BG,
     I_BORE,
     I_ODOQ,
-    I_Q,
     I_VEL,
     L_AM,
     L_ATT,
@@ -47,6 +46,7 @@ from .state import (
     SV_T,
     Layout,
     NavState,
+    c_nb_k,
     odometer_axis,
 )
 from .types import Marker
@@ -67,29 +67,6 @@ class Measurement:
 
 
 @kernel
-def _dcm(sv: Array) -> Array:
-    c = np.empty((3, 3))
-    att.dcm_into((sv[I_Q], sv[I_Q + 1], sv[I_Q + 2], sv[I_Q + 3]), c)
-    return c
-
-
-@kernel
-def _skew(v0: float, v1: float, v2: float) -> Array:
-    out = np.zeros((3, 3))
-    out[0, 1], out[0, 2], out[1, 2] = -v2, v1, -v0
-    out[1, 0], out[2, 0], out[2, 1] = v2, -v1, v0
-    return out
-
-
-@kernel
-def _put(H: Array, col: int, block: Array) -> None:
-    """H[:, col:col + block.shape[1]] = block."""
-    for r in range(block.shape[0]):
-        for j in range(block.shape[1]):
-            H[r, col + j] = block[r, j]
-
-
-@kernel
 def odometer_velocity_k(
     sv: Array,
     L: Index,
@@ -102,7 +79,7 @@ def odometer_velocity_k(
     epoch_s: float,
 ) -> Model:
     """:func:`odometer_velocity` on a flat state (vel_jac required)."""
-    c = _dcm(sv)
+    c = c_nb_k(sv)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     k = sv[SV_K]
     quantized = L[L_ODOQ] >= 0 and epoch_s > 0.0
@@ -112,8 +89,9 @@ def odometer_velocity_k(
     vel = sv[I_VEL : I_VEL + 3]
     h = c.T @ vel + vel_b_offset - u * v_centre
     H = np.zeros((3, L[L_N]))
-    _put(H, L[L_VEL], c.T.copy())
-    _put(H, L[L_ATT], c.T @ _skew(vel_jac[0], vel_jac[1], vel_jac[2]))
+    v, a = L[L_VEL], L[L_ATT]
+    H[:, v : v + 3] = c.T
+    H[:, a : a + 3] = c.T @ att.skew_k(vel_jac)
     for r in range(3):
         H[r, L[L_K]] = -u[r] * speed
         H[r, L[L_BORE]] = -v_centre * du[r, 0]
@@ -183,15 +161,14 @@ def zero_velocity(s: NavState, layout: Layout, sigma: float) -> Measurement:
 @kernel
 def zero_rate_k(sv: Array, L: Index, gyro_mean: Array, sigma: float, earth_sign: float) -> Model:
     """:func:`zero_rate` on a flat state."""
-    c = _dcm(sv)
-    lat = sv[SV_LAT]
-    w_ie = np.array([0.0, earth.OMEGA_IE * np.cos(lat), earth.OMEGA_IE * np.sin(lat)])
-    w_ie *= earth_sign
+    c = c_nb_k(sv)
+    w_ie = earth.earth_rate_k(sv[SV_LAT], earth_sign)
     h = gyro_mean - sv[I_BG : I_BG + 3] - c.T @ w_ie
     H = np.zeros((3, L[L_N]))
     for r in range(3):
         H[r, L[L_BG] + r] = -1.0
-    _put(H, L[L_ATT], -(c.T @ _skew(w_ie[0], w_ie[1], w_ie[2])))
+    a = L[L_ATT]
+    H[:, a : a + 3] = -(c.T @ att.skew_k(w_ie))
     return -h, H, np.eye(3) * sigma**2
 
 
@@ -225,10 +202,11 @@ def gravity_tilt_k(
     d = f_mean_n - accel_n
     h = d - np.array([0.0, 0.0, g])
     H = np.zeros((3, L[L_N]))
-    _put(H, L[L_ATT], -_skew(d[0], d[1], d[2]))
-    _put(H, L[L_BA], -c_mean)
-    if L[L_AM] >= 0 and c_f_mean.shape[0] == 3:
-        _put(H, L[L_AM], -c_f_mean)
+    a, ba, am = L[L_ATT], L[L_BA], L[L_AM]
+    H[:, a : a + 3] = -att.skew_k(d)
+    H[:, ba : ba + 3] = -c_mean
+    if am >= 0 and c_f_mean.shape[0] == 3:
+        H[:, am : am + 9] = -c_f_mean
     return -h, H, np.eye(3) * sigma**2
 
 
@@ -277,9 +255,8 @@ def magnetic_heading_k(
     h = np.array([np.arctan2(np.sin(x), np.cos(x))])
     g = np.array([m[1], -m[0], 0.0]) / rho2
     H = np.zeros((1, L[L_N]))
-    row = g @ _skew(m[0], m[1], m[2])
-    for j in range(3):
-        H[0, L[L_ATT] + j] = -row[j]
+    a = L[L_ATT]
+    H[0, a : a + 3] = -(g @ att.skew_k(m))
     return -h, H, np.array([[sigma**2]])
 
 

@@ -361,11 +361,9 @@ def _f64(a: Array) -> Array:
 def _rates(sv: Array, earth_sign: float) -> tuple[Array, Array, float, float]:
     """Earth rate and transport rate (rad/s ENU) and the radii R_M, R_N (m) at the flat state."""
     lat, h = sv[SV_LAT], sv[SV_H]
-    w_ie = np.array([0.0, earth.OMEGA_IE * np.cos(lat), earth.OMEGA_IE * np.sin(lat)])
-    w_ie *= earth_sign
+    w_ie = earth.earth_rate_k(lat, earth_sign)
     rm, rn = earth._radii(lat)
-    ve, vn = sv[I_VEL], sv[I_VEL + 1]
-    w_en = np.array([-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h)])
+    w_en = earth.transport_rate_k(lat, h, sv[I_VEL], sv[I_VEL + 1])
     return w_ie, w_en, rm, rn
 
 

@@ -19,7 +19,6 @@ from .jit import kernel
 from .sensors import ImuSpec
 from .state import (
     I_BORE,
-    I_Q,
     I_VEL,
     L_AM,
     L_ATT,
@@ -34,22 +33,12 @@ from .state import (
     L_VEL,
     SV_H,
     SV_LAT,
+    c_nb_k,
     odometer_axis,
 )
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
-
-
-@kernel
-def _skew_into(A: Array, r: int, c: int, v0: float, v1: float, v2: float, scale: float) -> None:
-    """A[r:r+3, c:c+3] = scale * [v x]."""
-    A[r, c + 1] = -v2 * scale
-    A[r, c + 2] = v1 * scale
-    A[r + 1, c] = v2 * scale
-    A[r + 1, c + 2] = -v0 * scale
-    A[r + 2, c] = -v1 * scale
-    A[r + 2, c + 1] = v0 * scale
 
 
 @kernel
@@ -88,14 +77,9 @@ def system_matrix_k(
     a, p = L[L_ATT], L[L_POS]
     lat, h = sv[SV_LAT], sv[SV_H]
     g = earth._gravity(lat, h)
-    w_ie = (
-        0.0,
-        earth_sign * earth.OMEGA_IE * np.cos(lat),
-        earth_sign * earth.OMEGA_IE * np.sin(lat),
-    )
+    w_ie = earth.earth_rate_k(lat, earth_sign)
     if at_rest:  # the exact rate and specific force of a pig at rest
-        c = np.empty((3, 3))
-        att.dcm_into((sv[I_Q], sv[I_Q + 1], sv[I_Q + 2], sv[I_Q + 3]), c)
+        c = c_nb_k(sv)
         sum_c_w_dt = np.empty((3, 9))
         sum_c_f_dt = np.empty((3, 9))
         for j in range(3):
@@ -105,48 +89,34 @@ def system_matrix_k(
                 for i in range(3):
                     sum_c_w_dt[r, 3 * i + j] = c[r, i] * (w_b * T)
                     sum_c_f_dt[r, 3 * i + j] = c[r, i] * (f_b * T)
-    _skew_into(A, a, a, w_in[0], w_in[1], w_in[2], -T)
+    bg, gm = L[L_BG], L[L_GM]
+    A[a : a + 3, a : a + 3] = att.skew_k(w_in) * -T
     if heading_free:
         A[a, a + 2] = 0.0
         A[a + 1, a + 2] = 0.0
-    for r in range(3):
-        for i in range(3):
-            A[a + r, L[L_BG] + i] = -sum_c_dt[r, i]
-        if L[L_GM] >= 0:
-            for i in range(9):
-                A[a + r, L[L_GM] + i] = -sum_c_w_dt[r, i]
+    A[a : a + 3, bg : bg + 3] = -sum_c_dt
+    if gm >= 0:
+        A[a : a + 3, gm : gm + 9] = -sum_c_w_dt
     v = L[L_VEL]
     if v >= 0:
         rm, rn = earth._radii(lat)
-        ve, vn = sv[I_VEL], sv[I_VEL + 1]
         A[a, v + 1] = 1.0 / (rm + h) * T
         A[a + 1, v] = -1.0 / (rn + h) * T
         A[a + 2, v] = -np.tan(lat) / (rn + h) * T
-        w_en = (-vn / (rm + h), ve / (rn + h), ve * np.tan(lat) / (rn + h))
-        _skew_into(A, v, a, dv_f[0], dv_f[1], dv_f[2], -1.0)
-        _skew_into(
-            A,
-            v,
-            v,
-            2.0 * w_ie[0] + w_en[0],
-            2.0 * w_ie[1] + w_en[1],
-            2.0 * w_ie[2] + w_en[2],
-            -T,
-        )
+        w_en = earth.transport_rate_k(lat, h, sv[I_VEL], sv[I_VEL + 1])
+        ba, am = L[L_BA], L[L_AM]
+        A[v : v + 3, a : a + 3] = -att.skew_k(dv_f)
+        A[v : v + 3, v : v + 3] = att.skew_k(2.0 * w_ie + w_en) * -T
+        A[v : v + 3, ba : ba + 3] = -sum_c_dt
+        if am >= 0:
+            A[v : v + 3, am : am + 9] = -sum_c_f_dt
         for r in range(3):
-            for i in range(3):
-                A[v + r, L[L_BA] + i] = -sum_c_dt[r, i]
-            if L[L_AM] >= 0:
-                for i in range(9):
-                    A[v + r, L[L_AM] + i] = -sum_c_f_dt[r, i]
             A[p + r, v + r] = T
         A[v + 2, p + 2] = 2.0 * g / (np.sqrt(rm * rn) + h) * T
     else:
-        _skew_into(A, p, a, dp[0], dp[1], dp[2], -1.0)
-        for r in range(3):
-            A[p + r, L[L_K]] = dp_dk[r]
-            A[p + r, L[L_BORE]] = dp_dbore[r, 0]
-            A[p + r, L[L_BORE] + 1] = dp_dbore[r, 1]
+        A[p : p + 3, a : a + 3] = -att.skew_k(dp)
+        A[p : p + 3, L[L_K]] = dp_dk
+        A[p : p + 3, L[L_BORE] : L[L_BORE] + 2] = dp_dbore
     return A
 
 

@@ -237,19 +237,18 @@ def smooth_log(
     forward = _forward_trajectory(nav.recording)
     first = nav.recording.states[0]
     datum = nav.datum or Datum(float(first[SV_LAT]), float(first[SV_LON]), float(first[SV_H]))
+
+    def result_of(nav: Navigator, centre: Trajectory) -> SmoothResult:
+        result = SmoothResult(
+            centre, forward, datum, markers, marker_residuals(centre, markers), nav.state
+        )
+        result.summary = summarize(result, nav)
+        return result
+
     if method == "forward":
         rec = nav.recording
         e = np.zeros((len(rec), layout.n))
-        centre = _centreline(rec, e, rec.variances(), layout)
-        result = SmoothResult(
-            centre,
-            forward,
-            datum,
-            markers,
-            marker_residuals(centre, markers),
-            final_state=nav.state,
-        )
-        result.summary = summarize(result, nav)
+        result = result_of(nav, _centreline(rec, e, rec.variances(), layout))
         result.summary.update(passes=1, passes_run=1)
         return result
     exclude: Array | None = None
@@ -270,15 +269,7 @@ def smooth_log(
             e, var = _two_filter(log, cfg, rec, layout, exclude)
         rec.close()  # the covariances are no longer needed
         centre = _centreline(rec, e, var, layout)
-        result = SmoothResult(
-            centre,
-            forward,
-            datum,
-            markers,
-            marker_residuals(centre, markers),
-            final_state=nav.state,
-        )
-        result.summary = summarize(result, nav)
+        result = result_of(nav, centre)
         result.summary["passes"] = it + 1
         # a pass that rejects more markers than an earlier one is not taken
         rejected = int(result.summary["markers_rejected"])

@@ -105,18 +105,6 @@ L_ATT, L_VEL, L_POS, L_BG, L_BA, L_K, L_BORE, L_ODOQ, L_GM, L_AM, L_N = range(11
 _BLOCKS = ("att", "vel", "pos", "bg", "ba", "k", "bore", "odoq", "gm", "am")
 
 
-def dcm1(q: Array) -> Array:
-    """C_nb of one unit quaternion [x, y, z, w] (as attitude.dcm_from_quat, scalar path)."""
-    x, y, z, w = np.asarray(q, dtype=np.float64).tolist()
-    return np.array(
-        [
-            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-            [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-            [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-        ]
-    )
-
-
 @kernel
 def odometer_axis(bore: Array) -> tuple[Array, Array]:
     """Unit odometer axis u in base_link for boresight (yaw, pitch) and du/d(yaw, pitch) (3, 2)."""
@@ -142,6 +130,14 @@ _ADDITIVE = (
     (L_GM, I_GM, 9),
     (L_AM, I_AM, 9),
 )
+
+
+@kernel
+def c_nb_k(sv: Array) -> Array:
+    """C_nb (3, 3), base_link -> ENU, of the flat state sv."""
+    c = np.empty((3, 3))
+    att.dcm_into((sv[I_Q], sv[I_Q + 1], sv[I_Q + 2], sv[I_Q + 3]), c)
+    return c
 
 
 @kernel
@@ -276,7 +272,10 @@ class NavState:
 
     @property
     def c_nb(self) -> Array:
-        return dcm1(self.q_nb)
+        q = self.q_nb
+        c = np.empty((3, 3))
+        att.dcm_into((float(q[0]), float(q[1]), float(q[2]), float(q[3])), c)
+        return c
 
     def inject(self, dx: Array, layout: Layout) -> NavState:
         """The state corrected by the error-state vector dx (truth = estimate (+) dx)."""
