@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,6 +76,53 @@ ODOMETER_TIMEOUT_S = 1.0  # an epoch waits at most this long (stamp time) for od
 MAX_BATCH = 1024  # epochs per call of the compiled epoch loop (bounds its output buffers)
 ALIGN_WAIT_S = 5.0  # after motion starts, wait this long for the first marker before starting
 STATIC_MOVE_M = 0.005  # odometer change that ends the initial rest
+# rad: the live filter's own heading prior while its heading is unanchored; the rest of the
+# configured prior is carried outside the filter as a rotation about the first marker (FreeHeading)
+FREE_HEADING_SIGMA = math.radians(0.1)
+
+
+@dataclass(frozen=True)
+class FreeHeading:
+    """The part of the initial heading uncertainty that the live filter keeps outside its
+    covariance until the heading is anchored at the second marker.
+
+    Before the anchoring nothing the filter measures sees the heading (odometer, NHC, zero
+    velocity and rate, tilt; the Earth rate's heading coupling is left out, epoch.py): an
+    error of the initial heading rotates the whole solution about the vertical through the
+    first marker and is never observed. Inside an EKF a prior of tens of degrees on such a
+    direction is harmful: the gains computed from it are wrong at second order, and the
+    heading wanders by tens of degrees on the way (27 degrees over 100 m on sag104). So the
+    filter runs with FREE_HEADING_SIGMA, and the rest, a rotation angle of this variance, is
+    added to what is reported (:meth:`extra_covariance`, :meth:`variances`) and folded into
+    the filter at the second marker before its fix. Linearly this equals carrying it inside.
+
+    variance rad^2; lat, lon rad, h m: the pivot (first marker); until: s, the time of the
+    anchoring (inf while unanchored).
+    """
+
+    variance: float
+    lat: float
+    lon: float
+    h: float
+    until: float = math.inf
+
+    def direction(self, lat: Array, lon: Array, h: Array, vel_n: Array) -> Array:
+        """(N, 9) error-state direction [attitude, velocity, position] (rad, m/s, m, ENU) of a
+        unit rotation of the solution about the vertical through the pivot, at the given
+        positions (rad, rad, m) and velocities (N, 3) m/s ENU."""
+        d = earth.geodetic_to_enu(lat, lon, h, self.lat, self.lon, self.h).reshape(-1, 3)
+        v = np.asarray(vel_n, dtype=np.float64).reshape(-1, 3)
+        g = np.zeros((len(d), 9))
+        g[:, 2] = 1.0
+        g[:, 3], g[:, 4] = -v[:, 1], v[:, 0]  # up x v
+        g[:, 6], g[:, 7] = -d[:, 1], d[:, 0]  # up x (p - pivot)
+        return g
+
+    def variances(self, t: Array, lat: Array, lon: Array, h: Array) -> Array:
+        """(N, 3) variances added to east, north (m^2) and azimuth (rad^2) at times t (s)."""
+        g = self.direction(lat, lon, h, np.zeros((len(np.atleast_1d(t)), 3)))
+        on = np.asarray(t, dtype=np.float64) < self.until
+        return np.where(on[:, None], self.variance * g[:, [6, 7, 2]] ** 2, 0.0)
 
 
 @dataclass
@@ -153,6 +200,12 @@ class Navigator:
         pose = [*range(self.layout.pos.start, self.layout.pos.stop)]
         pose += range(self.layout.att.start, self.layout.att.stop)
         self._pose_ix = np.ix_(pose, pose)  # [position, attitude] rows/columns of P
+        # rows/columns of P and columns of FreeHeading.direction they take (no velocity in DR)
+        lay = self.layout
+        vel = [*range(lay.vel.start, lay.vel.stop)] if lay.vel is not None else []
+        self._free_ix = [*range(lay.att.start, lay.att.stop), *vel]
+        self._free_ix += range(lay.pos.start, lay.pos.stop)
+        self._free_cols = [0, 1, 2, 3, 4, 5, 6, 7, 8] if vel else [0, 1, 2, 6, 7, 8]
         self.imu_spec = config.imu_spec()
         self.r_base_imu = mount_rotation(config.imu_mount_rpy)
         self.earth_sign = -1.0 if reverse else 1.0
@@ -196,6 +249,7 @@ class Navigator:
         self._anchored = self.cfg.heading_source != "markers" or self.reference is not None
         self.reanchor_rad = 0.0
         self.initial_azimuth: float | None = None
+        self.free_heading: FreeHeading | None = None
         self._epoch = 0
         self._mag_ref: tuple[float, float] | None = None
         self._odo_start: float | None = None
@@ -494,6 +548,10 @@ class Navigator:
             s.am = self.initial.am.copy()
         s.distance = 0.0
         self.initial_azimuth = float(azimuth)
+        if not self._anchored and not cfg.mag_update and az_sigma > FREE_HEADING_SIGMA:
+            var = az_sigma**2 - FREE_HEADING_SIGMA**2
+            self.free_heading = FreeHeading(var, s.lat, s.lon, s.h)
+            az_sigma = FREE_HEADING_SIGMA
         P0 = self._initial_covariance(s, t_static, az_sigma)
         lin = s
         if self.reference is not None:
@@ -738,6 +796,12 @@ class Navigator:
         rz = np.eye(3)
         first = self._first_marker
         if not self._anchored and first is not None and m.name != first.name:
+            free = self.free_heading
+            if free is not None:  # the heading prior back into the filter, then the rotation
+                ix = self._free_ix
+                g = free.direction(s.lat, s.lon, s.h, s.vel_n)[0, self._free_cols]
+                kf.P[np.ix_(ix, ix)] += free.variance * np.outer(g, g)
+                self.free_heading = replace(free, until=s.t)
             s, d_az = alignment.reanchor_heading(s, first, m)
             # the error state rotates with the nominal: nav-frame blocks of P turn with it
             rot = np.eye(lay.n)
@@ -784,6 +848,13 @@ class Navigator:
             if lay.vel is not None
             else np.eye(3) * self.cfg.odometer_speed_sigma**2
         )
+        cov_pose = P[self._pose_ix]
+        free = self.free_heading
+        if free is not None and v[SV_T] < free.until:
+            g = free.direction(v[SV_LAT], v[SV_LON], v[SV_H], v[SV_VEL])[0]
+            cov_pose += free.variance * np.outer(g[[6, 7, 8, 0, 1, 2]], g[[6, 7, 8, 0, 1, 2]])
+            if lay.vel is not None:
+                cov_vel += free.variance * np.outer(g[3:6], g[3:6])
         return NavEstimate(
             t=float(v[SV_T]),
             lat=float(v[SV_LAT]),
@@ -792,7 +863,7 @@ class Navigator:
             vel_n=v[SV_VEL].copy(),
             quat_nb=v[SV_Q].copy(),
             omega_b=omega.copy(),
-            cov_pose=P[self._pose_ix],
+            cov_pose=cov_pose,
             cov_vel_n=cov_vel,
             distance=float(v[SV_DIST]),
             status=status,

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from . import attitude as att
 from . import earth
 from .config import NOISE_EPOCH_S, NavConfig
-from .engine import Navigator
+from .engine import FreeHeading, Navigator
 from .recording import Recording
 from .smoothing import rts_packed
 from .state import (
@@ -234,11 +234,12 @@ def smooth_log(
     say("forward filter" if cfg is config else "forward filter (re-anchored heading)")
     nav = run_forward(log, cfg)
     assert nav.recording is not None
-    forward = _forward_trajectory(nav.recording)
+    forward = _with_free_heading(_forward_trajectory(nav.recording), nav.free_heading)
     first = nav.recording.states[0]
     datum = nav.datum or Datum(float(first[SV_LAT]), float(first[SV_LON]), float(first[SV_H]))
 
     def result_of(nav: Navigator, centre: Trajectory) -> SmoothResult:
+        centre = _with_free_heading(centre, nav.free_heading)
         result = SmoothResult(
             centre, forward, datum, markers, marker_residuals(centre, markers), nav.state
         )
@@ -527,6 +528,17 @@ def _forward_trajectory(rec: Recording) -> Trajectory:
         sigma_enu=np.sqrt(var[:, lay.pos]),
         sigma_att=np.sqrt(var[:, lay.att]),
     )
+
+
+def _with_free_heading(traj: Trajectory, free: FreeHeading | None) -> Trajectory:
+    """traj with the uncertainty of the heading the filter left unanchored (FreeHeading)
+    added to its horizontal position and azimuth sigmas (in place; returned)."""
+    if free is None or traj.sigma_enu is None or traj.sigma_att is None:
+        return traj
+    extra = free.variances(traj.t, traj.lat, traj.lon, traj.h)
+    traj.sigma_enu[:, :2] = np.sqrt(traj.sigma_enu[:, :2] ** 2 + extra[:, :2])
+    traj.sigma_att[:, 2] = np.sqrt(traj.sigma_att[:, 2] ** 2 + extra[:, 2])
+    return traj
 
 
 def interpolate_enu(traj: Trajectory, times: Array, datum: Datum) -> Array:
