@@ -16,3 +16,19 @@ def test_test_pipe_case_scores_rts_with_and_without_survey_error():
     line = next(x for x in md.splitlines() if f"| {bench.EXACT} |" in x)
     assert "| met |" in line or "| NOT met |" in line
     assert "surveyed exactly" in md
+
+
+def test_verdict_judges_accuracy_and_consistency():
+    """Every estimator is judged on the 95 % inside 3 sigma target, the smoothers also on the
+    case's accuracy target (worst seed), the forward filter on consistency alone."""
+    case = next(c for c in bench.CASES if c.scenario == "drag180")
+
+    def rows(max_h, in3):
+        return [{"max_h": max_h, "inside_3sigma": in3, "ratio": 2000.0}]
+
+    assert bench.verdict(case, rows(0.1, 0.99), "rts") == "met"
+    assert bench.verdict(case, rows(0.1, 0.90), "rts") == "NOT met (3σ)"
+    assert bench.verdict(case, rows(0.9, 0.99), "rts") == "NOT met"
+    assert bench.verdict(case, rows(50.0, 0.96), "forward") == "3σ met"
+    assert bench.verdict(case, rows(0.1, 0.50), "forward") == "3σ NOT met"
+    assert bench.verdict(case, [{"max_h": 0.1, "inside_3sigma": None}], "cf-baseline") == ""
