@@ -56,6 +56,7 @@ from .state import (
     SV_SIZE,
     SV_T,
     SV_VEL,
+    Layout,
     NavState,
     layout_for,
 )
@@ -106,23 +107,25 @@ class FreeHeading:
     h: float
     until: float = math.inf
 
-    def direction(self, lat: Array, lon: Array, h: Array, vel_n: Array) -> Array:
-        """(N, 9) error-state direction [attitude, velocity, position] (rad, m/s, m, ENU) of a
-        unit rotation of the solution about the vertical through the pivot, at the given
-        positions (rad, rad, m) and velocities (N, 3) m/s ENU."""
+    def direction(self, lat: Array, lon: Array, h: Array, vel_n: Array, layout: Layout) -> Array:
+        """(N, n) error-state direction (layout) of a unit rotation (rad) of the solution about
+        the vertical through the pivot, at positions lat, lon rad, h m and velocities (N, 3)
+        m/s ENU: attitude (0, 0, 1), velocity up x v, position up x (p - pivot)."""
         d = earth.geodetic_to_enu(lat, lon, h, self.lat, self.lon, self.h).reshape(-1, 3)
         v = np.asarray(vel_n, dtype=np.float64).reshape(-1, 3)
-        g = np.zeros((len(d), 9))
-        g[:, 2] = 1.0
-        g[:, 3], g[:, 4] = -v[:, 1], v[:, 0]  # up x v
-        g[:, 6], g[:, 7] = -d[:, 1], d[:, 0]  # up x (p - pivot)
+        g = np.zeros((len(d), layout.n))
+        g[:, layout.att.start + 2] = 1.0
+        if layout.vel is not None:
+            g[:, layout.vel.start], g[:, layout.vel.start + 1] = -v[:, 1], v[:, 0]
+        g[:, layout.pos.start], g[:, layout.pos.start + 1] = -d[:, 1], d[:, 0]
         return g
 
     def variances(self, t: Array, lat: Array, lon: Array, h: Array) -> Array:
         """(N, 3) variances added to east, north (m^2) and azimuth (rad^2) at times t (s)."""
-        g = self.direction(lat, lon, h, np.zeros((len(np.atleast_1d(t)), 3)))
-        on = np.asarray(t, dtype=np.float64) < self.until
-        return np.where(on[:, None], self.variance * g[:, [6, 7, 2]] ** 2, 0.0)
+        d = earth.geodetic_to_enu(lat, lon, h, self.lat, self.lon, self.h).reshape(-1, 3)
+        on = np.asarray(t, dtype=np.float64).reshape(-1) < self.until
+        out = self.variance * np.stack([d[:, 1] ** 2, d[:, 0] ** 2, np.ones(len(d))], axis=-1)
+        return np.where(on[:, None], out, 0.0)
 
 
 @dataclass
@@ -171,7 +174,10 @@ class Navigator:
     reference. Smoothing such a pass and feeding the result back as the next reference is one
     Gauss-Newton step of the batch problem (iterated smoother, :mod:`pipe_nav_core.smoother`);
     initial_azimuth: rad, replaces the initial heading of the configured source (the smoother
-    iterates the re-anchoring at the second marker with it).
+    iterates the re-anchoring at the second marker with it); free_heading: keep the initial
+    heading's prior outside the filter until the next marker after the first (:class:`FreeHeading`);
+    default: while the heading from the markers is unanchored (the live filter). Not for a
+    pass the RTS smooths: to it the prior's return at that marker is process noise.
 
     Jacobians that couple attitude and velocity are evaluated at a first-estimate velocity
     (the predicted one, zero when stopped, or the reference's) so that a rotation of the whole
@@ -193,6 +199,7 @@ class Navigator:
         odometer_exclude: Array | None = None,
         reference: Sequence[NavState] | Array | None = None,
         initial_azimuth: float | None = None,
+        free_heading: bool | None = None,
     ) -> None:
         config.validate()
         self.cfg = config
@@ -200,12 +207,6 @@ class Navigator:
         pose = [*range(self.layout.pos.start, self.layout.pos.stop)]
         pose += range(self.layout.att.start, self.layout.att.stop)
         self._pose_ix = np.ix_(pose, pose)  # [position, attitude] rows/columns of P
-        # rows/columns of P and columns of FreeHeading.direction they take (no velocity in DR)
-        lay = self.layout
-        vel = [*range(lay.vel.start, lay.vel.stop)] if lay.vel is not None else []
-        self._free_ix = [*range(lay.att.start, lay.att.stop), *vel]
-        self._free_ix += range(lay.pos.start, lay.pos.stop)
-        self._free_cols = [0, 1, 2, 3, 4, 5, 6, 7, 8] if vel else [0, 1, 2, 6, 7, 8]
         self.imu_spec = config.imu_spec()
         self.r_base_imu = mount_rotation(config.imu_mount_rpy)
         self.earth_sign = -1.0 if reverse else 1.0
@@ -218,6 +219,7 @@ class Navigator:
         self.epoch_times = None if epoch_times is None else np.sort(np.asarray(epoch_times, float))
         self.reference = _flat_states(reference)
         self._azimuth_override = initial_azimuth
+        self._free_option = free_heading
         if self.reference is not None:
             self.epoch_times = self.reference[:, SV_T].copy()
         self.lever_arm = np.asarray(config.odometer_lever_arm, dtype=np.float64)
@@ -548,7 +550,8 @@ class Navigator:
             s.am = self.initial.am.copy()
         s.distance = 0.0
         self.initial_azimuth = float(azimuth)
-        if not self._anchored and not cfg.mag_update and az_sigma > FREE_HEADING_SIGMA:
+        free = not self._anchored if self._free_option is None else self._free_option
+        if free and not cfg.mag_update and az_sigma > FREE_HEADING_SIGMA:
             var = az_sigma**2 - FREE_HEADING_SIGMA**2
             self.free_heading = FreeHeading(var, s.lat, s.lon, s.h)
             az_sigma = FREE_HEADING_SIGMA
@@ -795,13 +798,14 @@ class Navigator:
         assert kf is not None
         rz = np.eye(3)
         first = self._first_marker
-        if not self._anchored and first is not None and m.name != first.name:
-            free = self.free_heading
-            if free is not None:  # the heading prior back into the filter, then the rotation
-                ix = self._free_ix
-                g = free.direction(s.lat, s.lon, s.h, s.vel_n)[0, self._free_cols]
-                kf.P[np.ix_(ix, ix)] += free.variance * np.outer(g, g)
-                self.free_heading = replace(free, until=s.t)
+        later = first is not None and m.name != first.name
+        free = self.free_heading
+        if later and free is not None and free.until == math.inf:
+            # the heading prior back into the filter (before a re-anchoring rotation)
+            g = free.direction(s.lat, s.lon, s.h, s.vel_n, lay)[0]
+            kf.P += free.variance * np.outer(g, g)
+            self.free_heading = replace(free, until=s.t)
+        if not self._anchored and first is not None and later:
             s, d_az = alignment.reanchor_heading(s, first, m)
             # the error state rotates with the nominal: nav-frame blocks of P turn with it
             rot = np.eye(lay.n)
@@ -851,10 +855,11 @@ class Navigator:
         cov_pose = P[self._pose_ix]
         free = self.free_heading
         if free is not None and v[SV_T] < free.until:
-            g = free.direction(v[SV_LAT], v[SV_LON], v[SV_H], v[SV_VEL])[0]
-            cov_pose += free.variance * np.outer(g[[6, 7, 8, 0, 1, 2]], g[[6, 7, 8, 0, 1, 2]])
+            g = free.direction(v[SV_LAT], v[SV_LON], v[SV_H], v[SV_VEL], lay)[0]
+            g_pose = np.r_[g[lay.pos], g[lay.att]]
+            cov_pose += free.variance * np.outer(g_pose, g_pose)
             if lay.vel is not None:
-                cov_vel += free.variance * np.outer(g[3:6], g[3:6])
+                cov_vel += free.variance * np.outer(g[lay.vel], g[lay.vel])
         return NavEstimate(
             t=float(v[SV_T]),
             lat=float(v[SV_LAT]),
