@@ -352,3 +352,21 @@ def test_live_filter_heading_holds_before_the_second_marker():
     assert sig_h[k] > 0.95 * dist * cfg.initial_heading_sigma, (sig_h[k], dist)
     assert nav.free_heading is not None and nav.free_heading.until < math.inf
     assert max(np.sqrt(e.cov_pose[0, 0] + e.cov_pose[1, 1]) for e in est if e.t > t2 + 1) < 0.2
+
+
+def test_two_filter_keeps_each_marker_at_the_epoch_before_it():
+    """The two-filter smoother fuses the forward estimate at t_k with the backward estimate
+    after its updates (the measurements after t_k). Fused with the backward prediction, the
+    epoch before each marker had the marker in neither filter: a jump of the fused sigma
+    there (demo: 3.0 against 2.3 cm) and of the error (field10k_sparse: 0.86 m)."""
+    run = simulate("demo", seed=1)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    r = smooth_log(run.log, cfg, method="two-filter", iterations=1)
+    t = r.centreline.t
+    sig = np.hypot(r.centreline.sigma_enu[:, 0], r.centreline.sigma_enu[:, 1])
+    inner = sorted(m.t for m in run.log.markers)[1:-1]
+    assert inner
+    for tm in inner:
+        near = np.abs(t - tm) <= 0.3
+        before = np.argmin(np.abs(t - (tm - 2.0)))
+        assert sig[near].max() <= 1.02 * sig[before], (tm, sig[near].max(), sig[before])
