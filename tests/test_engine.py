@@ -10,6 +10,7 @@ import pytest
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.engine import Navigator
 from pipe_nav_core.evaluation import score
+from pipe_nav_core.pipeline import estimates_to_trajectory
 from pipe_nav_core.sensors import INDUSTRIAL
 from pipe_nav_core.sim import get_scenario, simulate
 from pipe_nav_core.sim.geometry import Bend
@@ -44,6 +45,18 @@ def _static_log(seconds: float = 60.0, rate: float = 100.0, seed: int = 0):
         markers=[Marker("agm_00", seconds + 10, lat, lon, h)],
     )
     return log, bg, c
+
+
+def _live(name: str, seed: int):
+    """The live filter over a simulated run: (run, navigator, estimates, their times (s), ENU
+    positions and errors (m) about the navigator's datum)."""
+    run = simulate(name, seed=seed)
+    nav = Navigator(NavConfig.from_dict(run.scenario.estimator_settings()), survey=run.log.markers)
+    nav.run(run.log)
+    est = nav.poll()
+    traj = estimates_to_trajectory(est)
+    enu = interpolate_enu(traj, traj.t, nav.datum)
+    return run, nav, est, traj.t, enu, enu - interpolate_enu(run.truth, traj.t, nav.datum)
 
 
 @pytest.mark.parametrize("mode", ["ins", "dr"])
@@ -229,22 +242,8 @@ def test_live_filter_after_the_heading_is_anchored():
     of the Jacobians not turned with the state. Then its error 50 m after the anchoring was
     1.3 m; the covariance turns with the state and is inflated if the marker still disagrees,
     so no marker is ever rejected."""
-    run = simulate("demo", seed=0)
-    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    nav = Navigator(cfg, survey=run.log.markers)
-    nav.run(run.log)
-    est = nav.poll()
-    t = np.array([e.t for e in est])
-    d = nav.datum
-    enu = earth.geodetic_to_enu(
-        np.array([e.lat for e in est]),
-        np.array([e.lon for e in est]),
-        np.array([e.h for e in est]),
-        d.lat,
-        d.lon,
-        d.alt,
-    )
-    err = np.linalg.norm(enu - interpolate_enu(run.truth, t, d), axis=1)
+    run, nav, est, t, enu, err = _live("demo", 0)
+    err = np.linalg.norm(err, axis=1)
     anchored = t > run.log.markers[1].t + 1.0
     assert err[anchored].max() < 0.8, err[anchored].max()
     diag = nav.diagnostics()
@@ -324,22 +323,8 @@ def test_live_filter_heading_holds_before_the_second_marker():
     heading 27 deg off over 100 m on sag104 seed 2 (50 m of error on a 104 m pipe). Kept
     outside (FreeHeading), the heading holds to the gyros' drift, and the reported horizontal
     sigma still carries the whole prior."""
-    run = simulate("sag104", seed=2)
-    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    nav = Navigator(cfg, survey=run.log.markers)
-    nav.run(run.log)
-    est = nav.poll()
-    t = np.array([e.t for e in est])
-    d = nav.datum
-    enu = earth.geodetic_to_enu(
-        np.array([e.lat for e in est]),
-        np.array([e.lon for e in est]),
-        np.array([e.h for e in est]),
-        d.lat,
-        d.lon,
-        d.alt,
-    )
-    err = enu - interpolate_enu(run.truth, t, d)
+    run, nav, est, t, enu, err = _live("sag104", 2)
+    cfg = nav.cfg
     err_h = np.hypot(err[:, 0], err[:, 1])
     sig_h = np.sqrt([e.cov_pose[0, 0] + e.cov_pose[1, 1] for e in est])
     t2 = sorted(m.t for m in run.log.markers)[1]
