@@ -847,19 +847,15 @@ class Navigator:
     def _estimate(self, v: Array, P: Array, omega: Array, status: str) -> NavEstimate:
         """The estimate of flat state v with covariance P (n, n) and body rate omega."""
         lay = self.layout
+        free = self.free_heading
+        if free is not None and v[SV_T] < free.until:  # the heading prior kept outside P
+            g = free.direction(v[SV_LAT], v[SV_LON], v[SV_H], v[SV_VEL], lay)[0]
+            P = P + free.variance * np.outer(g, g)
         cov_vel = (
             P[lay.vel, lay.vel].copy()
             if lay.vel is not None
             else np.eye(3) * self.cfg.odometer_speed_sigma**2
         )
-        cov_pose = P[self._pose_ix]
-        free = self.free_heading
-        if free is not None and v[SV_T] < free.until:
-            g = free.direction(v[SV_LAT], v[SV_LON], v[SV_H], v[SV_VEL], lay)[0]
-            g_pose = np.r_[g[lay.pos], g[lay.att]]
-            cov_pose += free.variance * np.outer(g_pose, g_pose)
-            if lay.vel is not None:
-                cov_vel += free.variance * np.outer(g[lay.vel], g[lay.vel])
         return NavEstimate(
             t=float(v[SV_T]),
             lat=float(v[SV_LAT]),
@@ -868,7 +864,7 @@ class Navigator:
             vel_n=v[SV_VEL].copy(),
             quat_nb=v[SV_Q].copy(),
             omega_b=omega.copy(),
-            cov_pose=cov_pose,
+            cov_pose=P[self._pose_ix],
             cov_vel_n=cov_vel,
             distance=float(v[SV_DIST]),
             status=status,
