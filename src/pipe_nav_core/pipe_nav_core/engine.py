@@ -94,7 +94,7 @@ class FreeHeading:
     direction is harmful: the gains computed from it are wrong at second order, and the
     heading wanders by tens of degrees on the way (27 degrees over 100 m on sag104). So the
     filter runs with FREE_HEADING_SIGMA, and the rest, a rotation angle of this variance, is
-    added to what is reported (:meth:`extra_covariance`, :meth:`variances`) and folded into
+    added to what is reported (the Navigator's estimates, :meth:`variances`) and folded into
     the filter at the second marker before its fix. Linearly this equals carrying it inside.
 
     variance rad^2; lat, lon rad, h m: the pivot (first marker); until: s, the time of the
