@@ -318,6 +318,34 @@ def test_free_heading_direction_is_a_rotation_about_the_pivot():
     )
 
 
+def test_unknown_heading_covariance_is_that_of_a_uniform_rotation():
+    """FreeHeading(unknown): position and velocity covariances are the second moments of a
+    vector turned by a uniform angle (Monte Carlo), the variances agree with them, and the
+    azimuth variance is pi^2 / 3."""
+    from pipe_nav_core.engine import UNKNOWN_HEADING_VARIANCE, FreeHeading
+    from pipe_nav_core.state import layout_for
+
+    lat0, lon0, h0 = math.radians(30.0), math.radians(114.0), 20.0
+    free = FreeHeading(UNKNOWN_HEADING_VARIANCE, lat0, lon0, h0, unknown=True)
+    d, v = np.array([60.0, -35.0, -1.5]), np.array([0.8, 0.3, -0.01])
+    lat, lon, h = earth.enu_to_geodetic(d, lat0, lon0, h0)
+    lay = layout_for(NavConfig())
+    cov = free.covariance(float(lat), float(lon), float(h), v, lay)
+    a = np.random.default_rng(1).uniform(-np.pi, np.pi, 200_000)
+    c, s = np.cos(a), np.sin(a)
+    for block, vec in ((lay.pos, d), (lay.vel, v)):
+        turned = np.stack([c * vec[0] - s * vec[1], s * vec[0] + c * vec[1]], axis=-1)
+        e = turned - vec[:2]
+        mc = e.T @ e / len(e)
+        i = block.start
+        np.testing.assert_allclose(cov[i : i + 2, i : i + 2], mc, atol=0.01 * np.abs(mc).max())
+        assert np.all(cov[i + 2, :] == 0.0)
+    assert cov[lay.att.start + 2, lay.att.start + 2] == pytest.approx(math.pi**2 / 3)
+    var = free.variances(np.array([1.0]), np.array([lat]), np.array([lon]), np.array([h]))[0]
+    i = lay.pos.start
+    np.testing.assert_allclose(var, [cov[i, i], cov[i + 1, i + 1], math.pi**2 / 3], rtol=1e-6)
+
+
 def test_live_filter_heading_holds_before_the_second_marker():
     """Before the anchoring, the initial heading's 20 deg prior is a rotation about the first
     marker that nothing measures. Carried inside the filter, its second-order gains walked the
@@ -338,6 +366,35 @@ def test_live_filter_heading_holds_before_the_second_marker():
     assert sig_h[k] > 0.95 * dist * cfg.initial_heading_sigma, (sig_h[k], dist)
     assert nav.free_heading is not None and nav.free_heading.until < math.inf
     assert max(np.sqrt(e.cov_pose[0, 0] + e.cov_pose[1, 1]) for e in est if e.t > t2 + 1) < 0.2
+
+
+def test_live_filter_without_a_survey_reports_its_heading_unknown_until_the_second_marker():
+    """Markers as the heading source but none surveyed in advance: the filter starts on the
+    configured default azimuth (north; the pipe runs 62 deg east of it). Until the second
+    marker passes, the reported heading sigma is that of a uniform azimuth and the horizontal
+    sigmas those of a solution turned by an unknown angle about the start, which hold the
+    error (107 m at 104 m); reporting the configured 20 deg held only a third of it."""
+    run = simulate("sag104", seed=2)
+    nav = Navigator(NavConfig.from_dict(run.scenario.estimator_settings()), survey=())
+    nav.run(run.log)
+    est = nav.poll()
+    traj = estimates_to_trajectory(est)
+    err = interpolate_enu(traj, traj.t, nav.datum) - interpolate_enu(run.truth, traj.t, nav.datum)
+    assert nav.free_heading is not None and nav.free_heading.unknown
+    t2 = sorted(m.t for m in run.log.markers)[1]
+    before = traj.t < t2
+    sig = np.sqrt(np.array([np.diag(e.cov_pose) for e in est]))
+    yaw_sigma = math.degrees(sig[before, 5].min())
+    assert 100.0 < yaw_sigma < 105.0, yaw_sigma  # 180 / sqrt(3) deg
+    assert np.abs(err[before, :2]).max() > 50.0  # the default azimuth is far off
+    assert np.all(np.abs(err[before, :2]) <= 3.0 * sig[before, :2])
+    after = traj.t > t2 + 1.0
+    assert np.hypot(err[after, 0], err[after, 1]).max() < 0.15
+    assert math.degrees(sig[after, 5].max()) < 0.5
+    # with the survey the bearing gives the heading and its configured prior
+    nav = Navigator(NavConfig.from_dict(run.scenario.estimator_settings()), survey=run.log.markers)
+    nav.run(run.log)
+    assert nav.free_heading is not None and not nav.free_heading.unknown
 
 
 def test_live_filter_vertical_stays_inside_its_sigma_when_a_sag_resolves_the_tilt():

@@ -102,7 +102,9 @@ class NavConfig:
     # Alignment and initial uncertainty
     static_alignment_s: float = 2.0  # s of rest needed for coarse alignment at the start
     heading_source: str = "markers"  # markers | magnetometer | fixed
-    initial_azimuth: float = 0.0  # rad, used with heading_source "fixed" and as fallback
+    # rad, used with heading_source "fixed"; with "markers" and fewer than two surveyed markers
+    # the live filter starts on it and reports the heading unknown until the second marker
+    initial_azimuth: float = 0.0
     initial_heading_sigma: float = math.radians(20.0)  # rad, before the second marker
     initial_tilt_sigma: float = math.radians(0.5)  # rad, after static levelling
     initial_position_sigma: float = 0.05  # m, when starting at the first marker

@@ -81,6 +81,16 @@ STATIC_MOVE_M = 0.005  # odometer change that ends the initial rest
 # configured prior is carried outside the filter as a rotation about the first marker (FreeHeading)
 FREE_HEADING_SIGMA = math.radians(0.1)
 
+# rad^2: the variance of an azimuth uniform over the circle
+UNKNOWN_HEADING_VARIANCE = math.pi**2 / 3.0
+
+
+def _uniform_rotation_cov(d: Array) -> Array:
+    """(2, 2) second moment of (R(a) - I) d for a horizontal vector d and a uniform angle a:
+    1.5 d d^T + 0.5 d_perp d_perp^T (the error of a vector turned by an unknown heading)."""
+    perp = np.array([-d[1], d[0]])
+    return 1.5 * np.outer(d, d) + 0.5 * np.outer(perp, perp)
+
 
 @dataclass(frozen=True)
 class FreeHeading:
@@ -98,7 +108,10 @@ class FreeHeading:
     the filter at the second marker before its fix. Linearly this equals carrying it inside.
 
     variance rad^2; lat, lon rad, h m: the pivot (first marker); until: s, the time of the
-    anchoring (inf while unanchored).
+    anchoring (inf while unanchored); unknown: the heading is not known at all (markers as
+    the heading source but fewer than two surveyed: the azimuth is the configured default),
+    variance is then that of a uniform azimuth, UNKNOWN_HEADING_VARIANCE, and the reported
+    covariances are those of a solution rotated by a uniform angle, not its linearization.
     """
 
     variance: float
@@ -106,6 +119,7 @@ class FreeHeading:
     lon: float
     h: float
     until: float = math.inf
+    unknown: bool = False
 
     def direction(self, lat: Array, lon: Array, h: Array, vel_n: Array, layout: Layout) -> Array:
         """(N, n) error-state direction (layout) of a unit rotation (rad) of the solution about
@@ -120,11 +134,31 @@ class FreeHeading:
         g[:, layout.pos.start], g[:, layout.pos.start + 1] = -d[:, 1], d[:, 0]
         return g
 
+    def covariance(self, lat: float, lon: float, h: float, vel_n: Array, layout: Layout) -> Array:
+        """(n, n) covariance (layout) this uncertainty adds to the estimate at lat, lon rad,
+        h m with velocity vel_n m/s ENU."""
+        g = self.direction(lat, lon, h, vel_n, layout)[0]
+        if not self.unknown:
+            return self.variance * np.outer(g, g)
+        out = np.zeros((layout.n, layout.n))
+        a = layout.att.start + 2
+        out[a, a] = self.variance
+        blocks = [(layout.pos.start, g[layout.pos][:2])]
+        if layout.vel is not None:
+            blocks.append((layout.vel.start, g[layout.vel][:2]))
+        for i, perp in blocks:  # perp = up x (vector): the vector is (perp[1], -perp[0])
+            out[i : i + 2, i : i + 2] = _uniform_rotation_cov(np.array([perp[1], -perp[0]]))
+        return out
+
     def variances(self, t: Array, lat: Array, lon: Array, h: Array) -> Array:
         """(N, 3) variances added to east, north (m^2) and azimuth (rad^2) at times t (s)."""
         d = earth.geodetic_to_enu(lat, lon, h, self.lat, self.lon, self.h).reshape(-1, 3)
         on = np.asarray(t, dtype=np.float64).reshape(-1) < self.until
-        out = self.variance * np.stack([d[:, 1] ** 2, d[:, 0] ** 2, np.ones(len(d))], axis=-1)
+        if self.unknown:
+            e2, n2 = d[:, 0] ** 2, d[:, 1] ** 2
+            out = np.stack([1.5 * e2 + 0.5 * n2, 1.5 * n2 + 0.5 * e2, 0 * e2 + self.variance], -1)
+        else:
+            out = self.variance * np.stack([d[:, 1] ** 2, d[:, 0] ** 2, np.ones(len(d))], axis=-1)
         return np.where(on[:, None], out, 0.0)
 
 
@@ -551,9 +585,15 @@ class Navigator:
         s.distance = 0.0
         self.initial_azimuth = float(azimuth)
         free = not self._anchored if self._free_option is None else self._free_option
-        if free and not cfg.mag_update and az_sigma > FREE_HEADING_SIGMA:
-            var = az_sigma**2 - FREE_HEADING_SIGMA**2
-            self.free_heading = FreeHeading(var, s.lat, s.lon, s.h)
+        unknown = (
+            cfg.heading_source == "markers"
+            and len(self.survey) < 2
+            and self.initial is None
+            and self._azimuth_override is None
+        )
+        if free and not cfg.mag_update and (unknown or az_sigma > FREE_HEADING_SIGMA):
+            var = UNKNOWN_HEADING_VARIANCE if unknown else az_sigma**2 - FREE_HEADING_SIGMA**2
+            self.free_heading = FreeHeading(var, s.lat, s.lon, s.h, unknown=unknown)
             az_sigma = FREE_HEADING_SIGMA
         P0 = self._initial_covariance(s, t_static, az_sigma)
         lin = s
@@ -849,8 +889,7 @@ class Navigator:
         lay = self.layout
         free = self.free_heading
         if free is not None and v[SV_T] < free.until:  # the heading prior kept outside P
-            g = free.direction(v[SV_LAT], v[SV_LON], v[SV_H], v[SV_VEL], lay)[0]
-            P = P + free.variance * np.outer(g, g)
+            P = P + free.covariance(v[SV_LAT], v[SV_LON], v[SV_H], v[SV_VEL], lay)
         cov_vel = (
             P[lay.vel, lay.vel].copy()
             if lay.vel is not None

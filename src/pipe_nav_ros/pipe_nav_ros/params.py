@@ -132,7 +132,8 @@ NAV_DESCRIPTIONS: dict[str, str] = {
     "marker_time_sigma": "marker passage-time error, s",
     "static_alignment_s": "seconds of rest needed for the coarse alignment at the start, s",
     "heading_source": "initial heading from markers | magnetometer | fixed",
-    "initial_azimuth": "initial azimuth for heading_source fixed (and fallback), deg from north",
+    "initial_azimuth": "initial azimuth for heading_source fixed, deg from north (with markers"
+    " and fewer than two surveyed, the start value; the heading is reported unknown)",
     "initial_heading_sigma": "initial heading one-sigma before the second marker, deg",
     "initial_tilt_sigma": "initial roll/pitch one-sigma after static levelling, deg",
     "initial_position_sigma": "initial position one-sigma at the first marker, m",
