@@ -202,3 +202,23 @@ def test_survey_csv_without_passage_times(tmp_path: Path):
     r = _run_cli("smooth", str(SAMPLE), "--out", str(tmp_path / "o.mcap"), "--markers", str(survey))
     assert r.returncode == 0, r.stderr
     assert "without a passage time" in r.stderr
+
+
+def test_bench_makes_its_output_folders_and_fails_at_once_on_a_bad_path(
+    tmp_path, capsys, monkeypatch
+):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    bad = blocker / "sub" / "BENCH.md"
+    assert main(["bench", "--speed-only", "--out", str(bad), "--json", ""]) != 0
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "pipe-nav" in err, err
+    assert "speed" not in err  # nothing ran
+    from pipe_nav_core import speed  # the measurement itself is the benchmark's, not this test's
+
+    monkeypatch.setattr(speed, "run", lambda length_km: {"x_real_time": 1.0})
+    monkeypatch.setattr(speed, "markdown", lambda sp, command: "speed table\n")
+    out, js = tmp_path / "a" / "b" / "BENCH.md", tmp_path / "c" / "bench.json"
+    assert main(["bench", "--speed-only", "--out", str(out), "--json", str(js)]) == 0
+    assert "speed table" in out.read_text()
+    assert json.loads(js.read_text())["speed"] == {"x_real_time": 1.0}

@@ -298,6 +298,9 @@ def main(args: argparse.Namespace) -> int:
     unknown = set(names) - {c.scenario for c in CASES}
     if unknown:
         raise ValueError(f"unknown benchmark scenario(s): {', '.join(sorted(unknown))}")
+    for target in (args.out, args.json):  # before the runs: a bad path fails at once
+        if target:
+            Path(target).parent.mkdir(parents=True, exist_ok=True)
     max_seeds = 1 if args.quick else 3
     methods = list(METHODS)
     results: dict[str, list[dict[str, object]]] = {}
@@ -324,7 +327,6 @@ def main(args: argparse.Namespace) -> int:
     with atomic_write(args.out) as f:
         f.write(md)
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         with atomic_write(args.json) as f:
             json.dump(payload, f, indent=1, default=float)
     print(md)
