@@ -86,10 +86,12 @@ UNKNOWN_HEADING_VARIANCE = math.pi**2 / 3.0
 
 
 def _uniform_rotation_cov(d: Array) -> Array:
-    """(2, 2) second moment of (R(a) - I) d for a horizontal vector d and a uniform angle a:
-    1.5 d d^T + 0.5 d_perp d_perp^T (the error of a vector turned by an unknown heading)."""
-    perp = np.array([-d[1], d[0]])
-    return 1.5 * np.outer(d, d) + 0.5 * np.outer(perp, perp)
+    """(..., 2, 2) second moments of (R(a) - I) d for horizontal vectors d (..., 2) and a
+    uniform angle a: 1.5 d d^T + 0.5 d_perp d_perp^T (the error of a vector turned by an
+    unknown heading)."""
+    d = np.asarray(d, dtype=np.float64)
+    perp = np.stack([-d[..., 1], d[..., 0]], axis=-1)
+    return 1.5 * d[..., :, None] * d[..., None, :] + 0.5 * perp[..., :, None] * perp[..., None, :]
 
 
 @dataclass(frozen=True)
@@ -125,7 +127,7 @@ class FreeHeading:
         """(N, n) error-state direction (layout) of a unit rotation (rad) of the solution about
         the vertical through the pivot, at positions lat, lon rad, h m and velocities (N, 3)
         m/s ENU: attitude (0, 0, 1), velocity up x v, position up x (p - pivot)."""
-        d = earth.geodetic_to_enu(lat, lon, h, self.lat, self.lon, self.h).reshape(-1, 3)
+        d = self._offset(lat, lon, h)
         v = np.asarray(vel_n, dtype=np.float64).reshape(-1, 3)
         g = np.zeros((len(d), layout.n))
         g[:, layout.att.start + 2] = 1.0
@@ -137,29 +139,33 @@ class FreeHeading:
     def covariance(self, lat: float, lon: float, h: float, vel_n: Array, layout: Layout) -> Array:
         """(n, n) covariance (layout) this uncertainty adds to the estimate at lat, lon rad,
         h m with velocity vel_n m/s ENU."""
-        g = self.direction(lat, lon, h, vel_n, layout)[0]
         if not self.unknown:
+            g = self.direction(lat, lon, h, vel_n, layout)[0]
             return self.variance * np.outer(g, g)
         out = np.zeros((layout.n, layout.n))
         a = layout.att.start + 2
         out[a, a] = self.variance
-        blocks = [(layout.pos.start, g[layout.pos][:2])]
+        p = layout.pos.start
+        out[p : p + 2, p : p + 2] = _uniform_rotation_cov(self._offset(lat, lon, h)[0, :2])
         if layout.vel is not None:
-            blocks.append((layout.vel.start, g[layout.vel][:2]))
-        for i, perp in blocks:  # perp = up x (vector): the vector is (perp[1], -perp[0])
-            out[i : i + 2, i : i + 2] = _uniform_rotation_cov(np.array([perp[1], -perp[0]]))
+            v = layout.vel.start
+            out[v : v + 2, v : v + 2] = _uniform_rotation_cov(np.asarray(vel_n)[:2])
         return out
 
     def variances(self, t: Array, lat: Array, lon: Array, h: Array) -> Array:
         """(N, 3) variances added to east, north (m^2) and azimuth (rad^2) at times t (s)."""
-        d = earth.geodetic_to_enu(lat, lon, h, self.lat, self.lon, self.h).reshape(-1, 3)
+        d = self._offset(lat, lon, h)
         on = np.asarray(t, dtype=np.float64).reshape(-1) < self.until
         if self.unknown:
-            e2, n2 = d[:, 0] ** 2, d[:, 1] ** 2
-            out = np.stack([1.5 * e2 + 0.5 * n2, 1.5 * n2 + 0.5 * e2, 0 * e2 + self.variance], -1)
+            c = _uniform_rotation_cov(d[:, :2])
+            out = np.stack([c[:, 0, 0], c[:, 1, 1], np.full(len(d), self.variance)], axis=-1)
         else:
             out = self.variance * np.stack([d[:, 1] ** 2, d[:, 0] ** 2, np.ones(len(d))], axis=-1)
         return np.where(on[:, None], out, 0.0)
+
+    def _offset(self, lat: Array, lon: Array, h: Array) -> Array:
+        """(N, 3) ENU offsets (m) of positions lat, lon rad, h m from the pivot."""
+        return earth.geodetic_to_enu(lat, lon, h, self.lat, self.lon, self.h).reshape(-1, 3)
 
 
 @dataclass
@@ -547,7 +553,9 @@ class Navigator:
         first = self._first_marker
         lat, lon, h = (first.lat, first.lon, first.alt) if first else (0.0, 0.0, 0.0)
         azimuth, az_sigma = cfg.initial_azimuth, cfg.initial_heading_sigma
-        if cfg.heading_source == "markers" and len(self.survey) >= 2:
+        markers_source = cfg.heading_source == "markers"
+        bearing = markers_source and len(self.survey) >= 2
+        if bearing:
             azimuth, _ = alignment.marker_bearing(self.survey[0], self.survey[1])
             if self.earth_sign < 0:  # reversed time: the pig backs along the bearing
                 azimuth = float(np.mod(azimuth + np.pi, 2 * np.pi))
@@ -585,9 +593,10 @@ class Navigator:
         s.distance = 0.0
         self.initial_azimuth = float(azimuth)
         free = not self._anchored if self._free_option is None else self._free_option
+        # markers as the source but no bearing, and no azimuth given in its place
         unknown = (
-            cfg.heading_source == "markers"
-            and len(self.survey) < 2
+            markers_source
+            and not bearing
             and self.initial is None
             and self._azimuth_override is None
         )
