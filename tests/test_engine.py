@@ -48,11 +48,13 @@ def _static_log(seconds: float = 60.0, rate: float = 100.0, seed: int = 0):
     return log, bg, c
 
 
-def _live(name: str, seed: int):
+def _live(name: str, seed: int, *, surveyed: bool = True, **settings):
     """The live filter over a simulated run: (run, navigator, estimates, their times (s), ENU
-    positions and errors (m) about the navigator's datum)."""
+    positions and errors (m) about the navigator's datum). surveyed: the markers are known in
+    advance; settings: estimator settings over the scenario's."""
     run = simulate(name, seed=seed)
-    nav = Navigator(NavConfig.from_dict(run.scenario.estimator_settings()), survey=run.log.markers)
+    cfg = NavConfig.from_dict({**run.scenario.estimator_settings(), **settings})
+    nav = Navigator(cfg, survey=run.log.markers if surveyed else ())
     nav.run(run.log)
     est = nav.poll()
     traj = estimates_to_trajectory(est)
@@ -226,19 +228,13 @@ def test_dead_reckoning_mode_with_realistic_sensors():
     error on (industrial IMU, slips, 2 mm ticks, 2 cm surveys): the live filter stays inside
     its 3 sigma and the smoothed centreline is within 20 cm (measured: 0.53 m forward, 11 cm
     h and 3 cm v smoothed; the INS mode reaches 6 cm h)."""
-    run = simulate("sag104", seed=2)
-    cfg = NavConfig.from_dict({**run.scenario.estimator_settings(), "mode": "dr"})
-    nav = Navigator(cfg, survey=run.log.markers)
-    nav.run(run.log)
-    est = nav.poll()
-    traj = estimates_to_trajectory(est)
-    err = interpolate_enu(traj, traj.t, nav.datum) - interpolate_enu(run.truth, traj.t, nav.datum)
+    run, nav, est, t, enu, err = _live("sag104", 2, mode="dr")
     sig = np.sqrt(np.array([np.diag(e.cov_pose)[:3] for e in est]))
     inside = (np.hypot(err[:, 0], err[:, 1]) <= 3 * np.hypot(sig[:, 0], sig[:, 1])) & (
         np.abs(err[:, 2]) <= 3 * sig[:, 2]
     )
     assert inside.mean() > 0.95, inside.mean()
-    r = smooth_log(run.log, cfg, method="rts")
+    r = smooth_log(run.log, nav.cfg, method="rts")
     s = score(r.centreline, run.truth, run.log.markers, datum=r.datum)
     assert s.max_h < 0.2 and s.max_v < 0.1, s.summary()
 
@@ -396,26 +392,20 @@ def test_live_filter_without_a_survey_reports_its_heading_unknown_until_the_seco
     marker passes, the reported heading sigma is that of a uniform azimuth and the horizontal
     sigmas those of a solution turned by an unknown angle about the start, which hold the
     error (107 m at 104 m); reporting the configured 20 deg held only a third of it."""
-    run = simulate("sag104", seed=2)
-    nav = Navigator(NavConfig.from_dict(run.scenario.estimator_settings()), survey=())
-    nav.run(run.log)
-    est = nav.poll()
-    traj = estimates_to_trajectory(est)
-    err = interpolate_enu(traj, traj.t, nav.datum) - interpolate_enu(run.truth, traj.t, nav.datum)
+    run, nav, est, t, enu, err = _live("sag104", 2, surveyed=False)
     assert nav.free_heading is not None and nav.free_heading.unknown
     t2 = sorted(m.t for m in run.log.markers)[1]
-    before = traj.t < t2
+    before = t < t2
     sig = np.sqrt(np.array([np.diag(e.cov_pose) for e in est]))
     yaw_sigma = math.degrees(sig[before, 5].min())
     assert 100.0 < yaw_sigma < 105.0, yaw_sigma  # 180 / sqrt(3) deg
     assert np.abs(err[before, :2]).max() > 50.0  # the default azimuth is far off
     assert np.all(np.abs(err[before, :2]) <= 3.0 * sig[before, :2])
-    after = traj.t > t2 + 1.0
+    after = t > t2 + 1.0
     assert np.hypot(err[after, 0], err[after, 1]).max() < 0.15
     assert math.degrees(sig[after, 5].max()) < 0.5
     # with the survey the bearing gives the heading and its configured prior
-    nav = Navigator(NavConfig.from_dict(run.scenario.estimator_settings()), survey=run.log.markers)
-    nav.run(run.log)
+    nav = _live("sag104", 2)[1]
     assert nav.free_heading is not None and not nav.free_heading.unknown
 
 
