@@ -346,12 +346,50 @@ def test_marker_noise_statistics():
     geometry = scn.build_geometry()
     motion = build_motion(scn, np.random.default_rng(0))
     ch = np.linspace(0.0, 60.0, 3000)
-    noisy, true = make_markers(geometry, motion, ch, 0.02, 0.03, 0.05, np.random.default_rng(1))
+    noisy, true = make_markers(geometry, motion, ch, 0.02, 0.03, 0.05, np.random.default_rng(1), 5)
     dt = np.array([a.t - b.t for a, b in zip(noisy, true)])
     enu = np.array(
-        [earth.geodetic_to_enu(a.lat, a.lon, a.alt, b.lat, b.lon, b.alt)
-         for a, b in zip(noisy, true)]
+        [
+            earth.geodetic_to_enu(a.lat, a.lon, a.alt, b.lat, b.lon, b.alt)
+            for a, b in zip(noisy, true)
+        ]
     )
     assert dt.std() == pytest.approx(0.02, rel=0.06)
     np.testing.assert_allclose(enu.std(axis=0), [0.03, 0.03, 0.05], rtol=0.06)
     assert noisy[5].sigma_enu == (0.03, 0.03, 0.05)
+
+
+def test_marker_survey_is_one_per_pipe_and_timing_one_per_run():
+    scn = small_scenario(stops=())
+    geometry = scn.build_geometry()
+    motion = build_motion(scn, np.random.default_rng(0))
+    ch = np.array([0.0, 20.0, 40.0, 60.0])
+
+    def draw(chainages, run_seed, pipe_seed):
+        noisy, true = make_markers(
+            geometry,
+            motion,
+            chainages,
+            0.02,
+            0.03,
+            0.05,
+            np.random.default_rng(run_seed),
+            pipe_seed,
+        )
+        d_t = np.array([a.t - b.t for a, b in zip(noisy, true)])
+        d_enu = np.array(
+            [
+                earth.geodetic_to_enu(a.lat, a.lon, a.alt, b.lat, b.lon, b.alt)
+                for a, b in zip(noisy, true)
+            ]
+        )
+        return d_t, d_enu
+
+    t1, e1 = draw(ch, 1, 5)
+    t2, e2 = draw(ch, 2, 5)
+    np.testing.assert_allclose(e1, e2, atol=1e-9)  # one survey for every run
+    assert np.all(np.abs(t1 - t2) > 1e-6)  # timing errors are the run's own
+    _, e_sub = draw(ch[[1, 3]], 3, 5)  # a sparser marker set on the same pipe
+    np.testing.assert_allclose(e_sub, e1[[1, 3]], atol=1e-9)
+    _, e_other = draw(ch, 1, 6)  # another pipe, another survey
+    assert np.all(np.abs(e_other - e1) > 1e-6)

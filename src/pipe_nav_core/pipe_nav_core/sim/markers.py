@@ -2,8 +2,11 @@
 
 The pig passes marker k at the first time its centreline chainage reaches the marker's chainage;
 the launch trap (chainage 0) is "passed" when the pig starts moving and the receive trap (end of
-the pipe) when it arrives. The recorded time has an error N(0, time_sigma) and the surveyed
-position an error N(0, sigma) per ENU axis about the true centreline point.
+the pipe) when it arrives. The recorded time has an error N(0, time_sigma), drawn afresh for
+each run. The surveyed position has an error N(0, sigma) per ENU axis about the true centreline
+point; the survey is done once per pipe, so that error depends only on the pipe (its seed) and
+the marker's chainage, and every run through the pipe shares it (as in the papers'
+repeatability tests, where several runs are scored against one survey).
 """
 
 from __future__ import annotations
@@ -32,18 +35,20 @@ def make_markers(
     sigma_h: float,
     sigma_v: float,
     rng: np.random.Generator,
+    pipe_seed: int,
 ) -> tuple[list[Marker], list[Marker]]:
     """(noisy markers as recorded, true markers) at the given chainages (m, increasing).
 
-    time_sigma: s; sigma_h, sigma_v: m survey one-sigma (east/north, up). Both lists carry
-    sigma_enu = (sigma_h, sigma_h, sigma_v).
+    time_sigma: s; sigma_h, sigma_v: m survey one-sigma (east/north, up). rng draws the timing
+    errors of this run; pipe_seed fixes the survey errors (see :func:`survey_errors`). Both
+    lists carry sigma_enu = (sigma_h, sigma_h, sigma_v).
     """
     ch = np.asarray(chainages, dtype=np.float64).reshape(-1)
     t_true = motion.time_at_chainage(ch)
     lat, lon, h = geometry.position(ch)
     sig = (float(sigma_h), float(sigma_h), float(sigma_v))
     dt = rng.standard_normal(len(ch)) * time_sigma
-    d_enu = rng.standard_normal((len(ch), 3)) * np.array(sig)[None, :]
+    d_enu = survey_errors(pipe_seed, ch) * np.array(sig)[None, :]
     noisy: list[Marker] = []
     true: list[Marker] = []
     for k in range(len(ch)):
@@ -52,3 +57,18 @@ def make_markers(
         la, lo, hh = earth.enu_to_geodetic(d_enu[k], float(lat[k]), float(lon[k]), float(h[k]))
         noisy.append(Marker(name, float(t_true[k] + dt[k]), float(la), float(lo), float(hh), sig))
     return noisy, true
+
+
+def survey_errors(pipe_seed: int, chainages: FloatArray) -> FloatArray:
+    """Standard-normal ENU survey errors (n, 3) of the markers at these chainages (m, >= 0).
+
+    Each marker's draw is seeded by the pipe and its chainage to the millimetre alone, so it is
+    the same in every run through the pipe and whichever other markers are surveyed with it.
+    """
+    ch = np.asarray(chainages, dtype=np.float64).reshape(-1)
+    keys = np.rint(ch * 1000.0).astype(np.int64)
+    if np.any(keys < 0):
+        raise ValueError("marker chainages must be non-negative")
+    return np.array(
+        [np.random.default_rng([int(pipe_seed), 7003, int(k)]).standard_normal(3) for k in keys]
+    ).reshape(-1, 3)

@@ -2,8 +2,9 @@
 (as recorded in a bag) and the truth it came from.
 
 Random streams: the seed feeds a ``numpy.random.SeedSequence`` whose children drive, separately,
-the motion (speed and roll), the IMU errors, the odometer, the magnetometer and the markers; the
-pipe itself (field bends, girth welds) depends only on the scenario. No global random state.
+the motion (speed and roll), the IMU errors, the odometer, the magnetometer and the marker
+timing; the pipe itself (field bends, girth welds, the markers' survey errors) depends only on
+the scenario, so every run through a pipe shares one survey. No global random state.
 The IMU is generated in time chunks with stateful error processes, so the result does not depend
 on the chunk size and memory stays bounded (a few arrays the size of the output).
 """
@@ -279,6 +280,7 @@ def simulate(
         scn.survey_sigma_h,
         scn.survey_sigma_v,
         r_mark,
+        scn.pipe_seed,
     )
     lat0, lon0, h0 = geometry.position(0.0)
     datum = Datum(float(lat0), float(lon0), float(h0))

@@ -36,7 +36,9 @@ class Scenario:
     Location and pipe: ``lat``, ``lon`` (rad) and ``alt`` (m, ellipsoidal) of the launch trap;
     ``azimuth`` (rad clockwise from north) and ``pitch`` (rad up) of the pipe at the launch;
     ``length`` (m), ``pipe_diameter`` (m), ``features`` (Bend, Sag at chainages in m);
-    ``field_line``: add random field bends and grade changes drawn from ``pipe_seed``;
+    ``pipe_seed``: the pipe's identity; it draws the field bends and grade changes (with
+    ``field_line``), the girth weld anomalies and the marker survey errors, so scenarios that
+    share it are runs through one pipe;
     ``length_scale``: multiplies the length and every chainage (features, stops, roll turns,
     explicit marker chainages); use :meth:`with_length`.
 
@@ -138,8 +140,17 @@ class Scenario:
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be positive, not {v!r}")
-        for k in ("static_start", "static_end", "odo_tick", "odo_scale_sigma", "mag_noise",
-                  "marker_time_sigma", "survey_sigma_h", "survey_sigma_v", "speed_fluctuation"):
+        for k in (
+            "static_start",
+            "static_end",
+            "odo_tick",
+            "odo_scale_sigma",
+            "mag_noise",
+            "marker_time_sigma",
+            "survey_sigma_h",
+            "survey_sigma_v",
+            "speed_fluctuation",
+        ):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be >= 0, not {v!r}")
@@ -256,6 +267,7 @@ def _drag180() -> Scenario:
     d = 0.1
     return Scenario(
         name="drag180",
+        pipe_seed=1,
         description=(
             "Seed 001 drag test: 180 m pipe of 0.1 m bore pulled at about 1.5 m/s, consumer "
             "MEMS IMU, wire-rope encoder with 5 mm resolution, magnetometer (Earth field of the "
@@ -345,6 +357,7 @@ def _sag104(depth: float, name: str) -> Scenario:
 def _undulation90() -> Scenario:
     return Scenario(
         name="undulation90",
+        pipe_seed=2,
         description=(
             "Seed 002 test pipe (Jiading test field): 90 m trenchless pipe with a 2 m vertical "
             "undulation, pulled by a winch at about 0.6 m/s, consumer MEMS IMU, Hall-effect "
@@ -440,6 +453,7 @@ def _demo() -> Scenario:
     d = 0.2
     return Scenario(
         name="demo",
+        pipe_seed=4,
         description=(
             "Sample for the bundled bag: 300 m of 0.2 m pipe, industrial IMU at 100 Hz, "
             "odometer 50 Hz, magnetometer 20 Hz, markers every 100 m, a 45 deg horizontal bend, "
