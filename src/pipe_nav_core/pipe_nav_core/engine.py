@@ -40,6 +40,8 @@ from .epoch import (
     S_LIN,
     W_VJAC,
     Batch,
+    Filter,
+    Inputs,
     parameters,
     run_epochs,
 )
@@ -711,9 +713,10 @@ class Navigator:
             MAX_BATCH,
         )
 
-    def _inputs(self, ends: NDArray[np.int64]) -> tuple:  # type: ignore[type-arg]
-        """Per epoch: odometer coverage, excluded (slip), encoder resolution, magnetometer
-        sample; per IMU sample: the odometer reading (run_epochs' arguments)."""
+    def _inputs(self, ends: NDArray[np.int64]) -> Inputs:
+        """The data of the epochs ending at these IMU samples: the samples, per epoch the
+        odometer coverage, excluded (slip), encoder resolution and magnetometer sample, per IMU
+        sample the odometer reading."""
         assert self.state is not None
         t = self._imu_t[: ends[-1] + 1]
         t_end = t[ends]
@@ -737,14 +740,17 @@ class Navigator:
         ok[ok] = self._mag.t[mag_i[ok]] > t_start[ok] + 1e-9
         mag_i = np.where(ok, mag_i, -1)
         res = self._odometer_resolutions(t_end)
-        return s_odo, has_odo, excluded, res, mag_i
+        n = ends[-1] + 1
+        return Inputs(
+            self._imu_t[:n], self._imu_g[:n], self._imu_a[:n], ends, s_odo, has_odo, excluded,
+            res, mag_i, self._mag.t, self._mag.field,
+        )  # fmt: skip
 
     def _call(
         self,
         batch: Batch,
-        ends: NDArray[np.int64],
-        inputs: tuple,
-        markers: Array,  # type: ignore[type-arg]
+        inputs: Inputs,
+        markers: Array,
         *,
         stop: bool = False,
         resume: bool = False,
@@ -752,12 +758,10 @@ class Navigator:
         kf = self.kf
         assert kf is not None and self._prm is not None
         ref = self.reference if self.reference is not None else np.empty((0, SV_SIZE))
-        n_imu = ends[-1] + 1
+        state = Filter(self._sv, kf.x, kf.P, self._carry, self._dyn)
         run_epochs(
-            stop, resume, self._epoch + 1, self._sv, kf.x, kf.P, self._carry, self._dyn,
-            self.layout.index, self._prm, ref, self._imu_t[:n_imu], self._imu_g[:n_imu],
-            self._imu_a[:n_imu], ends, *inputs, self._mag.t, self._mag.field, markers,
-            *batch.buffers(),
+            stop, resume, self._epoch + 1, state, self.layout.index, self._prm, ref, inputs,
+            markers, batch.buffers(),
         )  # fmt: skip
 
     def _batch_for(self, epochs: int, samples: int) -> Batch:
@@ -772,7 +776,7 @@ class Navigator:
     def _run_batch(self, ends: NDArray[np.int64]) -> None:
         """Epochs without a marker passage, all in one call of the compiled loop."""
         batch = self._batch_for(len(ends), int(ends[-1]) + 1)
-        self._call(batch, ends, self._inputs(ends), np.zeros((0, 7)))
+        self._call(batch, self._inputs(ends), np.zeros((0, 7)))
         self._finish(batch, ends)
 
     def _run_marker_epoch(self, ends: NDArray[np.int64]) -> None:
@@ -785,7 +789,7 @@ class Navigator:
             self._markers.remove(m)
         batch = Batch(1, int(ends[-1]) + 1, self.layout.n)
         inputs = self._inputs(ends)
-        self._call(batch, ends, inputs, np.zeros((0, 7)), stop=True)
+        self._call(batch, inputs, np.zeros((0, 7)), stop=True)
         s = NavState.from_vector(batch.ws_sv[S_LIN])
         due = [m for m in due if not self._late_marker(m, s)]
         v_jac = batch.ws[W_VJAC : W_VJAC + 3]
@@ -797,7 +801,7 @@ class Navigator:
         batch.P_pred[0] = self.kf.P
         mk = np.array([marker_vector(m) for m in due]).reshape(-1, 7)
         batch.marker_res = np.zeros((len(due), 3))
-        self._call(batch, ends, inputs, mk, resume=True)
+        self._call(batch, inputs, mk, resume=True)
         if self.recording is not None:
             for m, r in zip(due, batch.marker_res, strict=True):
                 self.recording.marker_residuals[m.name] = r.copy()

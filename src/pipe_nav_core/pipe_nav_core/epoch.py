@@ -9,20 +9,19 @@ heading re-anchoring and covariance recovery at a marker passage) stay in Python
 model is the shared one (:mod:`process`, :mod:`measurements`, :mod:`kalman`, :mod:`state`).
 
 Arrays and indices (all float64 unless said):
-- ``sv`` (SV_SIZE,) the filter's nominal state, ``x`` (n,) its mean error relative to the
-  linearization point, ``P`` (n, n), ``carry`` (6,) the last increments of the previous block,
-  ``dyn`` (D_SIZE,) the rest of the filter's memory: all updated in place;
+- :class:`Filter`: the filter's nominal state, mean error, covariance and memory, updated in
+  place;
 - ``prm`` (P_SIZE,) settings (:func:`parameters`); ``L`` the layout (Layout.index);
 - ``ref`` (K, SV_SIZE) the reference trajectory (empty without one) and ``k0`` the epoch number
   of the batch's first epoch;
-- the IMU samples (base_link) from just after the state's time, ``ends`` (B,) int64 the index
-  of each epoch's last sample, ``s_odo`` (N,) the odometer reading at every sample, and per
-  epoch ``has_odo``, ``excluded`` (bool), ``resolution`` m, ``mag_i`` (int64, -1 none) into
-  ``mag_t`` / ``mag_f``;
-- outputs per epoch (:class:`Batch`) and per sample (lat, lon, h, q_nb, odometer reading).
+- :class:`Inputs`: the batch's IMU samples and per-epoch odometer and magnetometer data;
+- :class:`Outputs` (a :class:`Batch`'s arrays): per epoch, per sample (lat, lon, h, q_nb,
+  odometer reading) and the update statistics.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -124,6 +123,66 @@ def parameters(
     return p
 
 
+class Filter(NamedTuple):
+    """The filter's memory, updated in place: nominal state ``sv`` (SV_SIZE,), mean error ``x``
+    (n,), covariance ``P`` (n, n), the previous block's last increments ``carry`` (6,) and the
+    rest ``dyn`` (D_SIZE,)."""
+
+    sv: Array
+    x: Array
+    P: Array
+    carry: Array
+    dyn: Array
+
+
+class Inputs(NamedTuple):
+    """A batch's data: IMU samples (base_link; s, rad/s, m/s^2) from just after the state's
+    time, each epoch's last sample ``ends``, the odometer reading at every sample ``s_odo``
+    (m); per epoch ``has_odo``, ``excluded`` (slip), encoder ``resolution`` (m) and
+    magnetometer sample ``mag_i`` (-1 none) into ``mag_t`` (s) / ``mag_f`` (T, base_link)."""
+
+    imu_t: Array
+    imu_g: Array
+    imu_a: Array
+    ends: Index
+    s_odo: Array
+    has_odo: NDArray[np.bool_]
+    excluded: NDArray[np.bool_]
+    resolution: Array
+    mag_i: Index
+    mag_t: Array
+    mag_f: Array
+
+
+class Outputs(NamedTuple):
+    """:class:`Batch`'s arrays as the compiled epoch writes them (see Batch)."""
+
+    sv: Array
+    x_upd: Array
+    dx: Array
+    end_offset: Array
+    P_pred: Array
+    P_upd: Array
+    phi: Array
+    stopped: NDArray[np.bool_]
+    omega: Array
+    lat: Array
+    lon: Array
+    h: Array
+    q: Array
+    s_odo: Array
+    marker_res: Array
+    counts: Index
+    acc: Index
+    rej: Index
+    nis: Array
+    dof: Index
+    ws: Array
+    ws_sv: Array
+    ws_x: Array
+    ws_m: Array
+
+
 class Batch:
     """Output buffers of :func:`run_epochs` for up to ``size`` epochs and ``samples`` IMU
     samples: per epoch the estimate ``sv`` (after the update), ``x_upd`` (the filter's mean
@@ -164,127 +223,73 @@ class Batch:
         for a in (self.counts, self.acc, self.rej, self.nis, self.dof):
             a[:] = 0
 
-    def buffers(self) -> tuple:  # type: ignore[type-arg]
-        """The arrays in run_epochs' order."""
-        return (
-            self.sv,
-            self.x_upd,
-            self.dx,
-            self.end_offset,
-            self.P_pred,
-            self.P_upd,
-            self.phi,
-            self.stopped,
-            self.omega,
-            self.lat,
-            self.lon,
-            self.h,
-            self.q,
-            self.s_odo,
-            self.marker_res,
-            self.counts,
-            self.acc,
-            self.rej,
-            self.nis,
-            self.dof,
-            self.ws,
-            self.ws_sv,
-            self.ws_x,
-            self.ws_m,
-        )
+    def buffers(self) -> Outputs:
+        """The arrays, as run_epochs takes them."""
+        return Outputs(*(getattr(self, name) for name in Outputs._fields))
 
 
 @kernel
 def _update(
-    kind: int,
-    r: Array,
-    H: Array,
-    R: Array,
-    x: Array,
-    P: Array,
-    prm: Array,
-    acc: NDArray[np.int64],
-    rej: NDArray[np.int64],
-    nis_sum: Array,
-    dof_sum: NDArray[np.int64],
+    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Array, out: Outputs
 ) -> None:
-    """One gated update of (x, P) in place, counted under kind."""
+    """One gated update of (x, P) in place, counted under kind in out's statistics."""
     m = r.shape[0]
     nis, dx, x_new, P_new = _joseph_update(P, x, H, R, r, prm[P_CHI2 + m - 1])
     if dx.shape[0] == 0:
-        rej[kind] += 1
+        out.rej[kind] += 1
         return
     x[:] = x_new
     P[:] = P_new
-    acc[kind] += 1
-    nis_sum[kind] += nis
-    dof_sum[kind] += m
+    out.acc[kind] += 1
+    out.nis[kind] += nis
+    out.dof[kind] += m
 
 
 @kernel
 def _predict(
     e: int,
     k_ep: int,
-    sv: Array,
-    x: Array,
-    P: Array,
-    carry: Array,
-    dyn: Array,
+    f: Filter,
     L: Index,
     prm: Array,
     ref: Array,
-    imu_t: Array,
-    imu_g: Array,
-    imu_a: Array,
-    ends: Index,
-    s_odo: Array,
-    has_odo: NDArray[np.bool_],
-    excluded: NDArray[np.bool_],
-    resolution: Array,
-    mag_i: Index,
-    o_lat: Array,
-    o_lon: Array,
-    o_h: Array,
-    o_q: Array,
-    o_s_odo: Array,
-    o_P_pred: Array,
-    o_phi: Array,
-    ws: Array,
-    ws_sv: Array,
-    ws_x: Array,
-    ws_m: Array,
+    inp: Inputs,
+    out: Outputs,
 ) -> None:
     """Epoch e of the batch up to the prediction: mechanization, stop detection, transition,
     process noise, covariance propagation (Navigator's epoch, first half)."""
+    sv, x, P, carry, dyn = f
     has_ref = ref.shape[0] > 0
     s0 = ref[k_ep - 1] if has_ref else sv.copy()
-    i0 = ends[e - 1] + 1 if e > 0 else 0
-    i1 = ends[e] + 1
-    t = imu_t[i0:i1]
-    g = imu_g[i0:i1]
-    odo_ok = has_odo[e]
+    i0 = inp.ends[e - 1] + 1 if e > 0 else 0
+    i1 = inp.ends[e] + 1
+    t = inp.imu_t[i0:i1]
+    g = inp.imu_g[i0:i1]
+    odo_ok = inp.has_odo[e]
     s_start = dyn[D_S_START]
     for i in range(i0, i1):
-        o_s_odo[i] = s_odo[i] if odo_ok else s_start
+        out.s_odo[i] = inp.s_odo[i] if odo_ok else s_start
     ds = np.empty(i1 - i0)
     prev = s_start
     for i in range(i1 - i0):
-        ds[i] = o_s_odo[i0 + i] - prev
-        prev = o_s_odo[i0 + i]
+        ds[i] = out.s_odo[i0 + i] - prev
+        prev = out.s_odo[i0 + i]
     ins = L[L_VEL] >= 0
     earth_sign = prm[P_EARTH_SIGN]
     if ins:
-        step = ins_step_k(s0, t, g, imu_a[i0:i1], carry, earth_sign)
+        step = ins_step_k(s0, t, g, inp.imu_a[i0:i1], carry, earth_sign)
     else:
-        step = dr_step_k(s0, t, g, imu_a[i0:i1], ds, carry, prm[P_LEVER : P_LEVER + 3], earth_sign)
+        step = dr_step_k(
+            s0, t, g, inp.imu_a[i0:i1], ds, carry, prm[P_LEVER : P_LEVER + 3], earth_sign
+        )
     s1, q, lat, lon, h, _vel, T, path, sums, means, carry_new = step
     sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, dp, dp_dk, dp_dbore = sums
     omega_b, f_mean_n, mean_vel_b, w_in = means
     carry[:] = carry_new
-    o_lat[i0:i1] = lat
-    o_lon[i0:i1] = lon
-    o_h[i0:i1] = h
-    o_q[i0:i1] = q
+    out.lat[i0:i1] = lat
+    out.lon[i0:i1] = lon
+    out.h[i0:i1] = h
+    out.q[i0:i1] = q
     speed = ds.sum() / T
     w_yz = np.hypot(omega_b[1], omega_b[2])
     lever_known = prm[P_LEVER_KNOWN] != 0.0
@@ -344,136 +349,114 @@ def _predict(
         prm[P_DR_ALONG],
         prm[P_DR_LATERAL],
         bend_sigma,
-        resolution[e],
+        inp.resolution[e],
     )
     phi, qd = discretize_k(A, Q, L)
     offset = difference_k(s1, s_lin, L) if has_ref else np.zeros(L[L_N])
     predict_k(x, P, phi, qd, offset)
     s1[SV_DIST] = s0[SV_DIST] + (1.0 + s0[SV_K]) * ds.sum()
-    o_P_pred[e] = P
-    o_phi[e] = phi
-    ws_x[:] = x
-    ws_sv[S_MECH] = s1
-    ws_sv[S_LIN] = s_lin
-    ws[W_T], ws[W_SPEED], ws[W_STOPPED] = T, speed, stopped
-    ws[W_HAS_ODO], ws[W_EXCLUDED], ws[W_W_YZ] = odo_ok, excluded[e], w_yz
+    out.P_pred[e] = P
+    out.phi[e] = phi
+    out.ws_x[:] = x
+    out.ws_sv[S_MECH] = s1
+    out.ws_sv[S_LIN] = s_lin
+    out.ws[W_T], out.ws[W_SPEED], out.ws[W_STOPPED] = T, speed, stopped
+    out.ws[W_HAS_ODO], out.ws[W_EXCLUDED], out.ws[W_W_YZ] = odo_ok, inp.excluded[e], w_yz
     lever = prm[P_LEVER : P_LEVER + 3]
-    ws[W_LEVER_RATE] = omega_b[1] * lever[2] - omega_b[2] * lever[1]  # (omega x d)_x
-    ws[W_I0], ws[W_I1], ws[W_MAG_I] = i0, i1, mag_i[e]
-    ws[W_GYRO : W_GYRO + 3] = gyro_mean
-    ws[W_OMEGA : W_OMEGA + 3] = omega_b
-    ws[W_MVB : W_MVB + 3] = mean_vel_b
-    ws[W_FMN : W_FMN + 3] = f_mean_n
-    ws[W_DP : W_DP + 3] = dp
-    ws[W_VJAC : W_VJAC + 3] = v_jac
-    ws_m[:, :3] = sum_c_dt  # for the tilt update: C_mean and the accelerometer coupling
-    ws_m[:, 3:] = sum_c_f_dt
+    out.ws[W_LEVER_RATE] = omega_b[1] * lever[2] - omega_b[2] * lever[1]  # (omega x d)_x
+    out.ws[W_I0], out.ws[W_I1], out.ws[W_MAG_I] = i0, i1, inp.mag_i[e]
+    out.ws[W_GYRO : W_GYRO + 3] = gyro_mean
+    out.ws[W_OMEGA : W_OMEGA + 3] = omega_b
+    out.ws[W_MVB : W_MVB + 3] = mean_vel_b
+    out.ws[W_FMN : W_FMN + 3] = f_mean_n
+    out.ws[W_DP : W_DP + 3] = dp
+    out.ws[W_VJAC : W_VJAC + 3] = v_jac
+    out.ws_m[:, :3] = sum_c_dt  # for the tilt update: C_mean and the accelerometer coupling
+    out.ws_m[:, 3:] = sum_c_f_dt
 
 
 @kernel
 def _updates(
     e: int,
     k_ep: int,
-    sv: Array,
-    x: Array,
-    P: Array,
-    dyn: Array,
+    f: Filter,
     L: Index,
     prm: Array,
     ref: Array,
-    imu_t: Array,
-    mag_t: Array,
-    mag_f: Array,
+    inp: Inputs,
     markers: Array,
-    o_sv: Array,
-    o_x_upd: Array,
-    o_dx: Array,
-    o_end: Array,
-    o_P_upd: Array,
-    o_stopped: NDArray[np.bool_],
-    o_omega: Array,
-    o_q: Array,
-    o_s_odo: Array,
-    o_marker_res: Array,
-    counts: NDArray[np.int64],
-    acc: NDArray[np.int64],
-    rej: NDArray[np.int64],
-    nis: Array,
-    dof: NDArray[np.int64],
-    ws: Array,
-    ws_sv: Array,
-    ws_x: Array,
-    ws_m: Array,
+    out: Outputs,
 ) -> None:
     """Epoch e of the batch from the prediction on: the gated updates (odometer and NHC, zero
     velocity and rate at stops, gravity tilt, magnetic heading, the markers given), injection
     and the epoch's outputs (Navigator's epoch, second half)."""
+    sv, x, P, _, dyn = f
     has_ref = ref.shape[0] > 0
     ins = L[L_VEL] >= 0
-    T, speed, stopped = ws[W_T], ws[W_SPEED], ws[W_STOPPED] != 0.0
-    odo_ok = ws[W_HAS_ODO] != 0.0
+    T, speed, stopped = out.ws[W_T], out.ws[W_SPEED], out.ws[W_STOPPED] != 0.0
+    odo_ok = out.ws[W_HAS_ODO] != 0.0
     free = dyn[D_FREE] != 0.0
-    s1 = ws_sv[S_MECH]
-    s = ws_sv[S_LIN].copy()  # every update is linearized here
-    v_jac = ws[W_VJAC : W_VJAC + 3].copy()
-    omega = ws[W_OMEGA : W_OMEGA + 3]
-    dp = ws[W_DP : W_DP + 3]
+    s1 = out.ws_sv[S_MECH]
+    s = out.ws_sv[S_LIN].copy()  # every update is linearized here
+    v_jac = out.ws[W_VJAC : W_VJAC + 3].copy()
+    omega = out.ws[W_OMEGA : W_OMEGA + 3]
+    dp = out.ws[W_DP : W_DP + 3]
     if not odo_ok:
-        counts[C_NO_ODO] += 1
+        out.counts[C_NO_ODO] += 1
     if ins and odo_ok:
         lever_known = prm[P_LEVER_KNOWN] != 0.0
-        bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * ws[W_W_YZ]
+        bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * out.ws[W_W_YZ]
         over = np.sqrt(NOISE_EPOCH_S / max(T, 1e-3))  # NavConfig.over_epoch
         sigma_speed = np.hypot(prm[P_ODO_SIGMA] * over, bend)
-        vel_b_offset = ws[W_MVB : W_MVB + 3] - c_nb_k(s1).T @ s1[I_VEL : I_VEL + 3]
+        vel_b_offset = out.ws[W_MVB : W_MVB + 3] - c_nb_k(s1).T @ s1[I_VEL : I_VEL + 3]
         r, H, R = meas.odometer_velocity_k(
             s,
             L,
             speed,
             vel_b_offset,
-            ws[W_LEVER_RATE],
+            out.ws[W_LEVER_RATE],
             sigma_speed,
             prm[P_NHC_SIGMA] * over,
             v_jac,
             T,
         )
-        _update(K_NHC, r[1:], H[1:].copy(), R[1:, 1:].copy(), x, P, prm, acc, rej, nis, dof)
-        if ws[W_EXCLUDED] != 0.0:
-            counts[C_EXCLUDED] += 1
+        _update(K_NHC, r[1:], H[1:].copy(), R[1:, 1:].copy(), x, P, prm, out)
+        if out.ws[W_EXCLUDED] != 0.0:
+            out.counts[C_EXCLUDED] += 1
         else:
-            _update(K_ODO, r[:1], H[:1].copy(), R[:1, :1].copy(), x, P, prm, acc, rej, nis, dof)
+            _update(K_ODO, r[:1], H[:1].copy(), R[:1, :1].copy(), x, P, prm, out)
     if stopped:
         if ins:
             r, H, R = meas.zero_velocity_k(s, L, prm[P_ZUPT])
-            _update(K_ZUPT, r, H, R, x, P, prm, acc, rej, nis, dof)
+            _update(K_ZUPT, r, H, R, x, P, prm, out)
         sigma = np.sqrt(prm[P_ARW] ** 2 / T + prm[P_ZARU] ** 2)
-        gyro_mean = ws[W_GYRO : W_GYRO + 3].copy()
+        gyro_mean = out.ws[W_GYRO : W_GYRO + 3].copy()
         r, H, R = meas.zero_rate_k(s, L, gyro_mean, sigma, prm[P_EARTH_SIGN])
         if free:
             H[:, L[L_ATT] + 2] = 0.0
-        _update(K_ZARU, r, H, R, x, P, prm, acc, rej, nis, dof)
+        _update(K_ZARU, r, H, R, x, P, prm, out)
     if prm[P_TILT_ON] != 0.0 and odo_ok and dyn[D_HAS_PREV_VEL] != 0.0:
         accel_n = (dp / T - dyn[D_PREV_VEL : D_PREV_VEL + 3]) / T
-        f_mean_n = ws[W_FMN : W_FMN + 3].copy()
+        f_mean_n = out.ws[W_FMN : W_FMN + 3].copy()
         g = earth._gravity(s[SV_LAT], s[SV_H])
         f_norm = np.sqrt(np.sum(f_mean_n**2))
         gate = prm[P_TILT_GATE]
         if abs(f_norm - g) > gate or np.sqrt(np.sum(accel_n**2)) > gate:
-            counts[C_TILT_GATED] += 1
+            out.counts[C_TILT_GATED] += 1
         else:
             r, H, R = meas.gravity_tilt_k(
-                s, L, f_mean_n, ws_m[:, :3] / T, accel_n, prm[P_TILT_SIGMA], ws_m[:, 3:] / T
+                s, L, f_mean_n, out.ws_m[:, :3] / T, accel_n, prm[P_TILT_SIGMA], out.ws_m[:, 3:] / T
             )
-            _update(K_TILT, r, H, R, x, P, prm, acc, rej, nis, dof)
-    i_mag = int(ws[W_MAG_I])
+            _update(K_TILT, r, H, R, x, P, prm, out)
+    i_mag = int(out.ws[W_MAG_I])
     if prm[P_MAG_ON] != 0.0 and i_mag >= 0 and prm[P_MAG_REF_OK] != 0.0:
-        i0, i1 = int(ws[W_I0]), int(ws[W_I1])
+        i0, i1 = int(out.ws[W_I0]), int(out.ws[W_I1])
         j = i0
-        while j < i1 - 1 and imu_t[j] < mag_t[i_mag]:
+        while j < i1 - 1 and inp.imu_t[j] < inp.mag_t[i_mag]:
             j += 1
         c = np.empty((3, 3))
-        att.dcm_into((o_q[j, 0], o_q[j, 1], o_q[j, 2], o_q[j, 3]), c)
-        m_b = mag_f[i_mag].copy()
+        att.dcm_into((out.q[j, 0], out.q[j, 1], out.q[j, 2], out.q[j, 3]), c)
+        m_b = inp.mag_f[i_mag].copy()
         m_n = c @ m_b
         dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
         norm = np.sqrt(np.sum(m_b**2))
@@ -481,38 +464,38 @@ def _updates(
             abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
             or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE]
         ):
-            counts[C_MAG_DISTURBED] += 1
+            out.counts[C_MAG_DISTURBED] += 1
         else:
             r, H, R = meas.magnetic_heading_k(s, L, m_b, c, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
-            _update(K_MAG, r, H, R, x, P, prm, acc, rej, nis, dof)
+            _update(K_MAG, r, H, R, x, P, prm, out)
     for j in range(markers.shape[0]):
         r, H, R = meas.marker_fix_k(s, L, markers[j], prm[P_MARKER_TIME])
-        o_marker_res[j] = r
-        _update(K_MARKER, r, H, R, x, P, prm, acc, rej, nis, dof)
+        out.marker_res[j] = r
+        _update(K_MARKER, r, H, R, x, P, prm, out)
     if has_ref:
         lin = ref[k_ep]
         est = inject_k(lin, x, L)
         est[SV_DIST] = lin[SV_DIST]
-        o_dx[e] = x - ws_x
-        o_end[e] = difference_k(lin, s1, L)
-        o_x_upd[e] = x
+        out.dx[e] = x - out.ws_x
+        out.end_offset[e] = difference_k(lin, s1, L)
+        out.x_upd[e] = x
     else:
         est = inject_k(s, x, L)
         x[:] = 0.0  # injected: the filter relinearizes about its estimate
-        o_dx[e] = difference_k(est, s1, L)
-        o_end[e] = o_dx[e]
-        o_x_upd[e] = x
+        out.dx[e] = difference_k(est, s1, L)
+        out.end_offset[e] = out.dx[e]
+        out.x_upd[e] = x
     dyn[D_PREV_SPEED] = speed
     dyn[D_PREV_VEL : D_PREV_VEL + 3] = dp / T
     dyn[D_HAS_PREV_VEL] = 1.0
     dyn[D_V_JAC : D_V_JAC + 3] = v_jac
-    dyn[D_S_START] = o_s_odo[int(ws[W_I1]) - 1]
+    dyn[D_S_START] = out.s_odo[int(out.ws[W_I1]) - 1]
     sv[:] = est
-    o_sv[e] = est
-    o_P_upd[e] = P
-    o_stopped[e] = stopped
-    o_omega[e] = omega
-    counts[C_EPOCHS] += 1
+    out.sv[e] = est
+    out.P_upd[e] = P
+    out.stopped[e] = stopped
+    out.omega[e] = omega
+    out.counts[C_EPOCHS] += 1
 
 
 @kernel
@@ -520,124 +503,22 @@ def run_epochs(
     stop: bool,
     resume: bool,
     k0: int,
-    sv: Array,
-    x: Array,
-    P: Array,
-    carry: Array,
-    dyn: Array,
+    f: Filter,
     L: Index,
     prm: Array,
     ref: Array,
-    imu_t: Array,
-    imu_g: Array,
-    imu_a: Array,
-    ends: Index,
-    s_odo: Array,
-    has_odo: NDArray[np.bool_],
-    excluded: NDArray[np.bool_],
-    resolution: Array,
-    mag_i: Index,
-    mag_t: Array,
-    mag_f: Array,
+    inp: Inputs,
     markers: Array,
-    o_sv: Array,
-    o_x_upd: Array,
-    o_dx: Array,
-    o_end: Array,
-    o_P_pred: Array,
-    o_P_upd: Array,
-    o_phi: Array,
-    o_stopped: NDArray[np.bool_],
-    o_omega: Array,
-    o_lat: Array,
-    o_lon: Array,
-    o_h: Array,
-    o_q: Array,
-    o_s_odo: Array,
-    o_marker_res: Array,
-    counts: NDArray[np.int64],
-    acc: NDArray[np.int64],
-    rej: NDArray[np.int64],
-    nis: Array,
-    dof: NDArray[np.int64],
-    ws: Array,
-    ws_sv: Array,
-    ws_x: Array,
-    ws_m: Array,
+    out: Outputs,
 ) -> None:
     """The epochs ending at ``ends`` (see the module docstring); epoch e is the filter's epoch
     number k0 + e. stop: leave the last epoch after its prediction (its results in ws, ws_sv,
     ws_x, ws_m); resume: the first epoch's prediction was left so. The markers (M, 7)
     (:func:`measurements.marker_vector`) are applied in the last epoch."""
-    B = ends.shape[0]
+    B = inp.ends.shape[0]
     for e in range(B):
         if not (resume and e == 0):
-            _predict(
-                e,
-                k0 + e,
-                sv,
-                x,
-                P,
-                carry,
-                dyn,
-                L,
-                prm,
-                ref,
-                imu_t,
-                imu_g,
-                imu_a,
-                ends,
-                s_odo,
-                has_odo,
-                excluded,
-                resolution,
-                mag_i,
-                o_lat,
-                o_lon,
-                o_h,
-                o_q,
-                o_s_odo,
-                o_P_pred,
-                o_phi,
-                ws,
-                ws_sv,
-                ws_x,
-                ws_m,
-            )
+            _predict(e, k0 + e, f, L, prm, ref, inp, out)
         if stop and e == B - 1:
             return
-        mk = markers if e == B - 1 else markers[:0]
-        _updates(
-            e,
-            k0 + e,
-            sv,
-            x,
-            P,
-            dyn,
-            L,
-            prm,
-            ref,
-            imu_t,
-            mag_t,
-            mag_f,
-            mk,
-            o_sv,
-            o_x_upd,
-            o_dx,
-            o_end,
-            o_P_upd,
-            o_stopped,
-            o_omega,
-            o_q,
-            o_s_odo,
-            o_marker_res,
-            counts,
-            acc,
-            rej,
-            nis,
-            dof,
-            ws,
-            ws_sv,
-            ws_x,
-            ws_m,
-        )
+        _updates(e, k0 + e, f, L, prm, ref, inp, markers if e == B - 1 else markers[:0], out)
