@@ -82,6 +82,37 @@ def test_rts_equals_batch_least_squares():
     assert np.abs(e[:-1]).max() > 1e-2
 
 
+def test_rts_with_a_singular_or_diverged_prediction():
+    """A state known exactly (zero variance, never driven) makes every P_pred singular: the
+    gains fall back to least squares and the other states smooth as without it. A non-finite
+    P_pred (a diverged filter) leaves the epochs before it undefined (NaN), not wrong."""
+    F, Q, H, R, x0, P0, zs = _toy()
+    fw = _forward(F, Q, H, R, x0, P0, zs)
+    e4, P4 = rts(fw["P_upd"], fw["P_pred"], fw["phi"], fw["dx"])
+
+    def grow(a):
+        out = np.zeros((5, 5))
+        out[:4, :4] = a
+        return out
+
+    phi5 = [grow(f) for f in fw["phi"]]
+    for f in phi5:
+        f[4, 4] = 1.0
+    P_upd5 = [grow(a) for a in fw["P_upd"]]
+    P_pred5 = [grow(a) for a in fw["P_pred"]]
+    dx5 = [np.r_[d, 0.0] for d in fw["dx"]]
+    e5, P5 = rts(P_upd5, P_pred5, phi5, dx5)
+    assert np.all(np.isfinite(e5)) and np.all(np.isfinite(P5))
+    np.testing.assert_allclose(e5[:, :4], e4, atol=1e-9)
+    np.testing.assert_allclose(P5[:, :4, :4], P4, atol=1e-9)
+    assert np.all(e5[:, 4] == 0.0)
+
+    P_pred5[10] = np.full((5, 5), np.nan)
+    e_nan, _ = rts(P_upd5, P_pred5, phi5, dx5)
+    assert np.all(np.isnan(e_nan[9]))
+    np.testing.assert_allclose(e_nan[10:, :4], e4[10:], atol=1e-9)
+
+
 def test_two_filter_equals_batch_least_squares():
     F, Q, H, R, x0, P0, zs = _toy(seed=7)
     K = len(zs)
