@@ -36,3 +36,13 @@ def test_verdict_judges_accuracy_and_consistency():
     assert bench.verdict(case, rows(50.0, 0.96), "forward") == "3σ met"
     assert bench.verdict(case, rows(0.1, 0.50), "forward") == "3σ NOT met"
     assert bench.verdict(case, [{"max_h": 0.1, "inside_3sigma": None}], "cf-baseline") == ""
+
+
+def test_bench_runs_through_another_pipe_on_request():
+    """--pipe-seed: the same runs through another pipe, so another marker survey."""
+    case = next(c for c in bench.CASES if c.scenario == "sag104")
+    own = bench.run_case(case, 1, ["forward"])
+    other = bench.run_case(case, 1, ["forward"], pipe_seed=7)
+    assert abs(own[0]["survey_h"] - other[0]["survey_h"]) > 1e-3
+    md = bench.markdown({"sag104": other}, "pipe-nav bench --pipe-seed 7", 1, 7)
+    assert "every scenario through pipe 7" in md

@@ -129,10 +129,16 @@ def survey_error(run: SimRun) -> tuple[float, float]:
     return float(np.hypot(d[:, 0], d[:, 1]).max()), float(np.abs(d[:, 2]).max())
 
 
-def run_case(case: BenchCase, seed: int, methods: list[str]) -> list[dict[str, object]]:
+def run_case(
+    case: BenchCase, seed: int, methods: list[str], pipe_seed: int | None = None
+) -> list[dict[str, object]]:
     """Simulate one seed of a case and score each method, the seed 002 baseline and, for the
-    test pipes, RTS with the markers surveyed exactly."""
-    run = simulate(case.scenario, seed=seed)
+    test pipes, RTS with the markers surveyed exactly. pipe_seed: another pipe than the
+    scenario's own (its marker survey errors, weld anomalies and field bends)."""
+    scenario = get_scenario(case.scenario)
+    if pipe_seed is not None:
+        scenario = replace(scenario, pipe_seed=pipe_seed)
+    run = simulate(scenario, seed=seed)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
     duration = float(run.log.imu.t[-1] - run.log.imu.t[0])
 
@@ -174,7 +180,7 @@ def run_case(case: BenchCase, seed: int, methods: list[str]) -> list[dict[str, o
     datum = Datum(m0.lat, m0.lon, m0.alt)
     rows.append(row(run, BASELINE, base, datum, time.perf_counter() - t0))
     if "rts" in methods and (case.max_h is not None or case.max_v is not None):
-        exact = replace(get_scenario(case.scenario), survey_sigma_h=0.0, survey_sigma_v=0.0)
+        exact = replace(scenario, survey_sigma_h=0.0, survey_sigma_v=0.0)
         run_x = simulate(exact, seed=seed)  # the same sensors and marker times, exact surveys
         t0 = time.perf_counter()
         res = smooth_log(run_x.log, cfg, method="rts")
@@ -247,14 +253,22 @@ def verdict(case: BenchCase, rows: list[dict[str, object]], method: str) -> str:
     return "met" if consistent else "NOT met (3σ)"
 
 
-def markdown(results: dict[str, list[dict[str, object]]], command: str, max_seeds: int) -> str:
-    """The results table: one row per scenario and method, worst and mean over the seeds."""
+def markdown(
+    results: dict[str, list[dict[str, object]]],
+    command: str,
+    max_seeds: int,
+    pipe_seed: int | None = None,
+) -> str:
+    """The results table: one row per scenario and method, worst and mean over the seeds
+    (through the pipe pipe_seed, else each scenario's own)."""
     lines = [
         "# Benchmarks",
         "",
         "Accuracy of the estimator on simulated versions of the source papers' experiments",
         f"(shared/seeds/README.md), {'seed 1' if max_seeds == 1 else f'seeds 1 to {max_seeds}'}"
-        " (the 10 km lines: seed 1). Produced by:",
+        " (the 10 km lines: seed 1)"
+        + ("" if pipe_seed is None else f", every scenario through pipe {pipe_seed}")
+        + ". Produced by:",
         "",
         "```",
         command,
@@ -338,8 +352,8 @@ def main(args: argparse.Namespace) -> int:
         results[case.scenario] = []
         for seed in range(1, 1 + min(max_seeds, case.seeds)):
             print(f"pipe-nav bench: {case.scenario} seed {seed}", file=sys.stderr, flush=True)
-            results[case.scenario] += run_case(case, seed, methods)
-    md = markdown(results, command, max_seeds) if results else "# Benchmarks\n\n"
+            results[case.scenario] += run_case(case, seed, methods, args.pipe_seed)
+    md = markdown(results, command, max_seeds, args.pipe_seed) if results else "# Benchmarks\n\n"
     payload: dict[str, object] = {
         "cases": [asdict(c) for c in CASES if c.scenario in results],
         "results": results,

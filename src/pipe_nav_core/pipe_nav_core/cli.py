@@ -324,6 +324,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="BENCHMARKS.md", help="Markdown table")
     p.add_argument("--json", default="bench_out/benchmarks.json", help="JSON results")
     p.add_argument("--scenarios", nargs="*", help="subset of scenarios")
+    p.add_argument(
+        "--pipe-seed",
+        type=int,
+        help="run through another pipe: marker surveys, weld anomalies, field bends drawn anew",
+    )
     p.set_defaults(func=cmd_bench)
     return ap
 
