@@ -253,6 +253,20 @@ def test_coarse_odometer_and_rolling_consumer_imu():
     assert r.summary["markers_rejected"] == 0
 
 
+def test_smoothing_warns_when_the_imu_grade_does_not_fit_the_data():
+    """drag180 (consumer MEMS, 0.5 deg/s turn-on biases) smoothed with the default industrial
+    noise model: the gate rejects most non-holonomic updates and the gyro bias is a hundred
+    times the grade's; the summary says so, and says nothing with the right grade."""
+    run = simulate("drag180", seed=1)
+    right = NavConfig.from_dict(run.scenario.estimator_settings())
+    assert smooth_log(run.log, right, method="rts").summary["warnings"] == []
+    wrong = dataclasses.replace(right, imu_grade="industrial")
+    warnings = smooth_log(run.log, wrong, method="rts").summary["warnings"]
+    assert len(warnings) == 2
+    assert "nhc updates were rejected" in warnings[0] and "--imu-grade" in warnings[0]
+    assert "times the industrial grade's turn-on bias" in warnings[1]
+
+
 def test_live_filter_after_the_heading_is_anchored():
     """The live filter starts on the bearing between the first two markers (demo: 18 deg off
     the pipe) and re-anchors at the second by a rotation about the first. That rotation fits

@@ -106,6 +106,7 @@ def smooth_bag(
             "nothing ties the run to the ground"
         )
     result = smooth_log(log, config, method=method, iterations=iterations, progress=say)
+    report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     write_products(result, outputs, spacing=spacing, progress=say)
     return result, report
 
