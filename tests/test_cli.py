@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import csv
 import hashlib
 import json
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pipe_nav_core.cli import main
+from pipe_nav_core.cli import _load_config, main
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.io import CENTRELINE_HEADER, read_centreline_csv
 
@@ -173,6 +174,7 @@ def test_simulate_then_evaluate(tmp_path: Path):
         out.exists()
         and (tmp_path / "run.truth.csv").exists()
         and (tmp_path / "run.markers.csv").exists()
+        and (tmp_path / "run.config.yaml").exists()
     )
     r = _run_cli(
         "evaluate",
@@ -183,6 +185,31 @@ def test_simulate_then_evaluate(tmp_path: Path):
     )
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["max_h"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_simulated_run_smooths_with_its_settings_file(tmp_path: Path, capsys):
+    """simulate writes the estimator settings its user would know (RUN.config.yaml): a
+    consumer-MEMS run smooths with them to centimetres and no warning; without them the
+    default industrial grade does not fit and smooth says so."""
+    from pipe_nav_core.config import NavConfig
+    from pipe_nav_core.sim import get_scenario
+
+    out = tmp_path / "run.mcap"
+    assert main(["simulate", "--scenario", "drag180", "--seed", "1", "--out", str(out)]) == 0
+    config = tmp_path / "run.config.yaml"
+    assert f"--config {config.name}" in capsys.readouterr().out
+    parser_args = argparse.Namespace(config=str(config), set=None, mode=None, imu_grade=None)
+    assert _load_config(parser_args) == NavConfig.from_dict(
+        get_scenario("drag180").estimator_settings()
+    )
+    line = tmp_path / "c.csv"
+    assert main(["smooth", str(out), "--out", str(tmp_path / "s.mcap"), "--csv", str(line),
+                 "--config", str(config), "--quiet"]) == 0  # fmt: skip
+    assert "--imu-grade" not in capsys.readouterr().err
+    r = _run_cli("evaluate", str(line), "--truth", str(tmp_path / "run.truth.csv"), "--json")
+    assert json.loads(r.stdout)["max_h"] < 0.3
+    assert main(["smooth", str(out), "--out", str(tmp_path / "d.mcap"), "--quiet"]) == 0
+    assert "check --imu-grade" in capsys.readouterr().err
 
 
 def test_survey_csv_without_passage_times(tmp_path: Path):

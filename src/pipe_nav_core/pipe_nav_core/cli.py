@@ -232,15 +232,35 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     run = simulate(scenario, seed=args.seed)
     truth_csv = out.with_name(out.stem + ".truth.csv")
     markers_csv = out.with_name(out.stem + ".markers.csv")
-    for p in (out, truth_csv, markers_csv):
+    config_yaml = out.with_name(out.stem + ".config.yaml")
+    for p in (out, truth_csv, markers_csv, config_yaml):
         check_not_input(str(p), [])
     write_sensor_bag(str(out), run.log)
     write_centreline_csv(str(truth_csv), run.truth, run.datum)
     write_markers_csv(str(markers_csv), run.log.markers)
+    _write_settings(config_yaml, scenario.estimator_settings(), out.name)
     if not args.quiet:
         print(f"simulated {args.scenario} (seed {args.seed}): {len(run.log.imu)} IMU samples")
         print(f"  bag    {out}\n  truth  {truth_csv}\n  survey {markers_csv}")
+        print(f"  settings {config_yaml} (pipe-nav smooth {out.name} --config {config_yaml.name})")
     return 0
+
+
+def _write_settings(path: Path, settings: dict[str, Any], bag_name: str) -> None:
+    """The estimator settings of a simulated run as a --config file (SI units, radians)."""
+    from ruamel.yaml import YAML
+
+    from .io.atomic import atomic_write
+
+    yaml = YAML(typ="safe", pure=True)
+    yaml.default_flow_style = None
+    with atomic_write(path) as f:
+        f.write(
+            "# Estimator settings for this simulated run: what its user would know (IMU grade,\n"
+            "# mounting, pipe, odometer), never its realised errors. SI units, radians.\n"
+            f"# pipe-nav smooth {bag_name} --config {path.name}\n"
+        )
+        yaml.dump({k: list(v) if isinstance(v, tuple) else v for k, v in settings.items()}, f)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
