@@ -209,7 +209,7 @@ def test_simulated_run_smooths_with_its_settings_file(tmp_path: Path, capsys):
     r = _run_cli("evaluate", str(line), "--truth", str(tmp_path / "run.truth.csv"), "--json")
     assert json.loads(r.stdout)["max_h"] < 0.3
     assert main(["smooth", str(out), "--out", str(tmp_path / "d.mcap"), "--quiet"]) == 0
-    assert "check --imu-grade" in capsys.readouterr().err
+    assert "check imu_grade (--imu-grade)" in capsys.readouterr().err
 
 
 def test_survey_csv_without_passage_times(tmp_path: Path):

@@ -148,6 +148,24 @@ def test_diagnostics_message(result):
     assert core.diagnostics(14.5, now=102.0).status[0].level == WARN
 
 
+def test_diagnostics_warn_when_the_imu_grade_does_not_fit():
+    """A consumer-MEMS run (drag180) on the default industrial noise model: once the filter
+    navigates, /diagnostics turns WARN and names the setting to check."""
+    run = simulate("drag180", 1)
+    core = EkfCore(NavConfig(), TYPES)
+    core.diagnostics(0.0, now=0.0)
+    handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
+                "markers": core.on_marker}  # fmt: skip
+    statuses = []
+    for k, (_, role, msg) in enumerate(input_messages(run, t_end=60.0)):
+        assert handlers[role](msg)
+        core.poll()
+        if k % 2000 == 1999:
+            statuses.append(core.diagnostics(float(k), now=float(k)).status[0])
+    assert statuses[0].level == OK  # aligning at rest: nothing to judge yet
+    assert statuses[-1].level == WARN and "imu_grade" in statuses[-1].message
+
+
 def test_malformed_messages_are_counted_and_survived(run, config):
     core = EkfCore(config, TYPES)
     good = input_messages(run, t_end=3.0)

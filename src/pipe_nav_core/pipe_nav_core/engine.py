@@ -49,6 +49,7 @@ from .jit import kernel
 from .kalman import ErrorStateKF, chi2_threshold
 from .measurements import marker_vector
 from .recording import Recording
+from .sensors import ImuSpec
 from .state import (
     SV_DIST,
     SV_H,
@@ -196,6 +197,40 @@ class NavEstimate:
 def mount_rotation(rpy: Sequence[float]) -> Array:
     """Rotation imu_link -> base_link from (roll, pitch, yaw) rad: Rz(yaw) Ry(pitch) Rx(roll)."""
     return Rotation.from_euler("xyz", list(rpy)).as_matrix()
+
+
+# a gate that rejects more than this share of an update kind (out of at least MIN_UPDATES) is
+# fighting a filter that trusts its model more than the data
+REJECTED_SHARE, MIN_UPDATES = 0.1, 50
+# an estimated gyro bias this many times the grade's turn-on bias means another grade of IMU
+BIAS_FACTOR = 5.0
+
+
+def model_warnings(
+    diag: dict[str, int | float | str], gyro_bias: Array, spec: ImuSpec
+) -> list[str]:
+    """One line per sign that the IMU noise model does not fit the data: a gate that rejects
+    many odometer or non-holonomic updates, or a gyro bias (rad/s, base_link) far beyond the
+    grade's turn-on bias. Both show a filter more confident than its sensors, whose centreline
+    and sigmas are not to be trusted."""
+    out = []
+    for kind in ("nhc", "odometer"):
+        acc = int(diag.get(f"accepted_{kind}", 0))
+        rej = int(diag.get(f"rejected_{kind}", 0))
+        if acc + rej >= MIN_UPDATES and rej > REJECTED_SHARE * (acc + rej):
+            out.append(
+                f"{rej / (acc + rej):.0%} of the {kind} updates were rejected: the filter trusts "
+                f"its IMU model ({spec.name}) more than the data; check imu_grade (--imu-grade)"
+            )
+    worst = float(np.max(np.abs(gyro_bias))) if len(gyro_bias) else 0.0
+    if worst > BIAS_FACTOR * spec.gyro_turn_on_bias:
+        out.append(
+            f"estimated gyro bias {np.degrees(worst) * 3600:.0f} deg/h is "
+            f"{worst / spec.gyro_turn_on_bias:.0f} times the {spec.name} grade's turn-on bias "
+            f"({np.degrees(spec.gyro_turn_on_bias) * 3600:.0f} deg/h); "
+            "check imu_grade (--imu-grade)"
+        )
+    return out
 
 
 class Navigator:
@@ -383,6 +418,12 @@ class Navigator:
             d["odometer_scale"] = 1.0 + self.state.k
             d["time"] = self.state.t
         return d
+
+    def model_warnings(self) -> list[str]:
+        """Signs that the IMU noise model does not fit the data so far (:func:`model_warnings`);
+        empty when it fits."""
+        bg = self.state.bg if self.state is not None else np.zeros(0)
+        return model_warnings(self.diagnostics(), bg, self.imu_spec)
 
     # ----------------------------------------------------------------- ingestion
     def _push(self, t: float, kind: str, payload: object) -> None:

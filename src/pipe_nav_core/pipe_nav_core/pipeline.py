@@ -58,6 +58,7 @@ class ReplayResult:
     estimates: list[NavEstimate]
     datum: Datum | None
     diagnostics: dict[str, object] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)  # Navigator.model_warnings
 
 
 def load_log(
@@ -183,7 +184,7 @@ def replay_log(log: SensorLog, config: NavConfig) -> ReplayResult:
             nav.push_marker(log.markers[i])
         out.extend(nav.poll())
     out.extend(nav.finish())
-    return ReplayResult(out, nav.datum, dict(nav.diagnostics()))
+    return ReplayResult(out, nav.datum, dict(nav.diagnostics()), nav.model_warnings())
 
 
 def estimates_to_trajectory(estimates: Sequence[NavEstimate]) -> Trajectory:
@@ -225,4 +226,5 @@ def replay_bag(
     traj = estimates_to_trajectory(result.estimates)
     datum = result.datum or Datum(traj.lat[0], traj.lon[0], traj.h[0])
     write_output_bag(out, path=None, datum=datum, odometry=traj)
+    report.warnings += result.warnings
     return result, report

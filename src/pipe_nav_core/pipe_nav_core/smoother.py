@@ -37,7 +37,6 @@ from . import earth
 from .config import NOISE_EPOCH_S, NavConfig
 from .engine import FreeHeading, Navigator
 from .recording import Recording
-from .sensors import ImuSpec
 from .smoothing import rts_packed
 from .state import (
     SV_BG,
@@ -611,37 +610,6 @@ def summarize(result: SmoothResult, nav: Navigator) -> dict[str, object]:
         "max_marker_residual_m": float(
             max((np.linalg.norm(v) for v in result.marker_residuals.values()), default=0.0)
         ),
-        "warnings": model_warnings(diag, s.bg if s else np.zeros(0), nav.imu_spec),
+        "warnings": nav.model_warnings(),
     }
-    return out
-
-
-# a gate that rejects more than this share of an update kind (out of at least MIN_UPDATES) is
-# fighting a filter that trusts its model more than the data
-REJECTED_SHARE, MIN_UPDATES = 0.1, 50
-# an estimated gyro bias this many times the grade's turn-on bias means another grade of IMU
-BIAS_FACTOR = 5.0
-
-
-def model_warnings(diag: dict[str, object], gyro_bias: Array, spec: ImuSpec) -> list[str]:
-    """One line per sign that the IMU noise model does not fit the data: a gate that rejects
-    many odometer or non-holonomic updates, or a gyro bias (rad/s, base_link) far beyond the
-    grade's turn-on bias. Both show a filter more confident than its sensors, whose centreline
-    and sigmas are not to be trusted."""
-    out = []
-    for kind in ("nhc", "odometer"):
-        acc = int(diag.get(f"accepted_{kind}", 0))  # type: ignore[call-overload]
-        rej = int(diag.get(f"rejected_{kind}", 0))  # type: ignore[call-overload]
-        if acc + rej >= MIN_UPDATES and rej > REJECTED_SHARE * (acc + rej):
-            out.append(
-                f"{rej / (acc + rej):.0%} of the {kind} updates were rejected: the filter trusts "
-                f"its IMU model ({spec.name}) more than the data; check --imu-grade"
-            )
-    worst = float(np.max(np.abs(gyro_bias))) if len(gyro_bias) else 0.0
-    if worst > BIAS_FACTOR * spec.gyro_turn_on_bias:
-        out.append(
-            f"estimated gyro bias {np.degrees(worst) * 3600:.0f} deg/h is "
-            f"{worst / spec.gyro_turn_on_bias:.0f} times the {spec.name} grade's turn-on bias "
-            f"({np.degrees(spec.gyro_turn_on_bias) * 3600:.0f} deg/h); check --imu-grade"
-        )
     return out

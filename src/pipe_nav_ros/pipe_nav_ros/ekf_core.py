@@ -255,8 +255,9 @@ class EkfCore:
 
         stamp: header stamp, s (ROS clock); now: a monotonic time, s, for the input rates
         (computed between successive calls). Level: ERROR when the engine failed since the last
-        call; WARN when messages were malformed or refused since the last call, or an input that
-        was flowing stopped; else OK.
+        call; WARN when messages were malformed or refused since the last call, an input that
+        was flowing stopped, or the data do not fit the IMU noise model
+        (Navigator.model_warnings: the configured imu_grade is likely wrong); else OK.
         """
         level, message, values = self.health(now)
         return rosmsg.diagnostics_to_msg(
@@ -304,6 +305,8 @@ class EkfCore:
             level, message = WARN, f"{new_problems} malformed or refused message(s); {summary}"
         elif stopped:
             level, message = WARN, f"no {' and no '.join(stopped)} data since the last report"
+        elif misfit := self.nav.model_warnings():
+            level, message = WARN, misfit[0]
         elif sum(received.values()) == 0:
             level, message = OK, "waiting for data"
         elif self.nav.datum is None:
