@@ -140,17 +140,8 @@ class Scenario:
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be positive, not {v!r}")
-        for k in (
-            "static_start",
-            "static_end",
-            "odo_tick",
-            "odo_scale_sigma",
-            "mag_noise",
-            "marker_time_sigma",
-            "survey_sigma_h",
-            "survey_sigma_v",
-            "speed_fluctuation",
-        ):
+        for k in ("static_start", "static_end", "odo_tick", "odo_scale_sigma", "mag_noise",
+                  "marker_time_sigma", "survey_sigma_h", "survey_sigma_v", "speed_fluctuation"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be >= 0, not {v!r}")
