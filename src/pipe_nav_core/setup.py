@@ -1,8 +1,14 @@
-"""Shim so colcon (ament_python) can build this package; metadata lives in pyproject.toml."""
+"""Shim so colcon (ament_python) can build this package; metadata lives in pyproject.toml.
+
+``python_requires`` is given here as a plain string (pyproject.toml lists it as dynamic): colcon
+reads a package's metadata as Python literals, and the SpecifierSet that setuptools builds from
+``requires-python`` is not one.
+"""
 
 from setuptools import setup
 
 setup(
+    python_requires=">=3.10",
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/pipe_nav_core"]),
         ("share/pipe_nav_core", ["package.xml"]),
