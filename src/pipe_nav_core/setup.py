@@ -5,10 +5,12 @@ reads a package's metadata as Python literals, and the SpecifierSet that setupto
 ``requires-python`` is not one.
 """
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 setup(
     python_requires=">=3.10",
+    # named here, not discovered: colcon --symlink-install builds in a folder with other entries
+    packages=find_packages(include=["pipe_nav_core", "pipe_nav_core.*"]),
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/pipe_nav_core"]),
         ("share/pipe_nav_core", ["package.xml"]),
