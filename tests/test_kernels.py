@@ -74,15 +74,40 @@ def test_joseph_update_equals_dense_formula_and_gates(m):
     assert len(gated[1]) == 0 and gated[0] == pytest.approx(nis)
 
 
-def test_compiled_kernels_are_recompiled_when_any_package_file_changes(tmp_path, monkeypatch):
-    for name in ("a.py", "sub/b.py"):
+def test_kernels_are_recompiled_when_a_module_they_depend_on_changes(tmp_path, monkeypatch):
+    files = {
+        "__init__.py": "",
+        "a.py": "from .sub import b\nfrom .jit import kernel\n\n@kernel\ndef f(): return b.X\n",
+        "jit.py": "",
+        "sub/__init__.py": "",
+        "sub/b.py": "from .. import consts\nX = consts.Y\n",
+        "consts.py": "Y = 1\n",
+        "cli.py": "from . import a\n",  # imports the kernels, but no kernel imports it
+    }
+    for name, text in files.items():
         (tmp_path / name).parent.mkdir(exist_ok=True)
-        (tmp_path / name).write_text("x = 1\n")
+        (tmp_path / name).write_text(text)
     monkeypatch.setattr(jit, "_PACKAGE", tmp_path)
-    before = jit._package_stamp()
-    assert jit._package_stamp() == before
-    (tmp_path / "sub/b.py").write_text("x = 22\n")  # another module than the kernel's
-    assert jit._package_stamp() != before
+
+    def stamp() -> str:
+        jit._package_stamp.cache_clear()
+        return jit._package_stamp()
+
+    names = {p.relative_to(tmp_path).as_posix() for p in jit._kernel_sources()}
+    assert names == {"__init__.py", "a.py", "jit.py", "sub/__init__.py", "sub/b.py", "consts.py"}
+    before = stamp()
+    assert stamp() == before  # from the memo beside the package
+    (tmp_path / "cli.py").write_text("from . import a\nZ = 2\n")
+    assert stamp() == before
+    (tmp_path / "consts.py").write_text("Y = 22\n")  # two imports away from the kernel
+    assert stamp() != before
+    jit._package_stamp.cache_clear()
+
+
+def test_the_command_line_io_and_simulator_are_outside_the_kernels():
+    names = {p.relative_to(jit._PACKAGE).as_posix() for p in jit._kernel_sources()}
+    assert {"epoch.py", "mechanization.py", "config.py", "smoothing.py"} <= names
+    assert not names & {"cli.py", "pipeline.py", "smoother.py", "io/bagwrite.py", "sim/run.py"}
 
 
 @pytest.mark.parametrize("dof", [1, 2, 3, 6])
