@@ -249,3 +249,35 @@ def test_bench_makes_its_output_folders_and_fails_at_once_on_a_bad_path(
     assert main(["bench", "--speed-only", "--out", str(out), "--json", str(js)]) == 0
     assert "speed table" in out.read_text()
     assert json.loads(js.read_text())["speed"] == {"x_real_time": 1.0}
+
+
+@pytest.mark.parametrize("raw", ["0,0,-0.05", "[0,0,-0.05]", "0 0 -0.05", "0, 0, -0.05"])
+def test_set_accepts_every_triple_syntax(raw: str):
+    args = argparse.Namespace(config=None, set=[f"odometer_lever_arm={raw}"], mode=None,
+                              imu_grade=None, mount_rpy_deg=None)  # fmt: skip
+    assert _load_config(args).odometer_lever_arm == pytest.approx((0.0, 0.0, -0.05))
+
+
+def test_setting_errors_name_the_option_typed(tmp_path: Path):
+    config = tmp_path / "pig.yaml"
+    config.write_text("filter_rate_hz: -3\n")
+    for extra, named in (
+        (["--set", "odometer_lever_arm=0,0"], "--set odometer_lever_arm=0,0:"),
+        (["--set", "filter_rate_hz=5", "--set", "mode=warp"], "--set mode=warp:"),
+        (["--config", str(config)], f"--config {config}:"),
+    ):
+        r = _run_cli("smooth", str(SAMPLE), "--out", str(tmp_path / "o.mcap"), *extra)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and named in lines[0], r.stderr
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_usage_errors_are_one_line(tmp_path: Path):
+    for argv in (
+        ["smooth"],
+        ["frob"],
+        ["smooth", str(SAMPLE), "--out", "x.mcap", "--imu-grade", "x"],
+    ):
+        r = _run_cli(*argv)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and ": error: " in lines[0], r.stderr

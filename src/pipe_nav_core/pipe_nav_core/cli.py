@@ -14,10 +14,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from .config import ConfigError, NavConfig
 
@@ -30,28 +31,47 @@ class CliError(Exception):
 
 
 def _load_config(args: argparse.Namespace) -> NavConfig:
-    values: dict[str, Any] = {}
+    """The settings of --config, then each --set, then the dedicated options, validated one
+    source at a time so that an error names the option the user typed."""
+    sources: list[tuple[str, dict[str, Any]]] = []
     if getattr(args, "config", None):
-        values.update(_read_config_file(args.config))
+        sources.append((f"--config {args.config}", _read_config_file(args.config)))
     for item in getattr(args, "set", None) or []:
         key, sep, raw = item.partition("=")
-        if not sep:
+        if not sep or not key.strip():
             raise CliError(f"--set expects KEY=VALUE, not {item!r}")
-        values[key.strip()] = _parse_value(raw.strip())
-    if getattr(args, "mode", None):
-        values["mode"] = args.mode
-    if getattr(args, "imu_grade", None):
-        values["imu_grade"] = args.imu_grade
-    if getattr(args, "mount_rpy_deg", None):
-        values["imu_mount_rpy_deg"] = list(args.mount_rpy_deg)
+        sources.append((f"--set {item}", {key.strip(): _parse_value(raw.strip())}))
+    for option, field, value in (
+        ("--mode", "mode", getattr(args, "mode", None)),
+        ("--imu-grade", "imu_grade", getattr(args, "imu_grade", None)),
+        ("--mount-rpy-deg", "imu_mount_rpy_deg", getattr(args, "mount_rpy_deg", None)),
+    ):
+        if value:
+            sources.append((option, {field: list(value) if field.endswith("_deg") else value}))
+    values: dict[str, Any] = {}
+    for option, more in sources:
+        values.update(more)
+        try:
+            NavConfig.from_dict(values)
+        except ConfigError as exc:
+            raise CliError(f"{option}: {_one_line(exc)}") from None
     return NavConfig.from_dict(values)
 
 
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+
+
 def _parse_value(raw: str) -> Any:
+    """A --set value: JSON (``3``, ``true``, ``[0, 0, -0.05]``), a list of numbers separated
+    by commas or spaces (``0,0,-0.05``, ``0 0 -0.05``), else the string itself."""
     try:
         return json.loads(raw)
     except json.JSONDecodeError:
-        return raw
+        pass
+    parts = [x for x in re.split(r"[,\s]+", raw.strip("[]() ")) if x]
+    if len(parts) > 1 and all(re.fullmatch(_NUMBER, x) for x in parts):
+        return [float(x) for x in parts]
+    return raw
 
 
 def _read_config_file(path: str) -> dict[str, Any]:
@@ -289,11 +309,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return bench_main(args)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the command line's one-line errors (``pipe-nav smooth: error: ...``,
+    exit status 2) instead of the usage block; ``-h`` still prints the usage."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="pipe-nav", description="Pipeline pig navigation (ROS-free core)."
-    )
-    sub = ap.add_subparsers(dest="command", required=True)
+    ap = _Parser(prog="pipe-nav", description="Pipeline pig navigation (ROS-free core).")
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("smooth", help="smooth a recorded bag into a centreline")
     p.add_argument("input", help="bag: a .mcap file or a rosbag2 directory")
