@@ -159,6 +159,13 @@ def _progress(quiet: bool) -> _Progress | None:
     return None if quiet or not sys.stderr.isatty() else _Progress()
 
 
+def _warm_kernels() -> None:
+    """Compile the kernels first if this install has not (a line on stderr says so)."""
+    from .warmup import ensure_warm
+
+    ensure_warm(lambda m: print(f"pipe-nav: {m.partition(': ')[2]}", file=sys.stderr))
+
+
 def cmd_smooth(args: argparse.Namespace) -> int:
     from .pipeline import Outputs, smooth_bag
     from .smoother import report_fraction, reset_fraction
@@ -179,6 +186,7 @@ def cmd_smooth(args: argparse.Namespace) -> int:
         outputs = Outputs(
             bag=str(out), csv=args.csv, geojson=args.geojson, kml=args.kml, plot=args.plot
         )
+    _warm_kernels()
     bar = _progress(args.quiet)
     token = report_fraction(bar.fraction if bar else None)
     try:
@@ -227,6 +235,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .pipeline import replay_bag
 
     cfg = _load_config(args)
+    _warm_kernels()
     result, report = replay_bag(
         args.input, args.out, config=cfg, markers_csv=args.markers, topics=_topics(args)
     )
@@ -306,6 +315,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import main as bench_main
 
+    _warm_kernels()
     return bench_main(args)
 
 

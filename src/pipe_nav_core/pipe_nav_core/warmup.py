@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from functools import lru_cache
+from pathlib import Path
 
 from .config import NavConfig
 from .types import SensorLog
@@ -71,15 +73,51 @@ def warm_smoothers() -> float:
     return time.perf_counter() - t0
 
 
-def main() -> int:
-    """Warm every kernel; one line on stderr says what it took."""
+def _marker() -> Path:
+    from . import jit
+
+    return jit._PACKAGE / "__pycache__" / "kernels_warm.txt"
+
+
+def is_warm() -> bool:
+    """Whether every kernel has been compiled for the package's current sources (a marker
+    beside the package holds the kernels' source stamp once :func:`ensure_warm` has run)."""
+    from . import jit
+
+    try:
+        return _marker().read_text(encoding="utf-8") == jit._package_stamp()
+    except OSError:
+        return False
+
+
+def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
+    """Compile every kernel unless :func:`is_warm`; ``say`` (default: a line on stderr) is told
+    first and after, terminal or not, so no one waits in silence. True if it compiled."""
+    if is_warm():
+        return False
+    from . import jit
+
+    tell = say or (lambda m: print(m, file=sys.stderr, flush=True))
+    tell(
+        "pipe_nav_core: preparing the numeric kernels for this install (once; compiling "
+        "them takes about 2 minutes on a 2-core machine)"
+    )
     t0 = time.perf_counter()
-    print("pipe_nav_core: compiling the numeric kernels (once per install, up to a few minutes)",
-          file=sys.stderr, flush=True)  # fmt: skip
     warm_live()
     warm_smoothers()
-    print(f"pipe_nav_core: kernels ready in {time.perf_counter() - t0:.0f} s",
-          file=sys.stderr, flush=True)  # fmt: skip
+    try:
+        marker = _marker()
+        marker.parent.mkdir(exist_ok=True)
+        marker.write_text(jit._package_stamp(), encoding="utf-8")
+    except OSError:  # a read-only install: numba then compiles in every process anyway
+        pass
+    tell(f"pipe_nav_core: kernels ready in {time.perf_counter() - t0:.0f} s")
+    return True
+
+
+def main() -> int:
+    """``python -m pipe_nav_core.warmup``: :func:`ensure_warm`."""
+    ensure_warm()
     return 0
 
 
