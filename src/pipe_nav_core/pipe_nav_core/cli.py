@@ -3,6 +3,7 @@
     pipe-nav smooth IN --out OUT.mcap|DIR/ [--csv F] [--geojson F] [--kml F] [--plot F.png]
     pipe-nav replay IN --out OUT.mcap
     pipe-nav simulate --scenario NAME --seed N --out RUN.mcap
+    pipe-nav info IN [--json]
     pipe-nav evaluate CENTERLINE.csv --truth TRUTH.csv
     pipe-nav bench [--quick]
 
@@ -292,6 +293,14 @@ def _write_settings(path: Path, settings: dict[str, Any], bag_name: str) -> None
         yaml.dump({k: list(v) if isinstance(v, tuple) else v for k, v in settings.items()}, f)
 
 
+def cmd_info(args: argparse.Namespace) -> int:
+    from .info import describe_bag, format_info
+
+    info = describe_bag(args.input, _load_config(args), _topics(args), args.markers)
+    print(json.dumps(info, indent=2) if args.json else format_info(info))
+    return 0
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluation import score
     from .io import read_centreline_csv, read_markers_csv
@@ -364,6 +373,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("info", help="what a bag holds, before smoothing it")
+    p.add_argument("input", help="bag: a .mcap file or a rosbag2 directory")
+    p.add_argument("--json", action="store_true", help="the same as JSON")
+    _add_common(p)
+    p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("evaluate", help="score a centreline CSV against a truth CSV")
     p.add_argument("centreline")
