@@ -189,8 +189,8 @@ def test_simulate_then_evaluate(tmp_path: Path):
 
 def test_simulated_run_smooths_with_its_settings_file(tmp_path: Path, capsys):
     """simulate writes the estimator settings its user would know (RUN.config.yaml): a
-    consumer-MEMS run smooths with them to centimetres and no warning; without them the
-    default industrial grade does not fit and smooth says so."""
+    consumer-MEMS run smooths with them to centimetres and no warning; so it does without them
+    (the IMU model measured from the run); a wrong named grade does not fit and smooth says so."""
     from pipe_nav_core.config import NavConfig
     from pipe_nav_core.sim import get_scenario
 
@@ -208,7 +208,12 @@ def test_simulated_run_smooths_with_its_settings_file(tmp_path: Path, capsys):
     assert "--imu-grade" not in capsys.readouterr().err
     r = _run_cli("evaluate", str(line), "--truth", str(tmp_path / "run.truth.csv"), "--json")
     assert json.loads(r.stdout)["max_h"] < 0.3
+    # without them the noise model is measured from the run (imu_grade auto): no warning
     assert main(["smooth", str(out), "--out", str(tmp_path / "d.mcap"), "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    # a wrong named grade is honoured, and warned about
+    assert main(["smooth", str(out), "--out", str(tmp_path / "w.mcap"), "--quiet",
+                 "--imu-grade", "industrial"]) == 0  # fmt: skip
     assert "check imu_grade (--imu-grade)" in capsys.readouterr().err
 
 

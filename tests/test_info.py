@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.info import allan_deviation, describe_bag, format_info, static_spans
+from pipe_nav_core.imu_model import allan_deviation, static_spans
+from pipe_nav_core.info import describe_bag, format_info
 from pipe_nav_core.io import write_sensor_bag
 from pipe_nav_core.sensors import GRADES
 from pipe_nav_core.sim import simulate
@@ -56,13 +57,15 @@ def test_a_consumer_run_with_a_hole_in_its_data(tmp_path):
     )  # fmt: skip
     bag = tmp_path / "holed.mcap"
     write_sensor_bag(bag, holed)
-    info = describe_bag(bag, NavConfig())  # the default grade, industrial
+    info = describe_bag(bag, NavConfig(imu_grade="industrial"))  # a wrong named grade
     imu = next(r for r in info["topics"] if r["topic"] == "/imu/data")
     assert imu["gaps"] == 1 and imu["largest_gap_s"] == pytest.approx(30.0, abs=0.05)
     assert imu["largest_gap_at_s"] == pytest.approx(40.0, abs=0.1)
     assert info["imu_grade"]["nearest_to_measured"] == "consumer"
     text = format_info(info)
     assert "consider --imu-grade consumer" in text and "1 gap(s)" in text
+    auto = format_info(describe_bag(bag))  # the default, imu_grade auto
+    assert "auto -> consumer" in auto and "fits consumer" in auto
 
 
 def test_allan_deviation_of_white_noise_falls_as_one_over_root_tau():

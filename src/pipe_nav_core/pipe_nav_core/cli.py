@@ -111,7 +111,9 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting")
     p.add_argument("--mode", choices=["ins", "dr"], help="mechanization (default ins)")
     p.add_argument(
-        "--imu-grade", choices=["consumer", "industrial", "tactical"], help="IMU noise model"
+        "--imu-grade",
+        choices=["auto", "consumer", "industrial", "tactical"],
+        help="IMU noise model (default auto: measured from the run)",
     )
     p.add_argument(
         "--mount-rpy-deg",
@@ -230,6 +232,10 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
     print("  accel bias          " + " ".join(f"{x:+.3f}" for x in s["accel_bias_mg"]) + " mg")
     print(f"  max sigma between markers (horizontal) {s['max_sigma_h_between_markers_m']:.3f} m")
     print(f"  max marker residual {s['max_marker_residual_m']:.3f} m")
+    model = s.get("imu_model") or {}
+    if model:
+        how = model["reason"] if model.get("auto") else "given"
+        print(f"  IMU model           {model['grade']} ({how})")
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
-from .sensors import ImuSpec, imu_grade
+from .sensors import GRADES, ImuSpec, imu_grade
 
 
 class ConfigError(ValueError):
@@ -33,13 +33,18 @@ ANGLE_FIELDS = {
 }
 
 
+AUTO_GRADE = "auto"  # imu_grade: the noise model measured from the run (imu_model)
+
+
 @dataclass(frozen=True)
 class NavConfig:
     """All settings of the navigation engine.
 
     mode: "ins" (strapdown INS aided by the odometer) or "dr" (odometer dead reckoning, seed 001).
-    imu_grade: consumer | industrial | tactical: the noise model used for process noise;
-      ``imu_overrides`` replaces single ImuSpec fields (SI units, see sensors.ImuSpec).
+    imu_grade: auto | consumer | industrial | tactical: the noise model used for process noise;
+      ``imu_overrides`` replaces single ImuSpec fields (SI units, see sensors.ImuSpec). ``auto``
+      (default): chosen from the run's own data by imu_model.choose before filtering; until
+      then (and where nothing measures it) the industrial figures.
     imu_mount_rpy: (roll, pitch, yaw) rad of imu_link in base_link (rotation imu_link -> base_link,
       applied as Rz(yaw) Ry(pitch) Rx(roll)); zeros = aligned.
     filter_rate_hz: rate of covariance propagation and measurement updates (IMU integrates at its
@@ -49,7 +54,7 @@ class NavConfig:
     """
 
     mode: str = "ins"
-    imu_grade: str = "industrial"
+    imu_grade: str = "auto"
     imu_overrides: Mapping[str, float] = field(default_factory=dict)
     imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_error_states: bool = True  # estimate gyro scale factors and misalignments (9 states)
@@ -121,7 +126,7 @@ class NavConfig:
 
     def imu_spec(self) -> ImuSpec:
         """The process-noise IMU model: the named grade with overrides applied."""
-        spec = imu_grade(self.imu_grade)
+        spec = imu_grade("industrial" if self.imu_grade == AUTO_GRADE else self.imu_grade)
         return replace(spec, **dict(self.imu_overrides)) if self.imu_overrides else spec
 
     def tilt_enabled(self) -> bool:
@@ -151,6 +156,10 @@ class NavConfig:
         """Raise ConfigError naming the first invalid setting."""
         if self.mode not in ("ins", "dr"):
             raise ConfigError(f"mode must be 'ins' or 'dr', not {self.mode!r}")
+        if self.imu_grade != AUTO_GRADE and self.imu_grade not in GRADES:
+            raise ConfigError(
+                f"imu_grade must be auto, {', '.join(sorted(GRADES))}, not {self.imu_grade!r}"
+            )
         try:
             self.imu_spec()
         except (ValueError, TypeError) as exc:

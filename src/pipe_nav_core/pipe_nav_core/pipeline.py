@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import NavConfig
+from . import imu_model
+from .config import AUTO_GRADE, NavConfig
 from .engine import NavEstimate, Navigator
 from .io import (
     BagReport,
@@ -106,10 +107,52 @@ def smooth_bag(
             f"{bag}: no markers (topic {topics.markers} or --markers CSV): "
             "nothing ties the run to the ground"
         )
-    result = smooth_log(log, config, method=method, iterations=iterations, progress=say)
+    result = smooth_with_imu_model(
+        log, config, bag=bag, topics=topics, method=method, iterations=iterations, progress=say
+    )
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     write_products(result, outputs, spacing=spacing, progress=say)
     return result, report
+
+
+def smooth_with_imu_model(
+    log: SensorLog,
+    config: NavConfig,
+    *,
+    bag: str | os.PathLike[str] | None = None,
+    topics: TopicNames = DEFAULT_TOPICS,
+    method: str = "rts",
+    iterations: int = 2,
+    progress: Progress | None = None,
+) -> SmoothResult:
+    """smooth_log with ``imu_grade: auto`` resolved from the run (imu_model.choose: the static
+    spans, else the Imu messages of ``bag``) and, while the smoothed run still shows that the
+    model does not fit (Navigator.model_warnings), refitted with the next noisier grade. The
+    summary's ``imu_model`` says which model was used and why; a named grade is used as given
+    (its misfit warnings stay)."""
+    say = progress or (lambda _m: None)
+    declared = None
+    if config.imu_grade == AUTO_GRADE and bag is not None:
+        declared = imu_model.declared_noise(bag, topics.imu)
+    choice = imu_model.choose(log, config, declared)
+    auto = config.imu_grade == AUTO_GRADE
+    if auto:
+        say(f"IMU model: {choice.grade} ({choice.reason})")
+    result = smooth_log(log, choice.config, method=method, iterations=iterations, progress=say)
+    while auto and result.summary.get("warnings"):
+        wider = imu_model.wider(choice)
+        if wider is None:
+            break
+        say(f"IMU model: {wider.reason}")
+        choice = wider
+        result = smooth_log(log, choice.config, method=method, iterations=iterations, progress=say)
+    result.summary["imu_model"] = {
+        "grade": choice.grade,
+        "reason": choice.reason,
+        "auto": auto,
+        "measured": choice.measured,
+    }
+    return result
 
 
 def centreline_rows(result: SmoothResult, spacing: float) -> Trajectory:

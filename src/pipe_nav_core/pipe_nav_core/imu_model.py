@@ -1,0 +1,236 @@
+"""The IMU noise model from the data (``imu_grade: auto``).
+
+A run says which IMU recorded it: its static spans (odometer still) show the sensor's white
+noise, a long one its bias instability (Allan deviation), and the Imu messages may declare
+their per-sample variance. :func:`choose` turns those into a model: the named grade
+(sensors.GRADES) whose white-noise figures are nearest in log ratio, kept as it is when the
+measured figures lie within ``FIT_FACTOR`` of it; else the quietest grade whose gyro noise is not
+below the measured one's by more than that factor (bias figures grow with the gyro's class, so
+this errs towards the wider model), with the measured white noise (and bias instability, where
+measured) as overrides. :func:`wider` gives the next noisier named
+grade, for a refit when the smoothed run still shows the model does not fit.
+
+Units: gyro densities rad/sqrt(s), accelerometer m/s/sqrt(s), bias instabilities rad/s and
+m/s^2, times s (bag stamps).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import NavConfig
+from .sensors import GRADES, ImuSpec
+from .types import SensorLog
+
+MIN_STATIC_S = 2.0  # s: shortest span of a still odometer counted as static
+STILL_M = 0.002  # m: odometer change within a static span
+EDGE_S = 1.0  # s left out at each end of a static span (the pig settles, or starts to move)
+MIN_ALLAN_S = 60.0  # s: shortest static span whose Allan deviation is used
+MIN_SAMPLES = 200  # static IMU samples needed to measure the white noise
+FIT_FACTOR = 1.5  # a named grade fits when both white-noise figures are within this factor
+NOISIER = ("tactical", "industrial", "consumer")  # named grades, quietest white noise first
+
+FloatArray = NDArray[np.float64]
+
+
+def static_spans(log: SensorLog, min_s: float = MIN_STATIC_S) -> list[tuple[float, float]]:
+    """(start, end) times, s (bag stamps), where the odometer moved less than STILL_M for at
+    least ``min_s`` and IMU samples exist; the whole IMU span when there is no odometer."""
+    imu_t = log.imu.t
+    if len(imu_t) < 2:
+        return []
+    odo = log.odometer
+    if len(odo.t) < 2:
+        return [(float(imu_t[0]), float(imu_t[-1]))]
+    spans: list[tuple[float, float]] = []
+    start = 0
+    d = odo.distance
+    for i in range(1, len(odo.t) + 1):
+        if i == len(odo.t) or abs(d[i] - d[start]) > STILL_M:
+            t0, t1 = float(odo.t[start]), float(odo.t[i - 1])
+            if start == 0:
+                t0 = min(t0, float(imu_t[0]))  # rest before the first odometer message
+            a, b = max(t0, float(imu_t[0])), min(t1, float(imu_t[-1]))
+            if b - a >= min_s:
+                spans.append((a, b))
+            start = i
+    return spans
+
+
+def allan_deviation(x: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
+    """Non-overlapping Allan deviation of a rate signal ``x`` (N, k) sampled every ``dt`` s:
+    (tau (M,) s, adev (M, k) in x's unit), for cluster sizes 1, 2, 4, ... up to N / 9."""
+    taus, devs = [], []
+    m = 1
+    while len(x) // m >= 9:
+        n = len(x) // m
+        means = x[: n * m].reshape(n, m, -1).mean(axis=1)
+        devs.append(np.sqrt(0.5 * np.mean(np.diff(means, axis=0) ** 2, axis=0)))
+        taus.append(m * dt)
+        m *= 2
+    return np.array(taus), np.array(devs).reshape(len(taus), -1)
+
+
+def measured_noise(log: SensorLog, spans: Sequence[tuple[float, float]]) -> dict[str, Any]:
+    """IMU noise in the static spans: per-axis white-noise densities ``gyro_arw`` and
+    ``accel_vrw`` from the scatter of the samples about each span's mean (a sample is the mean
+    rate over its interval, so its scatter is density / sqrt(dt)) and, for the longest span of
+    MIN_ALLAN_S or more, the Allan-deviation floor over 0.664 (``gyro_bias_instability``,
+    ``accel_bias_instability``). {} with fewer than MIN_SAMPLES static samples."""
+    imu = log.imu
+    if len(imu.t) < 3 or not spans:
+        return {}
+    dt = float(np.median(np.diff(imu.t)))
+    resid_g, resid_a = [], []
+    longest: tuple[float, float] | None = None
+    for a, b in spans:
+        sel = (imu.t >= a + EDGE_S) & (imu.t <= b - EDGE_S)
+        if sel.sum() < 3:
+            continue
+        resid_g.append(imu.gyro[sel] - imu.gyro[sel].mean(axis=0))
+        resid_a.append(imu.accel[sel] - imu.accel[sel].mean(axis=0))
+        if longest is None or b - a > longest[1] - longest[0]:
+            longest = (a, b)
+    g = np.concatenate(resid_g) if resid_g else np.zeros((0, 3))
+    f = np.concatenate(resid_a) if resid_a else np.zeros((0, 3))
+    if len(g) < MIN_SAMPLES or not (dt > 0.0):
+        return {}
+    out: dict[str, Any] = {
+        "samples": len(g),
+        "sample_period_s": dt,
+        "gyro_arw": (g.std(axis=0) * math.sqrt(dt)).tolist(),
+        "accel_vrw": (f.std(axis=0) * math.sqrt(dt)).tolist(),
+    }
+    if longest is not None and longest[1] - longest[0] - 2 * EDGE_S >= MIN_ALLAN_S:
+        sel = (imu.t >= longest[0] + EDGE_S) & (imu.t <= longest[1] - EDGE_S)
+        _, dev_g = allan_deviation(imu.gyro[sel], dt)
+        _, dev_a = allan_deviation(imu.accel[sel], dt)
+        out["gyro_bias_instability"] = (dev_g.min(axis=0) / 0.664).tolist()
+        out["accel_bias_instability"] = (dev_a.min(axis=0) / 0.664).tolist()
+    return out
+
+
+def declared_noise(path: str | os.PathLike[str], topic: str) -> dict[str, Any]:
+    """The per-sample variances (diagonals, (rad/s)^2 and (m/s^2)^2) the bag's first Imu
+    message on ``topic`` declares, or {} (no message, or one that does not decode)."""
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from .io.bagread import bag_files
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for f in bag_files(path):
+        try:
+            with open(f, "rb") as fh:
+                for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
+                    msg = store.deserialize_cdr(message.data, "sensor_msgs/msg/Imu")
+                    gv = np.asarray(msg.angular_velocity_covariance, dtype=float)[[0, 4, 8]]
+                    av = np.asarray(msg.linear_acceleration_covariance, dtype=float)[[0, 4, 8]]
+                    return {"gyro_variance": gv.tolist(), "accel_variance": av.tolist()}
+        except Exception:  # an unreadable first message says nothing about the noise
+            return {}
+    return {}
+
+
+def _log_distance(arw: float, vrw: float, spec: ImuSpec) -> float:
+    return abs(math.log(arw / spec.gyro_arw)) + abs(math.log(vrw / spec.accel_vrw))
+
+
+def nearest_grade(noise: dict[str, Any]) -> str | None:
+    """The named grade whose white-noise figures (gyro ARW, accel VRW) are nearest the
+    measured ones in log ratio; None without a usable measurement."""
+    if not noise:
+        return None
+    arw, vrw = float(np.mean(noise["gyro_arw"])), float(np.mean(noise["accel_vrw"]))
+    if not (arw > 0.0 and vrw > 0.0):
+        return None
+    return min(GRADES.values(), key=lambda s: _log_distance(arw, vrw, s)).name
+
+
+@dataclass
+class ImuModelChoice:
+    """What :func:`choose` decided: the settings to smooth with, the grade (or
+    ``"<grade>+measured"``), the figures it rests on and one line of why."""
+
+    config: NavConfig
+    grade: str
+    reason: str
+    measured: dict[str, Any] = field(default_factory=dict)
+
+
+def _from_declared(declared: dict[str, Any], dt: float) -> dict[str, Any]:
+    gv = np.asarray(declared.get("gyro_variance", []), dtype=float)
+    av = np.asarray(declared.get("accel_variance", []), dtype=float)
+    if len(gv) != 3 or len(av) != 3 or not (np.all(gv > 0) and np.all(av > 0)) or dt <= 0:
+        return {}
+    return {"gyro_arw": np.sqrt(gv * dt).tolist(), "accel_vrw": np.sqrt(av * dt).tolist()}
+
+
+def choose(
+    log: SensorLog, config: NavConfig, declared: dict[str, Any] | None = None
+) -> ImuModelChoice:
+    """The IMU model for ``config`` with ``imu_grade: auto`` (returned unchanged otherwise):
+    from the static spans' noise, else from the Imu messages' declared variances, else the
+    industrial grade with a reason saying nothing measured it."""
+    if config.imu_grade != "auto":
+        return ImuModelChoice(config, config.imu_grade, "given in the settings")
+    noise = measured_noise(log, static_spans(log))
+    source = "measured in the static spans"
+    if not noise and declared:
+        dt = float(np.median(np.diff(log.imu.t))) if len(log.imu.t) > 1 else 0.0
+        noise, source = _from_declared(declared, dt), "declared by the Imu messages"
+    grade = nearest_grade(noise)
+    if grade is None:
+        return ImuModelChoice(
+            replace(config, imu_grade="industrial"),
+            "industrial",
+            "no static span and no declared noise: the industrial grade, unmeasured",
+        )
+    spec = GRADES[grade]
+    arw, vrw = float(np.mean(noise["gyro_arw"])), float(np.mean(noise["accel_vrw"]))
+    figures = (
+        f"gyro {math.degrees(arw) * 60:.3g} deg/sqrt(h), accel {vrw * 60:.3g} m/s/sqrt(h) {source}"
+    )
+    fits = (
+        max(arw / spec.gyro_arw, spec.gyro_arw / arw) <= FIT_FACTOR
+        and max(vrw / spec.accel_vrw, spec.accel_vrw / vrw) <= FIT_FACTOR
+    )
+    if fits:
+        return ImuModelChoice(
+            replace(config, imu_grade=grade), grade, f"{figures}: fits {grade}", noise
+        )
+    grade = next((n for n in NOISIER if GRADES[n].gyro_arw * FIT_FACTOR >= arw), NOISIER[-1])
+    spec = GRADES[grade]
+    overrides = dict(config.imu_overrides)
+    overrides.update(gyro_arw=arw, accel_vrw=vrw)
+    for key in ("gyro_bias_instability", "accel_bias_instability"):
+        if key in noise:
+            overrides[key] = max(float(np.max(noise[key])), getattr(spec, key))
+    return ImuModelChoice(
+        replace(config, imu_grade=grade, imu_overrides=overrides),
+        f"{grade}+measured",
+        f"{figures}: no grade fits; {grade} with the measured noise",
+        noise,
+    )
+
+
+def wider(choice: ImuModelChoice) -> ImuModelChoice | None:
+    """The next noisier named grade after ``choice`` (its overrides dropped), or None when it
+    is the noisiest already."""
+    name = choice.config.imu_grade
+    if name not in NOISIER or name == NOISIER[-1]:
+        return None
+    nxt = NOISIER[NOISIER.index(name) + 1]
+    return ImuModelChoice(
+        replace(choice.config, imu_grade=nxt, imu_overrides={}),
+        nxt,
+        f"{choice.grade} did not fit the run; refitted with {nxt}",
+        choice.measured,
+    )
