@@ -81,3 +81,28 @@ def test_a_model_that_does_not_fit_is_refitted_and_said(monkeypatch):
     assert any("refitted with industrial" in m for m in said)
     assert any("refitted with consumer" in m for m in said)
     assert not result.summary["warnings"] and _max_h(result, run) < 0.3
+
+
+@pytest.mark.parametrize("name", ["drag180", "sag104"])
+def test_the_live_filter_chooses_at_its_initial_rest(name):
+    from pipe_nav_core.pipeline import replay_log
+
+    run = simulate(name, 1)
+    settings = run.scenario.estimator_settings()
+    auto = replay_log(run.log, NavConfig.from_dict({**settings, "imu_grade": "auto"}))
+    given = replay_log(run.log, NavConfig.from_dict(settings))
+    assert auto.diagnostics["imu_model"] == run.scenario.imu_grade
+    assert "initial rest" in str(auto.diagnostics["imu_model_reason"])
+    np.testing.assert_array_equal([e.lat for e in auto.estimates], [e.lat for e in given.estimates])
+
+
+def test_a_short_rest_falls_back_on_the_declared_noise():
+    run = simulate("drag180", 0)
+    imu = run.log.imu
+    n = 50  # 0.5 s of rest: too few samples to measure
+    spec, dt = GRADES["consumer"], 1.0 / run.imu_rate_hz
+    declared = {"gyro_variance": [spec.gyro_arw**2 / dt] * 3,
+                "accel_variance": [spec.accel_vrw**2 / dt] * 3}  # fmt: skip
+    args = (imu.t[:n], imu.gyro[:n], imu.accel[:n], NavConfig())
+    assert imu_model.choose_at_rest(*args, declared).grade == "consumer"
+    assert imu_model.choose_at_rest(*args).grade == "industrial"

@@ -253,6 +253,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(f"replayed {len(result.estimates)} estimates -> {args.out}")
         rej = {k: v for k, v in d.items() if str(k).startswith(("rejected_", "late_")) and v}
         print("  rejected/late: " + (", ".join(f"{k} {v}" for k, v in rej.items()) or "none"))
+        if "imu_model" in d:
+            print(f"  IMU model: {d['imu_model']} ({d['imu_model_reason']})")
     return 0
 
 

@@ -27,10 +27,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from . import alignment, earth
+from . import alignment, earth, imu_model
 from . import attitude as att
 from . import measurements as meas
-from .config import NavConfig
+from .config import AUTO_GRADE, NavConfig
 from .epoch import (
     COUNTERS,
     D_FREE,
@@ -285,6 +285,12 @@ class Navigator:
         pose += range(self.layout.att.start, self.layout.att.stop)
         self._pose_ix = np.ix_(pose, pose)  # [position, attitude] rows/columns of P
         self.imu_spec = config.imu_spec()
+        # imu_grade auto: the noise model is chosen from the initial rest at the alignment
+        # (imu_model.choose_at_rest), or from these per-sample variances the Imu messages
+        # declare ({"gyro_variance": 3 x (rad/s)^2, "accel_variance": 3 x (m/s^2)^2}), which
+        # the caller may set before the data; imu_choice says what was chosen and why.
+        self.declared_imu_noise: dict[str, list[float]] | None = None
+        self.imu_choice: imu_model.ImuModelChoice | None = None
         self.r_base_imu = mount_rotation(config.imu_mount_rpy)
         self.earth_sign = -1.0 if reverse else 1.0
         self.survey = markers_sorted(survey)
@@ -414,6 +420,9 @@ class Navigator:
         if self.kf is not None:
             d.update(self.kf.stats.as_dict())
         d["state"] = "navigating" if self.state is not None else "aligning"
+        if self.imu_choice is not None:
+            d["imu_model"] = self.imu_choice.grade
+            d["imu_model_reason"] = self.imu_choice.reason
         if self.state is not None:
             d["odometer_scale"] = 1.0 + self.state.k
             d["time"] = self.state.t
@@ -587,6 +596,11 @@ class Navigator:
     def _align(self, idx: Array) -> None:
         cfg, lay = self.cfg, self.layout
         t = self._imu_t
+        if cfg.imu_grade == AUTO_GRADE:
+            self.imu_choice = imu_model.choose_at_rest(
+                t[idx], self._imu_g[idx], self._imu_a[idx], cfg, self.declared_imu_noise
+            )
+            self.imu_spec = self.imu_choice.config.imu_spec()
         dts = np.diff(t[idx])
         w = np.r_[dts[0], dts]
         f_mean = np.average(self._imu_a[idx], axis=0, weights=w)

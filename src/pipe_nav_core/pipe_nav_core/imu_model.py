@@ -25,15 +25,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import NavConfig
+from .config import AUTO_GRADE, NavConfig
 from .sensors import GRADES, ImuSpec
-from .types import SensorLog
+from .types import ImuSamples, SensorLog
 
 MIN_STATIC_S = 2.0  # s: shortest span of a still odometer counted as static
 STILL_M = 0.002  # m: odometer change within a static span
 EDGE_S = 1.0  # s left out at each end of a static span (the pig settles, or starts to move)
 MIN_ALLAN_S = 60.0  # s: shortest static span whose Allan deviation is used
 MIN_SAMPLES = 200  # static IMU samples needed to measure the white noise
+REST_END_S = 0.25  # s left out before the end of the live filter's initial rest
+MIN_REST_SAMPLES = 100  # the same for the live filter's initial rest
 FIT_FACTOR = 1.5  # a named grade fits when both white-noise figures are within this factor
 NOISIER = ("tactical", "industrial", "consumer")  # named grades, quietest white noise first
 
@@ -78,12 +80,18 @@ def allan_deviation(x: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
     return np.array(taus), np.array(devs).reshape(len(taus), -1)
 
 
-def measured_noise(log: SensorLog, spans: Sequence[tuple[float, float]]) -> dict[str, Any]:
+def measured_noise(
+    log: SensorLog,
+    spans: Sequence[tuple[float, float]],
+    edges_s: tuple[float, float] = (EDGE_S, EDGE_S),
+    min_samples: int = MIN_SAMPLES,
+) -> dict[str, Any]:
     """IMU noise in the static spans: per-axis white-noise densities ``gyro_arw`` and
     ``accel_vrw`` from the scatter of the samples about each span's mean (a sample is the mean
     rate over its interval, so its scatter is density / sqrt(dt)) and, for the longest span of
     MIN_ALLAN_S or more, the Allan-deviation floor over 0.664 (``gyro_bias_instability``,
-    ``accel_bias_instability``). {} with fewer than MIN_SAMPLES static samples."""
+    ``accel_bias_instability``). ``edges_s``: s left out at the start and end of each span.
+    {} with fewer than ``min_samples`` static samples."""
     imu = log.imu
     if len(imu.t) < 3 or not spans:
         return {}
@@ -91,7 +99,7 @@ def measured_noise(log: SensorLog, spans: Sequence[tuple[float, float]]) -> dict
     resid_g, resid_a = [], []
     longest: tuple[float, float] | None = None
     for a, b in spans:
-        sel = (imu.t >= a + EDGE_S) & (imu.t <= b - EDGE_S)
+        sel = (imu.t >= a + edges_s[0]) & (imu.t <= b - edges_s[1])
         if sel.sum() < 3:
             continue
         resid_g.append(imu.gyro[sel] - imu.gyro[sel].mean(axis=0))
@@ -100,7 +108,7 @@ def measured_noise(log: SensorLog, spans: Sequence[tuple[float, float]]) -> dict
             longest = (a, b)
     g = np.concatenate(resid_g) if resid_g else np.zeros((0, 3))
     f = np.concatenate(resid_a) if resid_a else np.zeros((0, 3))
-    if len(g) < MIN_SAMPLES or not (dt > 0.0):
+    if len(g) < min_samples or not (dt > 0.0):
         return {}
     out: dict[str, Any] = {
         "samples": len(g),
@@ -108,8 +116,8 @@ def measured_noise(log: SensorLog, spans: Sequence[tuple[float, float]]) -> dict
         "gyro_arw": (g.std(axis=0) * math.sqrt(dt)).tolist(),
         "accel_vrw": (f.std(axis=0) * math.sqrt(dt)).tolist(),
     }
-    if longest is not None and longest[1] - longest[0] - 2 * EDGE_S >= MIN_ALLAN_S:
-        sel = (imu.t >= longest[0] + EDGE_S) & (imu.t <= longest[1] - EDGE_S)
+    if longest is not None and longest[1] - longest[0] - sum(edges_s) >= MIN_ALLAN_S:
+        sel = (imu.t >= longest[0] + edges_s[0]) & (imu.t <= longest[1] - edges_s[1])
         _, dev_g = allan_deviation(imu.gyro[sel], dt)
         _, dev_a = allan_deviation(imu.accel[sel], dt)
         out["gyro_bias_instability"] = (dev_g.min(axis=0) / 0.664).tolist()
@@ -179,12 +187,41 @@ def choose(
     """The IMU model for ``config`` with ``imu_grade: auto`` (returned unchanged otherwise):
     from the static spans' noise, else from the Imu messages' declared variances, else the
     industrial grade with a reason saying nothing measured it."""
-    if config.imu_grade != "auto":
+    if config.imu_grade != AUTO_GRADE:
         return ImuModelChoice(config, config.imu_grade, "given in the settings")
     noise = measured_noise(log, static_spans(log))
-    source = "measured in the static spans"
+    dt = float(np.median(np.diff(log.imu.t))) if len(log.imu.t) > 1 else 0.0
+    return _model(config, noise, "measured in the static spans", declared, dt)
+
+
+def choose_at_rest(
+    t: FloatArray,
+    gyro: FloatArray,
+    accel: FloatArray,
+    config: NavConfig,
+    declared: dict[str, Any] | None = None,
+) -> ImuModelChoice:
+    """:func:`choose` for the live filter, which knows only the start of the initial rest
+    when it aligns (``static_alignment_s``, 2 s by default): IMU samples (times s, gyro rad/s,
+    specific force m/s^2, imu_link) of the rest, the last REST_END_S before a move left out.
+    200 samples measure a noise density to about 5 %."""
+    if config.imu_grade != AUTO_GRADE:
+        return ImuModelChoice(config, config.imu_grade, "given in the settings")
+    log = SensorLog(imu=ImuSamples(t, gyro, accel))
+    spans = [(float(t[0]), float(t[-1]))] if len(t) > 1 else []
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    noise = measured_noise(log, spans, (0.0, REST_END_S), MIN_REST_SAMPLES)
+    return _model(config, noise, "measured at the initial rest", declared, dt)
+
+
+def _model(
+    config: NavConfig,
+    noise: dict[str, Any],
+    source: str,
+    declared: dict[str, Any] | None,
+    dt: float,
+) -> ImuModelChoice:
     if not noise and declared:
-        dt = float(np.median(np.diff(log.imu.t))) if len(log.imu.t) > 1 else 0.0
         noise, source = _from_declared(declared, dt), "declared by the Imu messages"
     grade = nearest_grade(noise)
     if grade is None:

@@ -204,10 +204,14 @@ def write_products(
     return rows
 
 
-def replay_log(log: SensorLog, config: NavConfig) -> ReplayResult:
+def replay_log(
+    log: SensorLog, config: NavConfig, declared: dict[str, list[float]] | None = None
+) -> ReplayResult:
     """Run the online engine over a log exactly as ekf_node does: samples pushed one by one in
-    stamp order (the engine's reorder buffer makes arrival order within its window irrelevant)."""
+    stamp order (the engine's reorder buffer makes arrival order within its window irrelevant).
+    declared: the per-sample IMU variances the Imu messages declare (imu_grade auto)."""
     nav = Navigator(config)
+    nav.declared_imu_noise = declared
     events: list[tuple[float, int, int]] = []
     events += [(t, 0, i) for i, t in enumerate(log.imu.t)]
     events += [(t, 1, i) for i, t in enumerate(log.odometer.t)]
@@ -261,7 +265,10 @@ def replay_bag(
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
     if len(log.imu) == 0:
         raise ValueError(f"{bag}: no IMU samples on {topics.imu}")
-    result = replay_log(log, config)
+    declared = None
+    if config.imu_grade == AUTO_GRADE:
+        declared = imu_model.declared_noise(bag, topics.imu)
+    result = replay_log(log, config, declared)
     if not result.estimates:
         raise ValueError(
             f"{bag}: the estimator produced no estimate (no static start or no marker)"
