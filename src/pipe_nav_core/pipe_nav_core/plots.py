@@ -19,7 +19,7 @@ from .io.atomic import atomic_write
 from .io.centreline import interpolate_trajectory
 from .types import Datum, Marker, Trajectory
 
-_MAX_POINTS = 20000
+_MAX_POINTS = 3000  # per line: a panel is about 700 pixels wide
 _COLORS = {"e": "tab:blue", "n": "tab:orange", "u": "tab:green"}
 
 
@@ -109,9 +109,11 @@ def plot_report(
     scale, unit = (1000.0, "km") if extent > 5000.0 else (1.0, "m")
     dscale, dunit = (1000.0, "km") if (n and np.nanmax(np.abs(dist)) > 5000.0) else (1.0, "m")
 
-    fig = Figure(figsize=(14, 10), dpi=110, layout="constrained")
+    fig = Figure(figsize=(14, 10), dpi=100)
     FigureCanvasAgg(fig)
-    axs = fig.subplots(2, 2)
+    # fixed margins: a layout engine would draw the figure twice
+    axs = fig.subplots(2, 2, gridspec_kw=dict(left=0.06, right=0.98, bottom=0.08, top=0.92,
+                                              wspace=0.18, hspace=0.32))  # fmt: skip
     fig.suptitle(title or "PipeNav centreline report", fontsize=14)
 
     # 1. plan view
@@ -146,7 +148,7 @@ def plot_report(
     ax.set_ylabel(f"north [{unit}]")
     ax.set_title("Plan view (map frame, ENU about the datum)")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", fontsize=8)
 
     # 2. elevation profile with 3-sigma band
     ax = axs[0, 1]
@@ -183,7 +185,7 @@ def plot_report(
         ax.plot(d, sig[idx, 2], "-", color="tab:green", label="vertical (sU)")
         for md in m_dist:
             ax.axvline(md / dscale, color="tab:purple", alpha=0.25, lw=0.8)
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="upper right", fontsize=8)
     else:
         ax.text(
             0.5,
@@ -225,7 +227,7 @@ def plot_report(
         ax.set_xticks(k[::step])
         ax.set_xticklabels(names[::step], rotation=60, ha="right", fontsize=7)
         ax.set_ylabel(f"estimate - survey [{ru}]")
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="upper right", fontsize=8)
     else:
         ax.text(0.5, 0.5, "no markers", ha="center", va="center", transform=ax.transAxes)
     ax.set_title("Residual at markers (estimate minus survey, ENU)")
