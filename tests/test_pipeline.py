@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import numpy as np
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.sim import get_scenario, simulate
@@ -23,3 +24,13 @@ def test_imu_mount_rotation_is_applied():
     r_bad = smooth_log(run.log, bad, iterations=1)
     s_bad = score(r_bad.centreline, run.truth, run.log.markers, datum=r_bad.datum)
     assert s_bad.max_h > 5 * s.max_h
+
+
+def test_mount_rotation_is_the_extrinsic_xyz_euler_rotation():
+    from pipe_nav_core.engine import mount_rotation
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    for rpy in rng.uniform(-3.2, 3.2, size=(20, 3)):
+        want = Rotation.from_euler("xyz", rpy).as_matrix()
+        np.testing.assert_allclose(mount_rotation(rpy), want, atol=1e-14)
