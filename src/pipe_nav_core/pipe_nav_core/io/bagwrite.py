@@ -2,18 +2,25 @@
 
 Profile ``ros2``; one Schema per message type with encoding ``ros2msg`` and the full message
 definition text (dependencies after ``====`` / ``MSG: pkg/Type`` lines); one Channel per topic
-with ``cdr`` encoding and metadata ``offered_qos_profiles`` (rosbag2 v8 YAML) and
-``topic_type_hash`` (RIHS01); log_time = publish_time = header stamp (ns); zstd-compressed
-chunks with message indexes and a full summary. The sensor topics are serialized with numpy
-(:mod:`.cdr`), so a 1.5-million-message bag is written in seconds. Files are written
-atomically (temporary file + rename).
+with ``cdr`` encoding and metadata ``offered_qos_profiles`` (rosbag2 metadata version 9 YAML, the
+QoS our nodes publish the topic with: :data:`TOPIC_QOS`) and ``topic_type_hash`` (RIHS01);
+log_time = publish_time = header stamp (ns); zstd-compressed chunks with message indexes; the
+rosbag2 bag metadata (version 9, ROS distro ``jazzy``, topics with their QoS and counts) in a
+Metadata record named ``rosbag2`` (key ``serialized_metadata``), which is where rosbag2's MCAP
+storage reads the distro and the metadata version from (``ros2 bag info``); a full summary. The
+sensor topics are serialized with numpy (:mod:`.cdr`), so a 1.5-million-message bag is written
+in seconds. Files are written atomically (temporary file + rename).
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
-from collections.abc import Sequence
+import re
+from collections.abc import Mapping, Sequence
 from functools import cache
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,20 +59,162 @@ from .topics import (
 
 _INT32_MAX_S = 2**31 - 1
 
+ROS_DISTRO = "jazzy"  # what the bags are written for (rosbag2 metadata ros_distro)
+ROSBAG2_METADATA_VERSION = 9  # rosbag2 bag metadata version of ROS 2 Jazzy
+ROSBAG2_METADATA_NAME = "rosbag2"  # name of the MCAP Metadata record rosbag2 reads
+_INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE as rosbag2 writes it
 
-def qos_profiles_yaml(*, transient_local: bool = False, reliable: bool = True) -> str:
-    """offered_qos_profiles string as rosbag2 (metadata version 8) records it: one profile,
-    history UNKNOWN / depth 0 (as recorded), reliability RELIABLE (1) or BEST_EFFORT (2),
-    durability TRANSIENT_LOCAL (1, latched) or VOLATILE (2), infinite durations."""
-    inf = "    sec: 9223372036\n    nsec: 854775807\n"
-    return (
-        "- history: 3\n"
-        "  depth: 0\n"
-        f"  reliability: {1 if reliable else 2}\n"
-        f"  durability: {1 if transient_local else 2}\n"
-        "  deadline:\n" + inf + "  lifespan:\n" + inf + "  liveliness: 1\n"
-        "  liveliness_lease_duration:\n" + inf + "  avoid_ros_namespace_conventions: false"
-    )
+
+def qos_profile(*, reliable: bool = True, transient_local: bool = False, depth: int = 10) -> dict:
+    """One offered QoS profile as rosbag2 (metadata version 9, ROS 2 Jazzy) records it: history
+    keep_last with ``depth`` messages, reliability ``reliable`` or ``best_effort``, durability
+    ``transient_local`` (latched) or ``volatile``, liveliness automatic, infinite durations."""
+    return {
+        "history": "keep_last",
+        "depth": int(depth),
+        "reliability": "reliable" if reliable else "best_effort",
+        "durability": "transient_local" if transient_local else "volatile",
+        "deadline": dict(_INFINITE),
+        "lifespan": dict(_INFINITE),
+        "liveliness": "automatic",
+        "liveliness_lease_duration": dict(_INFINITE),
+        "avoid_ros_namespace_conventions": False,
+    }
+
+
+def qos_profiles_yaml(
+    *, transient_local: bool = False, reliable: bool = True, depth: int = 10
+) -> str:
+    """The channel metadata ``offered_qos_profiles`` string (a YAML list of one
+    :func:`qos_profile`), as rosbag2's MCAP storage of ROS 2 Jazzy writes it."""
+    return yaml_text([qos_profile(reliable=reliable, transient_local=transient_local, depth=depth)])
+
+
+# The offered QoS recorded per topic (keys: the topics' roles), which ``ros2 bag play`` offers
+# again: what the pipe_nav_ros nodes publish with (src/pipe_nav_ros/README.md), except that the
+# sensor data are offered reliable (the drivers publish them best effort, depth 50): a reliable
+# offer matches best-effort and reliable subscribers alike, so a replay reaches every node. The
+# markers are latched as the odometer driver publishes them (depth 1000); ekf_node's
+# /pipe_nav/odometry is reliable (depth 50); the datum and the smoothed path are latched
+# (reliable, transient local, depth 1).
+TOPIC_QOS: dict[str, dict] = {
+    "imu": qos_profile(depth=50),
+    "odometer": qos_profile(depth=50),
+    "mag": qos_profile(depth=50),
+    "markers": qos_profile(transient_local=True, depth=1000),
+    "odometry": qos_profile(depth=50),
+    "datum": qos_profile(transient_local=True, depth=1),
+    "path": qos_profile(transient_local=True, depth=1),
+}
+
+_PLAIN = re.compile(r"[A-Za-z_/][A-Za-z0-9_/.\-]*")
+_YAML_WORDS = {"true", "false", "yes", "no", "on", "off", "null", "y", "n"}
+
+
+def _yaml_scalar(value: Any) -> str:
+    if value is None:
+        return "~"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
+        mantissa, e, exponent = repr(value).partition("e")
+        if e and "." not in mantissa:  # 1e-06 -> 1.0e-06, a float in YAML 1.1 and 1.2
+            mantissa += ".0"
+        return mantissa + e + exponent
+    if isinstance(value, Mapping):
+        return "{}"  # an empty mapping (non-empty ones are blocks)
+    if isinstance(value, (list, tuple)):
+        return "[]"
+    text = str(value)
+    if _PLAIN.fullmatch(text) and text.lower() not in _YAML_WORDS:
+        return text
+    return json.dumps(text)  # a JSON string is a YAML double-quoted scalar
+
+
+def _yaml_lines(value: Any, indent: int) -> list[str]:
+    pad = " " * indent
+    if isinstance(value, Mapping):
+        lines = []
+        for key, v in value.items():
+            if isinstance(v, Mapping) and v:
+                lines += [f"{pad}{key}:"] + _yaml_lines(v, indent + 2)
+            elif isinstance(v, (list, tuple)):
+                lines += [f"{pad}{key}:"] + (_yaml_lines(v, indent + 2) if v else [pad + "  []"])
+            else:
+                lines.append(f"{pad}{key}: {_yaml_scalar(v)}")
+        return lines
+    if isinstance(value, (list, tuple)):
+        lines = []
+        for item in value:
+            if isinstance(item, (Mapping, list, tuple)) and item:
+                sub = _yaml_lines(item, indent + 2)
+                lines += [pad + "- " + sub[0][indent + 2 :]] + sub[1:]
+            else:
+                lines.append(f"{pad}- {_yaml_scalar(item)}")
+        return lines
+    return [pad + _yaml_scalar(value)]
+
+
+def yaml_text(value: Any) -> str:
+    """Block-style YAML of nested dicts (plain keys), lists and scalars (str, int, float, bool,
+    None), laid out as rosbag2 (yaml-cpp) writes its metadata (no trailing newline)."""
+    return "\n".join(_yaml_lines(value, 0))
+
+
+def rosbag2_metadata(
+    *,
+    file_name: str,
+    topics: Sequence[tuple[str, str, Sequence[Mapping[str, Any]], str, int]],
+    message_count: int,
+    start_ns: int,
+    end_ns: int,
+) -> dict[str, Any]:
+    """rosbag2 bag metadata (version 9, ROS distro jazzy) of a single-file MCAP bag.
+
+    topics: (name, type, offered QoS profiles, RIHS01 type hash or '', message count) per
+    channel; start_ns, end_ns: first and last log time (ns since 1970). The ``rosbag2``
+    Metadata record holds this (``serialized_metadata``); metadata.yaml holds it under
+    ``rosbag2_bagfile_information``.
+    """
+    start = int(start_ns) if message_count else 0
+    duration = max(0, int(end_ns) - int(start_ns)) if message_count else 0
+    return {
+        "version": ROSBAG2_METADATA_VERSION,
+        "storage_identifier": "mcap",
+        "duration": {"nanoseconds": duration},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": int(message_count),
+        "topics_with_message_count": [
+            {
+                "topic_metadata": {
+                    "name": name,
+                    "type": typename,
+                    "serialization_format": "cdr",
+                    "offered_qos_profiles": [dict(q) for q in qos],
+                    "type_description_hash": type_hash_,
+                },
+                "message_count": int(count),
+            }
+            for name, typename, qos, type_hash_, count in topics
+        ],
+        "compression_format": "",
+        "compression_mode": "",
+        "relative_file_paths": [file_name],
+        "files": [
+            {
+                "path": file_name,
+                "starting_time": {"nanoseconds_since_epoch": start},
+                "duration": {"nanoseconds": duration},
+                "message_count": int(message_count),
+            }
+        ],
+        "custom_data": None,
+        "ros_distro": ROS_DISTRO,
+    }
 
 
 @cache
@@ -90,19 +239,22 @@ class _BagBuilder:
     def __init__(self) -> None:
         self.schema_ids: dict[str, int] = {}
         self.channels: list[tuple[int, int, str, dict[str, str]]] = []
+        self.topics: list[tuple[str, str, dict, str]] = []  # name, type, QoS, hash per channel
         self.streams: list[Stream] = []
 
-    def channel(self, topic: str, typename: str, *, latched: bool = False) -> int:
+    def channel(self, topic: str, typename: str, qos: dict) -> int:
+        """A channel offered with the QoS profile ``qos`` (see :data:`TOPIC_QOS`)."""
         sid = self.schema_ids.setdefault(typename, len(self.schema_ids) + 1)
         cid = len(self.channels) + 1
-        meta = {"offered_qos_profiles": qos_profiles_yaml(transient_local=latched)}
+        meta = {"offered_qos_profiles": yaml_text([qos])}
         h = type_hash(typename)
         if h:
             meta["topic_type_hash"] = h
         self.channels.append((cid, sid, topic, meta))
+        self.topics.append((topic, typename, qos, h))
         return cid
 
-    def write(self, f, compression: str, chunk_size: int) -> None:
+    def write(self, f, compression: str, chunk_size: int, file_name: str) -> None:
         w = McapWriter(
             f,
             profile="ros2",
@@ -115,6 +267,17 @@ class _BagBuilder:
         for cid, sid, topic, meta in self.channels:
             w.add_channel(cid, sid, topic, "cdr", meta)
         w.write_streams(self.streams)
+        meta = rosbag2_metadata(
+            file_name=file_name,
+            topics=[
+                (topic, typename, [qos], h, w.channel_counts.get(cid, 0))
+                for (cid, _, _, _), (topic, typename, qos, h) in zip(self.channels, self.topics)
+            ],
+            message_count=w.message_count,
+            start_ns=w.start_time or 0,
+            end_ns=w.end_time or 0,
+        )
+        w.add_metadata(ROSBAG2_METADATA_NAME, {"serialized_metadata": yaml_text(meta)})
         w.finish()
 
 
@@ -185,7 +348,9 @@ def write_sensor_bag(
     m/s), /imu/mag (sensor_msgs/MagneticField, tesla, frame ``imu_frame``) and /markers
     (sensor_msgs/NavSatFix per marker, frame_id = name, degrees, ENU diagonal covariance).
     Topics with no samples are not written (no channel). Times are seconds in [0, 2**31);
-    log_time = publish_time = header stamp. ``inputs``: paths this must not overwrite.
+    log_time = publish_time = header stamp. The topics are offered reliable (:data:`TOPIC_QOS`;
+    /markers latched, as the odometer driver publishes them). ``inputs``: paths this must not
+    overwrite.
     """
     b = _BagBuilder()
     imu_t, gyro, accel = _sorted(log.imu.t, log.imu.gyro, log.imu.accel)
@@ -196,7 +361,7 @@ def write_sensor_bag(
     if len(imu_t):
         ns = sec_to_ns(imu_t)
         _check_times(ns, topics.imu)
-        cid = b.channel(topics.imu, IMU_TYPE)
+        cid = b.channel(topics.imu, IMU_TYPE, TOPIC_QOS["imu"])
         b.streams.append(
             _fixed_stream(
                 cid,
@@ -218,7 +383,7 @@ def write_sensor_bag(
     if len(odo_t):
         ns = sec_to_ns(odo_t)
         _check_times(ns, topics.odometer)
-        cid = b.channel(topics.odometer, ODOMETRY_TYPE)
+        cid = b.channel(topics.odometer, ODOMETRY_TYPE, TOPIC_QOS["odometer"])
         n = len(odo_t)
         pos = np.zeros((n, 3))
         pos[:, 0] = dist
@@ -237,7 +402,7 @@ def write_sensor_bag(
     if len(mag_t):
         ns = sec_to_ns(mag_t)
         _check_times(ns, topics.mag)
-        cid = b.channel(topics.mag, MAG_TYPE)
+        cid = b.channel(topics.mag, MAG_TYPE, TOPIC_QOS["mag"])
         b.streams.append(
             _fixed_stream(
                 cid,
@@ -260,7 +425,7 @@ def _marker_stream(b: _BagBuilder, topic: str, markers: Sequence[Marker]) -> Non
     ns = sec_to_ns(np.array([m.t for m in ms], dtype=np.float64))
     _check_times(ns, topic)
     payloads = [bytes(ts.serialize_cdr(marker_to_msg(types, m), NAVSATFIX_TYPE)) for m in ms]
-    cid = b.channel(topic, NAVSATFIX_TYPE)
+    cid = b.channel(topic, NAVSATFIX_TYPE, TOPIC_QOS["markers"])
     b.streams.append(Stream.variable(cid, ns.tolist(), payloads))
 
 
@@ -274,7 +439,7 @@ def _write(
     ensure_not_input(path, inputs)
     try:
         with atomic_write(path, "wb") as f:
-            b.write(f, compression, chunk_size)
+            b.write(f, compression, chunk_size, os.path.basename(os.fspath(path)))
     except OSError as exc:
         raise BagError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from exc
 
@@ -312,7 +477,8 @@ def write_output_bag(
     position ENU m about the datum, orientation q_nb), stamped ``stamp`` (default: the last
     sample time); not written when ``path`` is None (replay). /pipe_nav/datum: one
     sensor_msgs/NavSatFix (frame map) stamped ``stamp`` (default: the first sample time).
-    Both channels are offered as latched (transient local).
+    Both channels are offered as latched (reliable, transient local, depth 1), as ekf_node and
+    smoother_node publish them.
     /pipe_nav/odometry: one nav_msgs/Odometry per sample of ``odometry`` (frame map, child
     base_link; pose covariance from sigma_enu and sigma_att; twist = body-frame velocity and
     attitude-differenced body rate). ``inputs``: paths this must not overwrite (the input bag).
@@ -338,7 +504,7 @@ def write_output_bag(
     _check_times(np.array([path_ns, datum_ns], dtype=np.int64), "output stamp")
 
     if path is not None:
-        cid = b.channel(OUTPUT_PATH_TOPIC, PATH_TYPE, latched=True)
+        cid = b.channel(OUTPUT_PATH_TOPIC, PATH_TYPE, TOPIC_QOS["path"])
         enu = enu_of(datum, path.lat, path.lon, path.h).reshape(-1, 3)
         path_t_ns = sec_to_ns(np.asarray(path.t, dtype=np.float64))
         payload = cdr.encode_path(
@@ -346,7 +512,7 @@ def write_output_bag(
         )
         b.streams.append(Stream.variable(cid, [path_ns], [payload]))
 
-    cid = b.channel(OUTPUT_DATUM_TOPIC, NAVSATFIX_TYPE, latched=True)
+    cid = b.channel(OUTPUT_DATUM_TOPIC, NAVSATFIX_TYPE, TOPIC_QOS["datum"])
     dmsg = datum_to_msg(types, datum, datum_stamp)
     b.streams.append(
         Stream.variable(cid, [datum_ns], [bytes(ts.serialize_cdr(dmsg, NAVSATFIX_TYPE))])
@@ -368,7 +534,7 @@ def write_output_bag(
         cov = _pose_covariances(odometry)
         if order is not None:
             cov = cov[order]
-        cid = b.channel(OUTPUT_ODOMETRY_TOPIC, ODOMETRY_TYPE)
+        cid = b.channel(OUTPUT_ODOMETRY_TOPIC, ODOMETRY_TYPE, TOPIC_QOS["odometry"])
         b.streams.append(
             _fixed_stream(
                 cid,
@@ -388,62 +554,91 @@ def write_output_bag(
     _write(b, bag_path, compression, chunk_size, inputs)
 
 
-def write_rosbag2_metadata(bag_file: str | os.PathLike[str]) -> str:
-    """Write a rosbag2 ``metadata.yaml`` (version 8) beside a single-file MCAP bag, so that its
-    directory is also a rosbag2 bag for tools that insist on one (rosbags' AnyReader, older
-    ``ros2 bag``). Counts and times come from the MCAP summary. Returns the metadata path."""
-    import json
+# rosbag2 metadata version 8 wrote the QoS policies as the rmw enum values
+_QOS_V8_NAMES = {
+    "history": {0: "system_default", 1: "keep_last", 2: "keep_all", 3: "unknown"},
+    "reliability": {
+        0: "system_default",
+        1: "reliable",
+        2: "best_effort",
+        3: "unknown",
+        4: "best_available",
+    },
+    "durability": {
+        0: "system_default",
+        1: "transient_local",
+        2: "volatile",
+        3: "unknown",
+        4: "best_available",
+    },
+    "liveliness": {
+        0: "system_default",
+        1: "automatic",
+        2: "manual_by_node",
+        3: "manual_by_topic",
+        4: "unknown",
+        5: "best_available",
+    },
+}
 
+
+def qos_profiles_from_text(text: str) -> list[dict[str, Any]]:
+    """A channel's ``offered_qos_profiles`` string (rosbag2 metadata version 8 with enum numbers,
+    or 9 with names) as a list of version-9 profiles; [] when empty or unreadable."""
+    from ruamel.yaml import YAML, YAMLError
+
+    try:
+        data = YAML(typ="safe", pure=True).load(text) if text.strip() else None
+    except YAMLError:
+        return []
+    if not isinstance(data, list):
+        return []
+    out = []
+    for item in data:
+        if not isinstance(item, dict):
+            continue
+        profile = dict(item)
+        for key, names in _QOS_V8_NAMES.items():
+            value = profile.get(key)
+            if isinstance(value, int) and not isinstance(value, bool):
+                profile[key] = names.get(value, "unknown")
+        out.append(profile)
+    return out
+
+
+def write_rosbag2_metadata(bag_file: str | os.PathLike[str]) -> str:
+    """Write a rosbag2 ``metadata.yaml`` (version 9, ROS distro jazzy) beside a single-file MCAP
+    bag, so that its directory is also a rosbag2 bag for tools that insist on one (older
+    rosbags, older ``ros2 bag``). Topics, counts and times come from the MCAP summary; the QoS
+    from each channel's ``offered_qos_profiles`` (version 8 enum numbers are written as names).
+    Returns the metadata path."""
     from .mcapread import read_summary
 
     f = os.fspath(bag_file)
     summ = read_summary(f)
     if summ is None or summ.message_count is None:
         raise BagError(f"{f}: no MCAP summary to build metadata.yaml from")
-    start = int(summ.message_start_time or 0)
-    dur = int((summ.message_end_time or 0) - start) if summ.message_count else 0
     counts = summ.channel_message_counts or {}
-    name = os.path.basename(f)
-    lines = [
-        "rosbag2_bagfile_information:",
-        "  version: 8",
-        "  storage_identifier: mcap",
-        "  duration:",
-        f"    nanoseconds: {dur}",
-        "  starting_time:",
-        f"    nanoseconds_since_epoch: {start}",
-        f"  message_count: {summ.message_count}",
-        "  topics_with_message_count:",
-    ]
+    topics = []
     for cid, ch in sorted(summ.channels.items()):
         sch = summ.schemas.get(ch.schema_id)
-        lines += [
-            "    - topic_metadata:",
-            f"        name: {json.dumps(ch.topic)}",
-            f"        type: {json.dumps(sch.name if sch else '')}",
-            f"        serialization_format: {json.dumps(ch.message_encoding)}",
-            "        offered_qos_profiles: "
-            + json.dumps(ch.metadata.get("offered_qos_profiles", "")),
-            "        type_description_hash: " + json.dumps(ch.metadata.get("topic_type_hash", "")),
-            f"      message_count: {counts.get(cid, 0)}",
-        ]
-    lines += [
-        '  compression_format: ""',
-        '  compression_mode: ""',
-        "  relative_file_paths:",
-        f"    - {json.dumps(name)}",
-        "  files:",
-        f"    - path: {json.dumps(name)}",
-        "      starting_time:",
-        f"        nanoseconds_since_epoch: {start}",
-        "      duration:",
-        f"        nanoseconds: {dur}",
-        f"      message_count: {summ.message_count}",
-        "  custom_data: ~",
-        "  ros_distro: jazzy",
-        "",
-    ]
+        topics.append(
+            (
+                ch.topic,
+                sch.name if sch else "",
+                qos_profiles_from_text(ch.metadata.get("offered_qos_profiles", "")),
+                ch.metadata.get("topic_type_hash", ""),
+                counts.get(cid, 0),
+            )
+        )
+    meta = rosbag2_metadata(
+        file_name=os.path.basename(f),
+        topics=topics,
+        message_count=summ.message_count,
+        start_ns=int(summ.message_start_time or 0),
+        end_ns=int(summ.message_end_time or 0),
+    )
     out = os.path.join(os.path.dirname(os.path.abspath(f)), "metadata.yaml")
     with atomic_write(out, "w") as fh:
-        fh.write("\n".join(lines))
+        fh.write(yaml_text({"rosbag2_bagfile_information": meta}) + "\n")
     return out

@@ -4,9 +4,10 @@ Each topic is a *stream*: time-sorted log times (ns) and a callback that seriali
 its messages into ready MCAP Message records (see :func:`message_records`). The writer merges
 the streams in log-time order, cuts ~``chunk_size`` chunks, compresses them and writes a full
 MCAP file the way rosbag2's MCAP storage does: profile ``ros2``, Schema and Channel records
-first, chunks each followed by their MessageIndex records, DataEnd, then a summary (schemas,
-channels, statistics, chunk indexes, summary offsets) and the footer, with CRCs. Nothing is
-done per message in Python except assembling the chunk (a list join).
+first, chunks each followed by their MessageIndex records, Metadata records (rosbag2 keeps its
+bag metadata in one named ``rosbag2``), DataEnd, then a summary (schemas, channels, statistics,
+chunk indexes, metadata indexes, summary offsets) and the footer, with CRCs. Nothing is done
+per message in Python except assembling the chunk (a list join).
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from .mcapread import (
     OP_HEADER,
     OP_MESSAGE,
     OP_MESSAGE_INDEX,
+    OP_METADATA,
+    OP_METADATA_INDEX,
     OP_SCHEMA,
     OP_STATISTICS,
     OP_SUMMARY_OFFSET,
@@ -144,7 +147,9 @@ class McapWriter:
     """Writes one MCAP file to an open binary file object (see the module docstring).
 
     Call :meth:`add_schema`, :meth:`add_channel`, then :meth:`write_streams` (once), then
-    :meth:`finish`.
+    :meth:`add_metadata` (any number), then :meth:`finish`. ``message_count``,
+    ``channel_counts`` (channel id -> messages), ``start_time`` and ``end_time`` (log times, ns)
+    describe what was written so far.
     """
 
     def __init__(
@@ -165,6 +170,7 @@ class McapWriter:
         self.schemas: list[bytes] = []
         self.channels: list[bytes] = []
         self.chunk_indexes: list[bytes] = []
+        self.metadata_indexes: list[bytes] = []
         self.channel_counts: dict[int, int] = {}
         self.start_time: int | None = None
         self.end_time: int | None = None
@@ -197,6 +203,16 @@ class McapWriter:
         self.channel_counts.setdefault(cid, 0)
         self._write(rec)
         return cid
+
+    def add_metadata(self, name: str, metadata: dict[str, str]) -> None:
+        """Write a Metadata record (a named string map) into the data section and index it in
+        the summary (rosbag2 reads its bag metadata from the one named ``rosbag2``)."""
+        rec = _record(OP_METADATA, _s(name) + _string_map(metadata))
+        offset = self.pos
+        self._write(rec)
+        self.metadata_indexes.append(
+            _record(OP_METADATA_INDEX, struct.pack("<QQ", offset, len(rec)) + _s(name))
+        )
 
     def write_streams(self, streams: Sequence[Stream]) -> None:
         """Merge the streams in log-time order (ties: stream order) and write them in chunks."""
@@ -328,7 +344,7 @@ class McapWriter:
                 len(self.schemas),
                 len(self.channels),
                 0,
-                0,
+                len(self.metadata_indexes),
                 len(self.chunk_indexes),
                 self.start_time or 0,
                 self.end_time or 0,
@@ -337,6 +353,7 @@ class McapWriter:
         )
         put(OP_STATISTICS, [stats])
         put(OP_CHUNK_INDEX, self.chunk_indexes)
+        put(OP_METADATA_INDEX, self.metadata_indexes)
         summary_offset_start = self.pos
         offs = [_record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, s, n)) for op, s, n in groups]
         for r in offs:
