@@ -129,7 +129,11 @@ def test_line_assembler_handles_fragments_crlf_and_garbage():
     assert la.feed(b"\n") == [b"$PNODO,2.0,6"]
     assert la.feed(b"x" * 100) == []  # no newline, too long: dropped
     assert la.overlong == 1
-    assert la.feed(b"\n$PNODO,3.0,7\n") == [b"", b"$PNODO,3.0,7"]
+    assert la.feed(b"y" * 100) == []  # still the same line: dropped, not counted again
+    assert la.feed(b"yy\n$PNODO,3.0,7\n") == [b"$PNODO,3.0,7"]  # its end dropped too
+    assert la.overlong == 1
+    assert la.feed(b"z" * 41 + b"\n\n") == [b""]  # complete and too long
+    assert la.overlong == 2
 
 
 # ------------------------------------------------------------------------------ CSV logs

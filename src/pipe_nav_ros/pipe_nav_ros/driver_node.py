@@ -20,6 +20,9 @@ from __future__ import annotations
 import contextlib
 import functools
 import itertools
+import math
+import os
+import signal
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -111,14 +114,22 @@ class SensorDriverNode(PipeNavNode):
             if first is None:
                 raise ConfigError(f"log_file {s['log_file']!r} holds no {self.kind} samples")
             stream = itertools.chain([first], stream)
+            # the log's first sample is due at start_time; marker passages do not move it (a
+            # marker before the log would delay this log against the other drivers' logs):
+            # one logged earlier is published at once, stamped with its own time.
             t_ref = first.t
             if self.kind == "odometer" and s["markers_csv"] and s["publish_markers"]:
                 try:
                     markers = read_markers_csv(s["markers_csv"])
                 except ConfigError as exc:
                     raise ConfigError(f"markers_csv: {exc}") from None
-                if markers:
-                    t_ref = min(t_ref, markers[0].t)
+                timed = [m for m in markers if math.isfinite(m.t)]
+                if len(timed) < len(markers):  # survey rows without a passage time
+                    self.get_logger().info(
+                        f"markers_csv: {len(markers) - len(timed)} marker(s) without time_s "
+                        "not published (survey only: give them to ekf_node's survey_markers_csv)"
+                    )
+                markers = timed
         else:
             samples, t_ref = sim_samples(self.kind, s["scenario"], s["seed"])
             stream = iter(samples)
@@ -132,6 +143,13 @@ class SensorDriverNode(PipeNavNode):
             f"{s['source']} source ready; first sample due at {start:.3f} (system time), "
             f"rate x{s['rate']:g}, stamps {s['stamps']}"
         )
+        late = time.time() - start
+        if late > 0.5:  # the samples due meanwhile go out in one burst
+            self.get_logger().warning(
+                f"source ready {late:.1f} s after start_time: the first {late * s['rate']:.1f} s "
+                "of data go out at once (subscribers may drop some); give a later start_time "
+                "(live.launch.py: a longer startup_delay)"
+            )
         return stream, timeline
 
     def _replay(self, samples: Iterator[Sample], timeline: Timeline) -> None:
@@ -147,8 +165,10 @@ class SensorDriverNode(PipeNavNode):
             return
         if self._stop.is_set():
             return
+        published = self.core.published
+        markers = f" and {count - published} markers" if count > published else ""
         self.get_logger().info(
-            f"source exhausted after {count} samples "
+            f"source exhausted after {published} samples{markers} "
             f"(skipped: {self.stats.malformed} malformed, {self.stats.non_increasing} out of order)"
         )
         if self.settings["exit_when_done"]:
@@ -167,8 +187,12 @@ class SensorDriverNode(PipeNavNode):
         try:
             self._port = serial.Serial(s["port"], baudrate=s["baud"], timeout=0.2)
         except (serial.SerialException, ValueError, OSError) as exc:
+            errno = getattr(exc, "errno", None)
+            reason = os.strerror(errno) if isinstance(errno, int) else str(exc)
+            if errno == 13:  # EACCES
+                reason += " (on Linux: add the user to the dialout group)"
             raise ConfigError(
-                f"cannot open serial port {s['port']!r} at {s['baud']} baud: {exc}"
+                f"cannot open serial port {s['port']!r} at {s['baud']} baud: {reason}"
             ) from None
         self._serial_error = serial.SerialException
         self.get_logger().info(f"reading {s['port']} at {s['baud']} baud, stamps {s['stamps']}")
@@ -190,7 +214,12 @@ class SensorDriverNode(PipeNavNode):
             if not data:
                 continue
             arrival = self.get_clock().now().nanoseconds * 1e-9
-            for line in lines.feed(data):
+            overlong = lines.overlong
+            complete = lines.feed(data)
+            if lines.overlong > overlong:  # garbage or a wrong baud rate
+                self.stats.malformed += lines.overlong - overlong
+                self._bad_input("serial data", f"line longer than {lines.max_length} bytes")
+            for line in complete:
                 self.stats.lines += 1
                 try:
                     sample = parse_line(line, self.kind, self.core.scales)
@@ -220,7 +249,16 @@ class SensorDriverNode(PipeNavNode):
 
 
 def _main(kind: str, args: Sequence[str] | None) -> int:
-    return run_node(lambda: SensorDriverNode(kind), DRIVER_NODE_NAMES[kind], args)
+    # A Ctrl-C on `ros2 launch` reaches each node twice (from the terminal to the whole process
+    # group, and forwarded by launch), and one SIGINT both shuts rclpy down and raises
+    # KeyboardInterrupt: when that lands in run_node's clean-up or at exit, it is still an
+    # ordinary stop (status 0), not a crash with a traceback.
+    try:
+        code = run_node(lambda: SensorDriverNode(kind), DRIVER_NODE_NAMES[kind], args)
+    except KeyboardInterrupt:
+        code = 0
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # stopping already
+    return code
 
 
 def main_imu(args: Sequence[str] | None = None) -> int:

@@ -197,21 +197,30 @@ def parse_line(
 class LineAssembler:
     """Cuts a byte stream (serial reads of any size) into complete lines.
 
-    Lines longer than ``max_length`` bytes (garbage, wrong baud rate) are discarded and counted.
+    Lines longer than ``max_length`` bytes (garbage, wrong baud rate) are discarded and counted,
+    each once: the rest of a line dropped before its end arrived is dropped too, up to its end.
     """
 
     def __init__(self, max_length: int = 512) -> None:
         self.max_length = max_length
         self._buf = b""
+        self._skipping = False
         self.overlong = 0
 
     def feed(self, data: bytes) -> list[bytes]:
         """Complete lines (without the end of line) found after adding ``data``."""
         self._buf += data
         *lines, self._buf = self._buf.split(b"\n")
+        if self._skipping:
+            if lines:
+                lines.pop(0)  # the end of the overlong line dropped before
+                self._skipping = False
+            else:
+                self._buf = b""
         if len(self._buf) > self.max_length:
             self._buf = b""
             self.overlong += 1
+            self._skipping = True
         out = []
         for line in lines:
             if len(line) > self.max_length:
