@@ -11,7 +11,18 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.earth import geodetic_to_enu
 from pipe_nav_core.io import rosmsg
 from pipe_nav_core.sim import simulate
-from pipe_nav_ros.ekf_core import ERROR, OK, WARN, EkfCore, twist_covariance
+from pipe_nav_ros.ekf_core import (
+    BURST_ALLOWANCE_S,
+    BURST_FACTOR,
+    ERROR,
+    JUMP_CONFIRM,
+    OK,
+    WARN,
+    EkfCore,
+    LatencyStats,
+    covariance_problem,
+    twist_covariance,
+)
 
 from pipe_nav_core import attitude as att
 
@@ -149,10 +160,11 @@ def test_diagnostics_message(result):
 
 
 def test_diagnostics_warn_when_the_imu_grade_does_not_fit():
-    """A consumer-MEMS run (drag180) on the default industrial noise model: once the filter
-    navigates, /diagnostics turns WARN and names the setting to check."""
+    """A consumer-MEMS run (drag180) on the industrial noise model (set explicitly: the default
+    imu_grade "auto" would measure it): once the filter navigates, /diagnostics turns WARN and
+    names the setting to check."""
     run = simulate("drag180", 1)
-    core = EkfCore(NavConfig(), TYPES)
+    core = EkfCore(NavConfig(imu_grade="industrial"), TYPES)
     core.diagnostics(0.0, now=0.0)
     handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
                 "markers": core.on_marker}  # fmt: skip
@@ -181,8 +193,14 @@ def test_malformed_messages_are_counted_and_survived(run, config):
     assert core.nav.diagnostics()["dropped_nan_imu"] == 1
     odometry, _ = feed(core, good)
     c = core.counters
-    assert c["imu"].malformed == 2 and c["markers"].malformed == 1
-    assert len(problems) == 3 and all("malformed" in text for _, text in problems)
+    assert c["imu"].malformed == 2 and c["markers"].malformed == 0
+    assert c["markers"].faults["covariance"] == 1 and c["imu"].faults["nan"] == 1
+    assert [text.split(":")[0] for _, text in problems] == [
+        "malformed message skipped",
+        "malformed message skipped",
+        "covariance",
+        "nan",
+    ]
     assert core.diagnostics(1.0, now=0.0).status[0].level == WARN
     assert core.resets == 1
 
@@ -220,5 +238,227 @@ def test_on_message_dispatches_by_topic(run, config):
     msg = rosmsg.imu_to_msg(TYPES, 0.0, [0, 0, 0], [0, 0, 9.8])
     assert core.on_message("/imu/data", msg)
     assert not core.on_message("/camera/image", msg)
-    assert core.on_message("/pig/imu", msg, topics={"imu": "/pig/imu"})
+    later = rosmsg.imu_to_msg(TYPES, 0.01, [0, 0, 0], [0, 0, 9.8])
+    assert core.on_message("/pig/imu", later, topics={"imu": "/pig/imu"})
     assert core.counters["imu"].received == 2
+
+
+# ------------------------------------------------------------------------------ faults
+
+
+def clean_estimates(run, config, messages):
+    core = EkfCore(config, TYPES)
+    odometry, datums = feed(core, messages)
+    return odometry, datums
+
+
+def positions(odometry):
+    return np.array([[m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z]
+                     for m in odometry])  # fmt: skip
+
+
+def test_faulty_messages_are_named_dropped_and_leave_the_estimates_unchanged(run, config):
+    """Malformed copies of real messages inserted into a run: each kind is counted under its
+    name and reported WARN; what is dropped does not change one estimate (a far-future stamp
+    does not poison the reorder buffer), and the estimates stay finite."""
+    messages = input_messages(run, t_end=CROP_S)
+    reference, _ = clean_estimates(run, config, messages)
+    core = EkfCore(config, TYPES)
+    core.diagnostics(0.0, now=0.0)
+    first_marker = next(msg for _, role, msg in messages if role == "markers")
+    odometry = []
+
+    def bad_messages(t):
+        def imu(stamp=t, gyro=(0.01, 0.0, 0.0), frame_id="imu_link"):
+            return rosmsg.imu_to_msg(TYPES, stamp, gyro, [0, 0, 9.8], frame_id=frame_id)
+
+        odo = rosmsg.wheel_to_msg(TYPES, t, 1.0, 1.0)
+        odo.header.frame_id = "map"
+        mag = rosmsg.mag_to_msg(TYPES, t + 30.0, [2e-5, 0, -4e-5])
+        marker = rosmsg.marker_to_msg(TYPES, rosmsg.marker_from_msg(first_marker))
+        marker.position_covariance = np.zeros(4)
+        return [
+            ("imu", imu(stamp=t + 1000.0)),  # far future
+            ("imu", imu(stamp=t - 5.0)),  # past
+            ("imu", imu(frame_id="odom")),
+            ("imu", imu(frame_id="")),
+            ("imu", imu(gyro=(math.nan, 0.0, 0.0))),
+            ("odometer", odo),  # frame "map"
+            ("mag", mag),  # 30 s ahead
+            ("markers", marker),  # covariance of 4 elements
+        ]
+
+    handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
+                "markers": core.on_marker}  # fmt: skip
+    injected_at = {int(len(messages) * f) for f in (0.2, 0.5, 0.8)}
+    for k, (t, role, msg) in enumerate(messages):
+        if k in injected_at:
+            for bad_role, bad in bad_messages(t):
+                handlers[bad_role](bad)
+        if role == "imu" and k % 50 == 0:  # a good sample with unusable covariances: kept
+            msg.angular_velocity_covariance = np.full(9, -1.0)
+        assert handlers[role](msg)
+        odometry += core.poll().odometry
+    status = core.diagnostics(1.0, now=1.0).status[0]
+    odometry += core.finish().odometry
+
+    f = {role: c.faults for role, c in core.counters.items()}
+    assert f["imu"]["stamp_future"] == 3 and f["imu"]["stamp_past"] == 3
+    assert f["imu"]["frame_id"] == 6 and f["imu"]["nan"] == 3
+    assert f["imu"]["covariance"] == len(range(0, len(messages), 50)) - sum(
+        1 for k in range(0, len(messages), 50) if messages[k][1] != "imu"
+    )
+    assert f["odometer"]["frame_id"] == 3 and f["mag"]["stamp_future"] == 3
+    assert f["markers"]["covariance"] == 3 and f["imu"]["burst"] == 0
+    values = {kv.key: kv.value for kv in status.values}
+    for role in ("imu", "odometer", "mag", "markers"):
+        for kind in (
+            "nan",
+            "frame_id",
+            "stamp_future",
+            "stamp_past",
+            "covariance",
+            "burst",
+        ):
+            assert values[f"{role}.fault.{kind}"] == str(f[role][kind])
+    assert status.level == WARN
+    assert "imu.fault.stamp_future 3" in status.message and "imu.fault.nan 3" in status.message
+    # nothing that was dropped changed the filter: the same estimates as the clean run
+    assert len(odometry) == len(reference) > 500
+    np.testing.assert_array_equal(positions(odometry), positions(reference))
+    assert np.all(np.isfinite(positions(odometry)))
+    assert core.counters["imu"].refused == 0 and core.resets == 1  # the finish()
+
+
+def test_frame_rules():
+    core = EkfCore(NavConfig(), TYPES)
+    frames = [("imu_link", True), ("pig1/imu_link", True), ("/imu_link", True),
+              ("odom", False), ("", False), ("imu_link2", False)]  # fmt: skip
+    for k, (frame, ok) in enumerate(frames):
+        msg = rosmsg.imu_to_msg(TYPES, 0.01 * k, [0, 0, 0], [0, 0, 9.8], frame_id=frame)
+        assert core.on_imu(msg) is ok, frame
+    assert core.counters["imu"].faults["frame_id"] == 3
+    odo = rosmsg.wheel_to_msg(TYPES, 1.0, 0.0, 0.0)
+    odo.child_frame_id = "imu_link"
+    assert not core.on_odometer(odo)
+    assert core.counters["odometer"].faults["frame_id"] == 1
+
+
+def test_a_clock_that_goes_back_restarts_the_estimator(run, config):
+    """The same 20 s played twice: the second pass is far behind the data's clock; after
+    JUMP_CONFIRM agreeing samples the estimator restarts and gives the same estimates again."""
+    messages = input_messages(run, t_end=20.0)
+    core = EkfCore(config, TYPES)
+    handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
+                "markers": core.on_marker}  # fmt: skip
+    first = []
+    for _, role, msg in messages:
+        handlers[role](msg)
+        first += core.poll().odometry
+    assert len(first) > 50
+    second = []
+    for _, role, msg in messages:
+        handlers[role](msg)
+        second += core.poll().odometry
+    assert core.resets == 1
+    assert (
+        core.counters["imu"].faults["stamp_past"]
+        + core.counters["odometer"].faults["stamp_past"]
+        + core.counters["mag"].faults["stamp_past"]
+        == JUMP_CONFIRM
+    )
+    np.testing.assert_array_equal(positions(second), positions(first[: len(second)]))
+    assert len(second) >= len(first) - 10
+
+
+def test_a_clock_jump_ahead_is_followed_once_confirmed(config):
+    core = EkfCore(config, TYPES)
+    imu = lambda t: rosmsg.imu_to_msg(TYPES, t, [0, 0, 0], [0, 0, 9.8])  # noqa: E731
+    for k in range(100):
+        assert core.on_imu(imu(k * 0.01))
+    results = [core.on_imu(imu(500.0 + k * 0.01)) for k in range(JUMP_CONFIRM + 5)]
+    assert results == [False] * (JUMP_CONFIRM - 1) + [True] * 6
+    assert core.counters["imu"].faults["stamp_future"] == JUMP_CONFIRM
+    assert core.nav.diagnostics()["received_imu"] == 100 + JUMP_CONFIRM + 5
+    assert core.clock_s == pytest.approx(500.0 + (JUMP_CONFIRM + 4) * 0.01)
+
+
+def test_markers_ahead_of_the_data_are_held_not_poisoning(run, config):
+    """The run's markers sent first (a survey published in advance), then the data: the markers
+    wait for the data to reach them and the estimates are those of the run in stamp order."""
+    messages = input_messages(run, t_end=CROP_S)
+    reference, _ = clean_estimates(run, config, messages)
+    markers = [m for m in messages if m[1] == "markers"]
+    reordered = markers + [m for m in messages if m[1] != "markers"]
+    core = EkfCore(config, TYPES)
+    odometry, datums = feed(core, reordered)
+    assert len(datums) == 1
+    assert len(odometry) == len(reference)
+    np.testing.assert_allclose(positions(odometry), positions(reference), atol=1e-9)
+    # once the data run, a marker far ahead of them is a fault (held, never used here)
+    late = rosmsg.marker_to_msg(TYPES, rosmsg.marker_from_msg(markers[0][2]))
+    core2 = EkfCore(config, TYPES)
+    core2.on_imu(rosmsg.imu_to_msg(TYPES, 1.0, [0, 0, 0], [0, 0, 9.8]))
+    late.header.stamp = rosmsg.sec_to_stamp(TYPES, 500.0)
+    core2.on_marker(late)
+    assert core2.counters["markers"].faults["stamp_future"] == 1
+    assert core2.nav.diagnostics().get("received_marker", 0) == 0
+
+
+def test_bursts_are_counted_from_the_sent_times():
+    core = EkfCore(NavConfig(), TYPES)
+    n = 3000
+    for k in range(n):  # 3 s of a 1 kHz IMU sent at 1 kHz: no burst
+        core.on_imu(rosmsg.imu_to_msg(TYPES, k * 1e-3, [0, 0, 0], [0, 0, 9.8]), sent=k * 1e-3)
+    assert core.counters["imu"].faults["burst"] == 0
+    for k in range(n, 2 * n):  # 3 s more, sent all at once
+        core.on_imu(rosmsg.imu_to_msg(TYPES, k * 1e-3, [0, 0, 0], [0, 0, 9.8]), sent=3.0)
+    capacity = BURST_FACTOR * 1000.0 * BURST_ALLOWANCE_S
+    assert core.counters["imu"].faults["burst"] == pytest.approx(n - capacity, abs=2)
+    assert core.counters["imu"].received == 2 * n  # counted and used
+    assert core.nav.diagnostics()["received_imu"] == 2 * n
+
+
+def test_covariance_problems():
+    assert covariance_problem(np.zeros(9), 9) == ""
+    assert "4 elements" in covariance_problem(np.zeros(4), 9)
+    assert covariance_problem(np.r_[-1.0, np.zeros(8)], 9, flag_ok=True) == ""
+    assert "negative" in covariance_problem(np.r_[-1.0, np.zeros(8)], 9)
+    assert "finite" in covariance_problem(np.full(36, math.nan), 36)
+
+
+def test_latency_statistics():
+    stats = LatencyStats()
+    assert math.isnan(stats.report()["latency_ms.median"])
+    stats.add(0.001, 0.003)
+    stats.add(0.002, None, n=2)
+    stats.add(0.010, 0.020)
+    r = stats.report()
+    assert r["latency_ms.median"] == pytest.approx(2.0) and r["latency_ms.max"] == pytest.approx(
+        10.0
+    )
+    assert r["latency_ms.estimates"] == 4
+    assert r["latency_from_source_ms.median"] == pytest.approx(11.5)
+    assert stats.report()["latency_ms.estimates"] == 0  # afresh after each report
+
+
+def test_imu_grade_auto_is_chosen_at_the_rest_and_reported(run, config):
+    import dataclasses
+
+    from pipe_nav_ros.ekf_core import INPUT_TOPICS, declared_imu_noise
+
+
+    core = EkfCore(dataclasses.replace(config, imu_grade="auto"), TYPES)
+    for _, role, msg in input_messages(run, 20.0):  # no finish(): it would restart the engine
+        assert core.on_message(INPUT_TOPICS[role], msg)
+        core.poll()
+    values = {kv.key: kv.value for kv in core.diagnostics(20.0, now=30.0).status[0].values}
+    assert values["engine.imu_model"] == "industrial"  # the demo run's IMU
+    assert "initial rest" in values["engine.imu_model_reason"]
+    # declared variances of the Imu messages are handed to the engine, unknown (0) ones are not
+    assert core.nav.declared_imu_noise is None
+    msg = rosmsg.imu_to_msg(TYPES, 1.0, [0, 0, 0], [0, 0, 9.8], gyro_var=1e-6, accel_var=4e-4)
+    assert declared_imu_noise(msg) == {"gyro_variance": [1e-6] * 3, "accel_variance": [4e-4] * 3}
+    fresh = EkfCore(NavConfig(), TYPES)
+    fresh.on_imu(msg)
+    assert fresh.nav.declared_imu_noise == declared_imu_noise(msg)

@@ -33,6 +33,51 @@ ANGLE_FIELDS = {
 }
 
 
+# One line per NavConfig field with its unit, for people: the ROS parameter descriptions and
+# ekf.yaml's comments, and the comments of `pipe-nav config --template`. Angles are described in
+# degrees, as people give them (``<name>_deg``).
+FIELD_DOCS: dict[str, str] = {
+    "mode": "ins (strapdown INS aided by the odometer) or dr (odometer dead reckoning)",
+    "imu_grade": "IMU noise model: auto (measured from the run) | consumer | industrial | tactical",
+    "imu_mount_rpy": "roll, pitch, yaw of imu_link in base_link (imu_link->base_link), deg",
+    "gyro_error_states": "estimate gyro scale factors and misalignments (9 more error states)",
+    "filter_rate_hz": "covariance propagation and update rate, Hz",
+    "reorder_window_s": "samples wait this long to be put in stamp order; later ones dropped, s",
+    "odometer_speed_sigma": "odometer speed white noise averaged over 0.1 s, m/s",
+    "nhc_sigma": "NHC: lateral and vertical body velocity noise averaged over 0.1 s, m/s",
+    "odometer_scale_sigma": "initial one-sigma odometer scale-factor error (fraction)",
+    "odometer_scale_rw": "odometer scale-factor random walk, 1/sqrt(s)",
+    "boresight_sigma": "initial one-sigma odometer/IMU misalignment, deg",
+    "odometer_lever_arm": "wheel contact point in base_link, m",
+    "pipe_diameter": "pipe diameter, m (wall-vs-centreline distance noise in bends)",
+    "odometer_distance_sigma": "dr mode along-track distance noise, m/sqrt(m)",
+    "dr_lateral_sigma": "dr mode lateral/vertical path noise, m/sqrt(m)",
+    "stop_speed_threshold": "odometer speed below which the pig may be stopped, m/s",
+    "stop_gyro_threshold": "|gyro| (bias removed) below which the pig may be stopped, deg/s",
+    "zupt_sigma": "zero-velocity update noise, m/s",
+    "zaru_sigma": "zero-angular-rate update noise, rad/s",
+    "tilt_update": "gravity tilt update: auto (on in dr, off in ins) | on | off",
+    "tilt_gate": "tilt update motion-test threshold on |C [0,0,g] x f|, m/s^2",
+    "tilt_sigma": "tilt update noise, m/s^2",
+    "mag_update": "use the magnetometer heading update",
+    "mag_declination": "magnetic declination, east of true north positive, deg",
+    "mag_attenuation": "in-pipe relative permeability mu; 0 = estimate at the start",
+    "mag_heading_sigma": "magnetic heading noise, deg",
+    "mag_magnitude_gate": "reject when | |m| / (mu |B|) - 1 | exceeds this",
+    "mag_dip_gate": "reject when the dip angle differs more than this from the reference, deg",
+    "mag_hard_iron": "magnetometer hard iron, T in imu_link (keep 0 if the driver corrects it)",
+    "marker_time_sigma": "marker passage-time error, s",
+    "static_alignment_s": "seconds of rest needed for the coarse alignment at the start, s",
+    "heading_source": "initial heading from markers | magnetometer | fixed",
+    "initial_azimuth": "initial azimuth for heading_source fixed, deg from north (with markers"
+    " and fewer than two surveyed, the start value; the heading is reported unknown)",
+    "initial_heading_sigma": "initial heading one-sigma before the second marker, deg",
+    "initial_tilt_sigma": "initial roll/pitch one-sigma after static levelling, deg",
+    "initial_position_sigma": "initial position one-sigma at the first marker, m",
+    "gate_probability": "chi-square acceptance probability of every update, in (0.5, 1)",
+}
+
+
 AUTO_GRADE = "auto"  # imu_grade: the noise model measured from the run (imu_model)
 
 

@@ -431,6 +431,12 @@ class Navigator:
             d["time"] = self.state.t
         return d
 
+    @property
+    def reorder_horizon(self) -> float:
+        """Stamp (s) up to which samples have left the reorder window: a sample stamped at or
+        before it would be late (dropped and counted)."""
+        return float(self._reorder.horizon)
+
     def model_warnings(self) -> list[str]:
         """Signs that the IMU noise model does not fit the data so far (:func:`model_warnings`);
         empty when it fits."""

@@ -16,18 +16,27 @@ held for reordering, publish them, then restart (used at the end of a bag replay
 
 All estimator settings are parameters (config/ekf.yaml); invalid values stop the node at start
 with a message naming the parameter (exit status 2), and are refused when set at run time.
+
+Start-up: the numeric kernels are compiled (first run after an install: minutes) or loaded from
+their cache (about 1-2 s) by running the live filter over a short simulated run
+(:func:`pipe_nav_core.warmup.warm_live`) BEFORE the subscriptions exist and "ready" is logged,
+so that the first message is processed at once. Each input message is handled in its callback,
+together with every message already waiting on the inputs, in stamp order; the estimates they
+release are published there and then; ``/diagnostics`` reports the time that takes
+(``latency_ms.*``) and each kind of input fault (``<input>.fault.<kind>``, see ekf_core).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from pipe_nav_core.config import ConfigError, NavConfig
+from pipe_nav_core.warmup import warm_live
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.parameter import Parameter
@@ -50,6 +59,28 @@ from .ros_common import (
 from .sources import read_markers_csv
 
 NODE_NAME = "ekf_node"
+
+MAX_TAKE = 20000  # messages taken from the queues in one callback at most
+
+# Wall time (s) the kernels took to compile or load in this process; None until they did.
+_KERNELS_READY_S: float | None = None
+
+
+def warm_kernels(log: Callable[[str], None]) -> float:
+    """Compile or load the numeric kernels once per process (log: one line before, one
+    after, with the time taken); returns the seconds taken now (0 if already done)."""
+    global _KERNELS_READY_S
+    if _KERNELS_READY_S is not None:
+        log(f"numeric kernels already loaded in this process ({_KERNELS_READY_S:.1f} s)")
+        return 0.0
+    log(
+        "loading the numeric kernels (compiled once per install: minutes on a fresh one, "
+        "then about a second from the cache)"
+    )
+    taken = warm_live()
+    _KERNELS_READY_S = taken
+    log(f"numeric kernels ready in {taken:.1f} s")
+    return taken
 
 
 class EkfNode(PipeNavNode):
@@ -76,16 +107,31 @@ class EkfNode(PipeNavNode):
             survey,
             map_frame=s["map_frame"],
             base_frame=s["base_frame"],
+            imu_frame=s["imu_frame"],
+            odom_frame=s["odom_frame"],
+            max_stamp_lead_s=s["max_stamp_lead_s"],
             on_problem=self._on_problem,
         )
+        # before any subscription: nothing arrives until the kernels are ready
+        self.warmup_s = warm_kernels(self.get_logger().info)
 
         sensors = sensor_qos(s["sensor_qos_depth"])
-        self.create_subscription(Imu, "imu/data", self.core.on_imu, sensors)
-        self.create_subscription(Odometry, "odom/wheel", self.core.on_odometer, sensors)
-        self.create_subscription(MagneticField, "imu/mag", self.core.on_mag, sensors)
-        self.create_subscription(
-            NavSatFix, "markers", self.core.on_marker, markers_subscription_qos()
-        )
+        self._handlers = {
+            "imu": self.core.on_imu,
+            "odometer": self.core.on_odometer,
+            "mag": self.core.on_mag,
+            "markers": self.core.on_marker,
+        }
+        self._subs = {
+            "imu": self.create_subscription(Imu, "imu/data", self._input("imu"), sensors),
+            "odometer": self.create_subscription(
+                Odometry, "odom/wheel", self._input("odometer"), sensors
+            ),
+            "mag": self.create_subscription(MagneticField, "imu/mag", self._input("mag"), sensors),
+            "markers": self.create_subscription(
+                NavSatFix, "markers", self._input("markers"), markers_subscription_qos()
+            ),
+        }
 
         self.odometry_pub = self.create_publisher(Odometry, "pipe_nav/odometry", 50)
         self.datum_pub = self.create_publisher(NavSatFix, "pipe_nav/datum", latched_qos(1))
@@ -103,6 +149,59 @@ class EkfNode(PipeNavNode):
             f"ekf_node ready: mode {config.mode}, IMU grade {config.imu_grade}, "
             f"{len(survey)} surveyed marker(s), TF {'on' if self.tf else 'off'}"
         )
+
+    # ------------------------------------------------------------------ input
+    def _input(self, role: str) -> Callable[[Any, Any], None]:
+        """The subscription callback of one input.
+
+        It takes every message waiting on the four inputs along with this one and handles them
+        in stamp order: behind a backlog the executor serves the subscriptions in turn, one
+        message each, which lets the slower topics run ahead of the IMU by more than the
+        reorder window (and the IMU samples would then be late). Each message goes to the core
+        with its DDS source timestamp (s, for the burst check); the estimates it releases are
+        published at once, and the time from the start of this callback to the end of that
+        publishing is recorded for /diagnostics (``latency_ms.*``).
+        """
+
+        def callback(msg: Any, info: Any) -> None:
+            start = time.perf_counter()
+            batch = [(role, msg, info), *self._waiting()]
+            if len(batch) > 1:
+                batch.sort(key=_stamp_key)  # stable: a topic's own order is kept
+            for r, m, i in batch:
+                self._handle(r, m, i, start)
+
+        return callback
+
+    def _waiting(self) -> list[tuple[str, Any, Any]]:
+        """Every message already waiting in the input subscriptions' queues (role, msg, info);
+        empty where rclpy's take is not available."""
+        out: list[tuple[str, Any, Any]] = []
+        for role, sub in self._subs.items():
+            try:
+                with sub.handle:
+                    while len(out) < MAX_TAKE:
+                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                        if taken is None:
+                            break
+                        out.append((role, taken[0], taken[1]))
+            except Exception:  # noqa: BLE001 - the executor delivers what is left
+                continue
+        return out
+
+    def _handle(self, role: str, msg: Any, info: Any, start: float) -> None:
+        source_ns = _source_timestamp_ns(info)
+        self._handlers[role](msg, None if source_ns is None else source_ns * 1e-9)
+        out = self.core.poll()
+        if out.odometry or out.datum is not None:
+            self._publish(out)
+        if out.odometry:
+            done_ns = time.time_ns()
+            self.core.latency.add(
+                time.perf_counter() - start,
+                None if source_ns is None else (done_ns - source_ns) * 1e-9,
+                len(out.odometry),
+            )
 
     # ------------------------------------------------------------------ output
     def _poll(self) -> None:
@@ -176,6 +275,25 @@ class EkfNode(PipeNavNode):
             "applied at the next ~/reset or ~/finish"
         )
         return SetParametersResult(successful=True)
+
+
+def _stamp_key(item: tuple[str, Any, Any]) -> tuple[int, int]:
+    """Sort key of a (role, message, info): the header stamp (sec, nanosec)."""
+    try:
+        stamp = item[1].header.stamp
+        return int(stamp.sec), int(stamp.nanosec)
+    except (AttributeError, TypeError, ValueError):
+        return (2**62, 0)
+
+
+def _source_timestamp_ns(info: Any) -> int | None:
+    """The publisher's source timestamp (ns, its system clock) of an rclpy MessageInfo, or None
+    when the middleware gives none."""
+    try:
+        ns = int(info["source_timestamp"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return ns if ns > 0 else None
 
 
 def main(args: Sequence[str] | None = None) -> int:

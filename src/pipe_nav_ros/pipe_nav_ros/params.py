@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import MISSING, dataclass, fields
 from typing import Any
 
-from pipe_nav_core.config import ANGLE_FIELDS, ConfigError, NavConfig
+from pipe_nav_core.config import ANGLE_FIELDS, FIELD_DOCS, ConfigError, NavConfig
 from pipe_nav_core.sensors import ImuSpec
 
 # kinds of parameter value
@@ -98,47 +98,6 @@ def values_from(specs: Sequence[ParamSpec], values: Mapping[str, Any]) -> dict[s
 # --------------------------------------------------------------------------------------------
 # Estimator settings (NavConfig)
 
-# Short descriptions with units, shown by ``ros2 param describe`` and as comments in ekf.yaml.
-NAV_DESCRIPTIONS: dict[str, str] = {
-    "mode": "ins (strapdown INS aided by the odometer) or dr (odometer dead reckoning)",
-    "imu_grade": "IMU noise model: consumer | industrial | tactical",
-    "imu_mount_rpy": "roll, pitch, yaw of imu_link in base_link (imu_link->base_link), deg",
-    "gyro_error_states": "estimate gyro scale factors and misalignments (9 more error states)",
-    "filter_rate_hz": "covariance propagation and update rate, Hz",
-    "reorder_window_s": "samples wait this long to be put in stamp order; later ones dropped, s",
-    "odometer_speed_sigma": "odometer speed white noise averaged over 0.1 s, m/s",
-    "nhc_sigma": "NHC: lateral and vertical body velocity noise averaged over 0.1 s, m/s",
-    "odometer_scale_sigma": "initial one-sigma odometer scale-factor error (fraction)",
-    "odometer_scale_rw": "odometer scale-factor random walk, 1/sqrt(s)",
-    "boresight_sigma": "initial one-sigma odometer/IMU misalignment, deg",
-    "odometer_lever_arm": "wheel contact point in base_link, m",
-    "pipe_diameter": "pipe diameter, m (wall-vs-centreline distance noise in bends)",
-    "odometer_distance_sigma": "dr mode along-track distance noise, m/sqrt(m)",
-    "dr_lateral_sigma": "dr mode lateral/vertical path noise, m/sqrt(m)",
-    "stop_speed_threshold": "odometer speed below which the pig may be stopped, m/s",
-    "stop_gyro_threshold": "|gyro| (bias removed) below which the pig may be stopped, deg/s",
-    "zupt_sigma": "zero-velocity update noise, m/s",
-    "zaru_sigma": "zero-angular-rate update noise, rad/s",
-    "tilt_update": "gravity tilt update: auto (on in dr, off in ins) | on | off",
-    "tilt_gate": "tilt update motion-test threshold on |C [0,0,g] x f|, m/s^2",
-    "tilt_sigma": "tilt update noise, m/s^2",
-    "mag_update": "use the magnetometer heading update",
-    "mag_declination": "magnetic declination, east of true north positive, deg",
-    "mag_attenuation": "in-pipe relative permeability mu; 0 = estimate at the start",
-    "mag_heading_sigma": "magnetic heading noise, deg",
-    "mag_magnitude_gate": "reject when | |m| / (mu |B|) - 1 | exceeds this",
-    "mag_dip_gate": "reject when the dip angle differs more than this from the reference, deg",
-    "mag_hard_iron": "magnetometer hard iron, T in imu_link (keep 0 if the driver corrects it)",
-    "marker_time_sigma": "marker passage-time error, s",
-    "static_alignment_s": "seconds of rest needed for the coarse alignment at the start, s",
-    "heading_source": "initial heading from markers | magnetometer | fixed",
-    "initial_azimuth": "initial azimuth for heading_source fixed, deg from north (with markers"
-    " and fewer than two surveyed, the start value; the heading is reported unknown)",
-    "initial_heading_sigma": "initial heading one-sigma before the second marker, deg",
-    "initial_tilt_sigma": "initial roll/pitch one-sigma after static levelling, deg",
-    "initial_position_sigma": "initial position one-sigma at the first marker, m",
-    "gate_probability": "chi-square acceptance probability of every update, in (0.5, 1)",
-}
 
 IMU_OVERRIDES_PREFIX = "imu_overrides."
 
@@ -172,7 +131,7 @@ def nav_param_specs() -> list[ParamSpec]:
             continue
         deg = name in ANGLE_FIELDS
         pname = f"{name}_deg" if deg else name
-        desc = NAV_DESCRIPTIONS.get(name, f"NavConfig.{name}")
+        desc = FIELD_DOCS.get(name, f"NavConfig.{name}")
         if isinstance(default, bool):
             kind = BOOL
         elif isinstance(default, str):
@@ -377,7 +336,30 @@ EKF_NODE_SPECS = [
     ParamSpec("base_frame", "base_link", STR, "child frame of the published odometry"),
     ParamSpec("publish_period_s", 0.05, FLOAT, "how often new estimates are published, s"),
     ParamSpec("diagnostics_period_s", 1.0, FLOAT, "period of /diagnostics, s"),
-    ParamSpec("sensor_qos_depth", 500, INT, "history depth of the sensor subscriptions"),
+    ParamSpec(
+        "sensor_qos_depth",
+        5000,
+        INT,
+        "history depth of the sensor subscriptions (5000: 5 s of a 1 kHz IMU if the node stalls)",
+    ),
+    ParamSpec(
+        "imu_frame",
+        "imu_link",
+        STR,
+        "frame_id accepted on imu/data and imu/mag (also <prefix>/imu_link); others: fault",
+    ),
+    ParamSpec(
+        "odom_frame",
+        "odom",
+        STR,
+        "frame_id accepted on odom/wheel (child: base_frame; also <prefix>/...); others: fault",
+    ),
+    ParamSpec(
+        "max_stamp_lead_s",
+        1.0,
+        FLOAT,
+        "a stamp this far (s) ahead of the newest sensor stamp is a fault (stamp_future)",
+    ),
 ]
 
 SMOOTHER_NODE_SPECS = [
@@ -406,7 +388,9 @@ def ekf_node_settings(values: Mapping[str, Any]) -> dict[str, Any]:
             raise ConfigError(f"{name} must be > 0, not {v[name]!r}")
     if v["sensor_qos_depth"] < 1:
         raise ConfigError(f"sensor_qos_depth must be >= 1, not {v['sensor_qos_depth']!r}")
-    for name in ("map_frame", "base_frame"):
+    if v["max_stamp_lead_s"] <= 0:
+        raise ConfigError(f"max_stamp_lead_s must be > 0, not {v['max_stamp_lead_s']!r}")
+    for name in ("map_frame", "base_frame", "imu_frame", "odom_frame"):
         if not v[name]:
             raise ConfigError(f"{name} must not be empty")
     return v
