@@ -363,3 +363,34 @@ def test_load_benchmark_short_run(tmp_path):
     content = bench.read_text()
     assert content.count("## ROS 2: ekf_node under a 1 kHz IMU") == 1
     assert content.startswith("# B\n\n## Other\n\ntext\n")
+
+
+def test_ctrl_c_under_a_message_stream_is_a_clean_stop(ctx, graph, run, tmp_path):
+    """ros2 launch delivers Ctrl-C twice, often while a callback converts a message: ekf_node
+    exits 0 without a traceback every time."""
+    import signal
+    import subprocess
+
+    executor, helper, _ = graph
+    env = {**os.environ, "ROS_DOMAIN_ID": str(ctx.get_domain_id())}
+    pub = helper.create_publisher(Imu, "/imu/data", BEST_EFFORT)
+    msgs = [
+        m for _, role, m in rosmsg.log_to_messages(rclpy_types(), run.log, 30.0) if role == "imu"
+    ]
+    for attempt in range(3):
+        proc = subprocess.Popen(["ros2", "run", "pipe_nav_ros", "ekf_node"], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                start_new_session=True)  # fmt: skip
+        try:
+            assert spin_until(executor, lambda: pub.get_subscription_count() > 0, 120.0)
+            for k, msg in enumerate(msgs[:2000]):
+                pub.publish(msg)
+                if k == 1000 + 300 * attempt:
+                    os.killpg(proc.pid, signal.SIGINT)
+                    os.killpg(proc.pid, signal.SIGINT)
+            out, _ = proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        assert proc.returncode == 0 and "Traceback" not in out, out[-2000:]

@@ -22,7 +22,6 @@ import functools
 import itertools
 import math
 import os
-import signal
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -249,16 +248,7 @@ class SensorDriverNode(PipeNavNode):
 
 
 def _main(kind: str, args: Sequence[str] | None) -> int:
-    # A Ctrl-C on `ros2 launch` reaches each node twice (from the terminal to the whole process
-    # group, and forwarded by launch), and one SIGINT both shuts rclpy down and raises
-    # KeyboardInterrupt: when that lands in run_node's clean-up or at exit, it is still an
-    # ordinary stop (status 0), not a crash with a traceback.
-    try:
-        code = run_node(lambda: SensorDriverNode(kind), DRIVER_NODE_NAMES[kind], args)
-    except KeyboardInterrupt:
-        code = 0
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # stopping already
-    return code
+    return run_node(lambda: SensorDriverNode(kind), DRIVER_NODE_NAMES[kind], args)
 
 
 def main_imu(args: Sequence[str] | None = None) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -93,9 +94,14 @@ def run_node(
 
     A ConfigError raised while building the node (an invalid parameter) is logged as an error
     and gives exit status 2, so ``ros2 run`` and launch show a clear message and a failure.
+    Ctrl-C is an ordinary stop (status 0, no traceback) wherever it lands: ``ros2 launch``
+    delivers it twice (to the process group and forwarded), and rclpy's handler shuts the
+    context down while a callback may still be converting a message, which makes that
+    ``spin_once`` raise; once rclpy is shut down such an error is the stop, not a crash.
     """
     rclpy.init(args=list(args) if args is not None else None)
     node: PipeNavNode | None = None
+    executor: SingleThreadedExecutor | None = None
     try:
         try:
             node = factory()
@@ -105,11 +111,19 @@ def run_node(
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         while rclpy.ok() and node.exit_code is None:
-            executor.spin_once(timeout_sec=0.2)
+            try:
+                executor.spin_once(timeout_sec=0.2)
+            except Exception:
+                if rclpy.ok():
+                    raise
+                break  # shut down mid-callback by Ctrl-C
         return node.exit_code or 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # stopping already: a second Ctrl-C waits
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
         if node is not None:
             node.close()
             node.destroy_node()
