@@ -270,7 +270,11 @@ def test_setup_py_data_files_exist():
         "replay.launch.py",
         "smooth.launch.py",
     ]
-    assert {p.name for p in (PKG / "config").glob("*.yaml")} == {"ekf.yaml", "drivers.yaml"}
+    assert {p.name for p in (PKG / "config").glob("*.yaml")} == {
+        "ekf.yaml",
+        "drivers.yaml",
+        "recorder_qos.yaml",
+    }
     script = PKG / "scripts" / "replay_with_ros.sh"
     assert os.access(script, os.X_OK), "replay_with_ros.sh must be executable"
 

@@ -7,8 +7,11 @@
         imu_log:=imu.csv odometer_log:=odo.csv mag_log:=mag.csv markers_csv:=markers.csv
 
 Driver parameters come from config/drivers.yaml, estimator parameters from config/ekf.yaml
-(override with driver_params:= / ekf_params:=). In log and sim mode the drivers share one start
-time (now + startup_delay) so the three streams are replayed in step.
+(override with driver_params:= / ekf_params:=). ekf_node starts first; the drivers start when it
+says it is ready (its numeric kernels loaded, which takes seconds), so the estimator sees the
+data from the first sample on (the static alignment needs the rest at the start). In log and
+sim mode the drivers share one start time, startup_delay after that, so the three streams are
+replayed in step.
 """
 
 import os
@@ -16,11 +19,13 @@ import time
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 PACKAGE = "pipe_nav_ros"
+EKF_READY = b"ekf_node ready"  # ekf_node's log line once it takes data
 
 
 def _arg(context, name):
@@ -31,7 +36,8 @@ def _truthy(text):
     return text.strip().lower() in ("1", "true", "yes", "on")
 
 
-def _nodes(context):
+def _drivers(context):
+    """The driver nodes, their start time startup_delay from now (system time)."""
     source = _arg(context, "source")
     rate = float(_arg(context, "rate"))
     start_time = time.time() + float(_arg(context, "startup_delay"))
@@ -70,19 +76,36 @@ def _nodes(context):
                 parameters=[driver_params, params],
             )
         )
-    actions.append(
-        Node(
-            package=PACKAGE,
-            executable="ekf_node",
-            name="ekf_node",
-            output="screen",
-            parameters=[
-                _arg(context, "ekf_params"),
-                {"publish_tf": _truthy(_arg(context, "publish_tf"))},
-            ],
-        )
-    )
     return actions
+
+
+def _nodes(context):
+    """ekf_node, and a handler that starts the drivers once ekf_node is ready."""
+    for name, kind in (("rate", float), ("startup_delay", float), ("seed", int), ("baud", int)):
+        kind(_arg(context, name))  # a bad number fails the launch now, not at ekf_node's ready
+    ekf = Node(
+        package=PACKAGE,
+        executable="ekf_node",
+        name="ekf_node",
+        output="screen",
+        parameters=[
+            _arg(context, "ekf_params"),
+            {"publish_tf": _truthy(_arg(context, "publish_tf"))},
+        ],
+    )
+    started = []
+
+    def on_output(event):
+        if started or EKF_READY not in event.text:
+            return None
+        started.append(True)
+        return [
+            LogInfo(msg="ekf_node ready: starting the drivers"),
+            OpaqueFunction(function=_drivers),
+        ]
+
+    handler = OnProcessIO(target_action=ekf, on_stdout=on_output, on_stderr=on_output)
+    return [RegisterEventHandler(handler), ekf]
 
 
 def generate_launch_description():
@@ -93,7 +116,11 @@ def generate_launch_description():
         ("scenario", "demo", "sim: scenario of pipe_nav_core.sim"),
         ("seed", "0", "sim: random seed"),
         ("rate", "1.0", "log/sim: playback speed factor"),
-        ("startup_delay", "3.0", "log/sim: seconds from launch to the first sample"),
+        (
+            "startup_delay",
+            "8.0",
+            "log/sim: seconds from ekf_node being ready (the drivers' start) to the first sample",
+        ),
         ("imu_port", "/dev/ttyUSB0", "serial: IMU device"),
         ("odometer_port", "/dev/ttyUSB1", "serial: odometer device"),
         ("mag_port", "/dev/ttyUSB2", "serial: magnetometer device"),

@@ -6,9 +6,12 @@
 ``ros2 bag play <bag> --clock`` publishes the input topics and /clock; ekf_node runs with
 use_sim_time:=true; with record:=true, ``ros2 bag record -s mcap -o <output>`` records
 /pipe_nav/odometry, /pipe_nav/datum and /diagnostics into the rosbag2 directory <output>
-(default: <bag name>_ekf beside the bag). When the bag has played, ekf_node's ~/finish service
-flushes the last estimates and, with shutdown_when_done:=true, the launch ends (closing the
-recording). The ROS-free equivalent is ``pipe-nav replay IN.mcap --out OUT.mcap``.
+(default: <bag name>_ekf beside the bag). The bag plays once ekf_node says it is ready (its
+numeric kernels loaded: seconds, minutes on a fresh install) and the recorder has subscribed to
+/pipe_nav/odometry, after ``delay`` more seconds, so the estimator sees the bag from its first
+message on. When the bag has played, ekf_node's ~/finish service flushes the last estimates
+and, with shutdown_when_done:=true, the launch ends (closing the recording); it also ends when
+ekf_node does. The ROS-free equivalent is ``pipe-nav replay IN.mcap --out OUT.mcap``.
 """
 
 import os
@@ -24,13 +27,15 @@ from launch.actions import (
     Shutdown,
     TimerAction,
 )
-from launch.event_handlers import OnProcessExit
+from launch.event_handlers import OnProcessExit, OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 PACKAGE = "pipe_nav_ros"
 INPUT_TOPICS = ["/imu/data", "/odom/wheel", "/imu/mag", "/markers"]
 RECORDED_TOPICS = ["/pipe_nav/odometry", "/pipe_nav/datum", "/diagnostics"]
+EKF_READY = b"ekf_node ready"  # ekf_node's log line once it takes data
+RECORDER_READY = b"Subscribed to topic '/pipe_nav/odometry'"  # ros2 bag record's log line
 
 
 def _arg(context, name):
@@ -79,20 +84,44 @@ def _actions(context):
             _arg(context, "ekf_params"),
             {"use_sim_time": True, "publish_tf": _truthy(_arg(context, "publish_tf"))},
         ],
+        on_exit=Shutdown(reason="ekf_node exited"),
     )
-    actions = [ekf]
+    # the bag plays once every process in ``waiting`` has logged its ready line
+    waiting = {"ekf_node": (ekf, EKF_READY)}
+    actions = []
     if _truthy(_arg(context, "record")):
         output = _arg(context, "output") or default_output(bag)
         if os.path.exists(output):
             raise RuntimeError(f"output {output} already exists; choose another output:=")
+        record = ExecuteProcess(
+            cmd=["ros2", "bag", "record", "-s", "mcap", "-o", output]
+            + ["--qos-profile-overrides-path", _arg(context, "recorder_qos")]
+            + RECORDED_TOPICS,
+            name="bag_record",
+            output="screen",
+        )
+        waiting["bag_record"] = (record, RECORDER_READY)
+        actions.append(LogInfo(msg=f"recording {' '.join(RECORDED_TOPICS)} into {output}"))
+
+    def when_ready(name, marker):
+        def on_output(event):
+            if name not in waiting or marker not in event.text:
+                return None
+            del waiting[name]
+            if waiting:
+                return None
+            return [LogInfo(msg=f"ready: playing {bag}"), play]
+
+        return on_output
+
+    for name, (action, marker) in list(waiting.items()):
+        handler = when_ready(name, marker)
         actions.append(
-            ExecuteProcess(
-                cmd=["ros2", "bag", "record", "-s", "mcap", "-o", output] + RECORDED_TOPICS,
-                name="bag_record",
-                output="screen",
+            RegisterEventHandler(
+                OnProcessIO(target_action=action, on_stdout=handler, on_stderr=handler)
             )
         )
-        actions.append(LogInfo(msg=f"recording {' '.join(RECORDED_TOPICS)} into {output}"))
+    actions += [process for process, _ in waiting.values()]
     finish = ExecuteProcess(
         cmd=["ros2", "service", "call", "/ekf_node/finish", "std_srvs/srv/Trigger"],
         name="ekf_finish",
@@ -116,8 +145,7 @@ def _actions(context):
                 )
             )
         )
-    actions.append(play)
-    return actions
+    return actions  # play: started by the ready handlers
 
 
 def generate_launch_description():
@@ -127,10 +155,19 @@ def generate_launch_description():
         ("record", "false", "record the output topics with ros2 bag record"),
         ("output", "", "record: output bag directory (default <bag name>_ekf)"),
         ("rate", "1.0", "playback rate factor"),
-        ("delay", "3.0", "seconds before playback starts (lets ekf_node and the recorder start)"),
+        (
+            "delay",
+            "1.0",
+            "seconds from ekf_node (and the recorder) being ready to the start of the playback",
+        ),
         ("publish_tf", "true", "ekf_node broadcasts TF map -> base_link"),
         ("shutdown_when_done", "true", "end the launch once the bag has played and ekf flushed"),
         ("ekf_params", os.path.join(share, "config", "ekf.yaml"), "ekf_node parameter file"),
+        (
+            "recorder_qos",
+            os.path.join(share, "config", "recorder_qos.yaml"),
+            "record: the recorder's QoS overrides (deep enough for ekf_node's bursts)",
+        ),
     ]
     return LaunchDescription(
         [DeclareLaunchArgument(n, default_value=d, description=h) for n, d, h in arguments]
