@@ -200,7 +200,7 @@ def test_ekf_yaml_holds_every_setting_with_its_default():
     missing = {n for n, s in specs.items() if s.default is not None} - set(params)
     assert not missing, (
         f"ekf.yaml lacks {missing}; regenerate: "
-        "cd src/pipe_nav_ros && PYTHONPATH=. python3 -m pipe_nav_ros.params ekf > config/ekf.yaml"
+        "cd src/pipe_nav_ros && ../../.venv/bin/python -m pipe_nav_ros.params ekf > config/ekf.yaml"
     )
     for name, value in params.items():
         default = specs[name].default
@@ -224,7 +224,7 @@ def test_config_files_are_the_generated_ones():
     for which in ("ekf", "drivers"):
         assert (PKG / "config" / f"{which}.yaml").read_text() == config_file_text(which), (
             f"config/{which}.yaml is out of date; regenerate: cd src/pipe_nav_ros && "
-            f"PYTHONPATH=. python3 -m pipe_nav_ros.params {which} > config/{which}.yaml"
+            f"../../.venv/bin/python -m pipe_nav_ros.params {which} > config/{which}.yaml"
         )
 
 

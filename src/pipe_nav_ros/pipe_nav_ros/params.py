@@ -473,12 +473,13 @@ HEADERS = {
         "# ekf_node parameters: every estimator setting (pipe_nav_core NavConfig) with its\n"
         "# default. Angles in degrees (*_deg), everything else SI. Loaded by live.launch.py and\n"
         "# replay.launch.py (and by smooth.launch.py for smoother_node). After a change of\n"
-        "# NavConfig regenerate with:  python3 -m pipe_nav_ros.params ekf > config/ekf.yaml\n"
+        "# NavConfig regenerate it (in src/pipe_nav_ros, with the Python that has the core):\n"
+        "#   python -m pipe_nav_ros.params ekf > config/ekf.yaml\n"
     ),
     "drivers": (
         "# Parameters of imu_driver_node, odometer_driver_node and magnetometer_driver_node\n"
         "# with their defaults; see src/pipe_nav_ros/README.md for the serial protocol and the\n"
-        "# CSV log formats. Regenerate with:  python3 -m pipe_nav_ros.params drivers\n"
+        "# CSV log formats. Regenerate with:  python -m pipe_nav_ros.params drivers\n"
     ),
 }
 
