@@ -4,6 +4,7 @@
     pipe-nav replay IN --out OUT.mcap
     pipe-nav simulate --scenario NAME --seed N --out RUN.mcap
     pipe-nav info IN [--json]
+    pipe-nav config [--template]
     pipe-nav evaluate CENTERLINE.csv --truth TRUTH.csv
     pipe-nav bench [--quick]
 
@@ -301,6 +302,27 @@ def _write_settings(path: Path, settings: dict[str, Any], bag_name: str) -> None
         yaml.dump({k: list(v) if isinstance(v, tuple) else v for k, v in settings.items()}, f)
 
 
+def cmd_config(args: argparse.Namespace) -> int:
+    """--template: the settings file of one pig; else every setting in effect after --config
+    and --set (angles in degrees), as YAML that --config reads back."""
+    if args.template:
+        from .settings_template import template_text
+
+        print(template_text(), end="")
+        return 0
+    from .config import ANGLE_FIELDS
+    from .settings_template import degrees_of, yaml_value
+
+    for name, value in _load_config(args).to_dict().items():
+        if name in ANGLE_FIELDS:
+            name, value = f"{name}_deg", degrees_of(value)
+        if name == "imu_overrides":
+            print("imu_overrides: {" + ", ".join(f"{k}: {v!r}" for k, v in value.items()) + "}")
+        else:
+            print(f"{name}: {yaml_value(value)}")
+    return 0
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     from .info import describe_bag, format_info
 
@@ -381,6 +403,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("config", help="a settings file for a pig, or the settings in effect")
+    p.add_argument("--template", action="store_true", help="the settings file of one pig")
+    p.add_argument("--config", help="YAML/JSON file of estimator settings (or the ROS ekf.yaml)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting")
+    p.set_defaults(func=cmd_config)
 
     p = sub.add_parser("info", help="what a bag holds, before smoothing it")
     p.add_argument("input", help="bag: a .mcap file or a rosbag2 directory")
