@@ -15,6 +15,7 @@ from pipe_nav_ros.ekf_core import (
     BURST_ALLOWANCE_S,
     BURST_FACTOR,
     ERROR,
+    INPUT_TOPICS,
     JUMP_CONFIRM,
     OK,
     WARN,
@@ -447,7 +448,6 @@ def test_imu_grade_auto_is_chosen_at_the_rest_and_reported(run, config):
 
     from pipe_nav_ros.ekf_core import INPUT_TOPICS, declared_imu_noise
 
-
     core = EkfCore(dataclasses.replace(config, imu_grade="auto"), TYPES)
     for _, role, msg in input_messages(run, 20.0):  # no finish(): it would restart the engine
         assert core.on_message(INPUT_TOPICS[role], msg)
@@ -462,3 +462,18 @@ def test_imu_grade_auto_is_chosen_at_the_rest_and_reported(run, config):
     fresh = EkfCore(NavConfig(), TYPES)
     fresh.on_imu(msg)
     assert fresh.nav.declared_imu_noise == declared_imu_noise(msg)
+
+
+def test_a_non_finite_estimate_never_reaches_a_message(run, config):
+    import dataclasses
+
+    core = EkfCore(config, TYPES)
+    for _, role, msg in input_messages(run, 20.0):
+        core.on_message(INPUT_TOPICS[role], msg)
+    good = core.nav.poll() + core.nav.finish()
+    assert good and core.nav.datum is not None
+    bad = dataclasses.replace(good[-1], h=math.nan)
+    out = core._output([good[-1], bad])
+    assert len(out.odometry) == 1 and core.estimates_nonfinite == 1
+    level, message, values = core.health(now=1.0)
+    assert level == ERROR and "non-finite" in message and values["estimates_nonfinite"] == 1

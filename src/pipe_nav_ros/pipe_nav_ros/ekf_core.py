@@ -184,6 +184,13 @@ def declared_imu_noise(msg: Any) -> dict[str, list[float]] | None:
     return {"gyro_variance": gd.tolist(), "accel_variance": ad.tolist()}
 
 
+def finite_estimate(est: NavEstimate) -> bool:
+    """Whether every number an Odometry message carries of ``est`` is finite."""
+    scalars = (est.t, est.lat, est.lon, est.h, est.distance)
+    arrays = (est.vel_n, est.quat_nb, est.omega_b, est.cov_pose, est.cov_vel_n)
+    return all(map(math.isfinite, scalars)) and all(bool(np.isfinite(a).all()) for a in arrays)
+
+
 def frame_matches(frame_id: str, expected: str) -> bool:
     """frame_id is ``expected`` or ``<prefix>/expected`` (a tf prefix), leading "/" ignored."""
     f = str(frame_id).lstrip("/")
@@ -248,6 +255,7 @@ class EkfCore:
         self.latency = LatencyStats()
         self.estimates_published = 0
         self.estimates_without_datum = 0
+        self.estimates_nonfinite = 0
         self.poll_errors = 0
         self.resets = 0
         self.last_estimate: NavEstimate | None = None
@@ -258,6 +266,7 @@ class EkfCore:
         self._problem_mark = 0
         self._fault_mark: dict[str, int] = {}
         self._error_mark = 0
+        self._nonfinite_mark = 0
 
     def _configure(self, config: NavConfig, survey: Sequence[Marker]) -> None:
         self.config = config
@@ -583,6 +592,10 @@ class EkfCore:
             if datum is None:
                 self.estimates_without_datum += 1
                 continue
+            if not finite_estimate(est):  # never a NaN on the wire: withheld and counted
+                self.estimates_nonfinite += 1
+                self._problem(self.counters["imu"], "imu", f"non-finite estimate at {est.t:.3f} s")
+                continue
             out.odometry.append(self.odometry(est, datum))
         if estimates:
             self.last_estimate = estimates[-1]
@@ -661,6 +674,7 @@ class EkfCore:
         values.update(self.latency.report())
         values["estimates_published"] = self.estimates_published
         values["estimates_without_datum"] = self.estimates_without_datum
+        values["estimates_nonfinite"] = self.estimates_nonfinite
         values["datum_known"] = "yes" if self.nav.datum is not None else "no"
         values["resets"] = self.resets
         values["engine_errors"] = self.poll_errors
@@ -680,8 +694,13 @@ class EkfCore:
         summary = ", ".join(f"{r} {rates[r]:.1f} Hz" for r in ("imu", "odometer", "mag"))
         new_errors = self.poll_errors - self._error_mark
         self._error_mark = self.poll_errors
+        new_nonfinite = self.estimates_nonfinite - self._nonfinite_mark
+        self._nonfinite_mark = self.estimates_nonfinite
         if new_errors:
             level, message = ERROR, f"engine failed {new_errors} time(s) since the last report"
+        elif new_nonfinite:
+            level = ERROR
+            message = f"{new_nonfinite} non-finite estimate(s) withheld since the last report"
         elif new_problems or new_faults:
             named = ", ".join(f"{k} {n}" for k, n in new_faults.items())
             if new_problems:
