@@ -106,3 +106,24 @@ def test_a_short_rest_falls_back_on_the_declared_noise():
     args = (imu.t[:n], imu.gyro[:n], imu.accel[:n], NavConfig())
     assert imu_model.choose_at_rest(*args, declared).grade == "consumer"
     assert imu_model.choose_at_rest(*args).grade == "industrial"
+
+
+def test_the_declared_noise_is_read_from_the_bag_and_used(tmp_path):
+    from pipe_nav_core.io import write_sensor_bag
+    from pipe_nav_core.io.bagread import declared_imu_noise
+    from pipe_nav_core.pipeline import load_log
+
+    run = simulate("demo", 0)
+    spec, dt = GRADES["consumer"], 1.0 / run.imu_rate_hz
+    gv, av = spec.gyro_arw**2 / dt, spec.accel_vrw**2 / dt
+    bag = tmp_path / "declared.mcap"
+    write_sensor_bag(bag, run.log, gyro_var=gv, accel_var=av)
+    declared = declared_imu_noise(bag, "/imu/data")
+    np.testing.assert_allclose(declared["gyro_variance"], [gv] * 3)
+    np.testing.assert_allclose(declared["accel_variance"], [av] * 3)
+    log, _ = load_log(bag)
+    moving = dataclasses.replace(log, odometer=dataclasses.replace(
+        log.odometer, distance=log.odometer.distance + np.arange(len(log.odometer.t))
+    ))  # fmt: skip
+    assert imu_model.choose(moving, NavConfig(), declared).grade == "consumer"
+    assert declared_imu_noise(bag, "/no/such/topic") == {}

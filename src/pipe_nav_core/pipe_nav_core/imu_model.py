@@ -17,7 +17,6 @@ m/s^2, times s (bag stamps).
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -123,28 +122,6 @@ def measured_noise(
         out["gyro_bias_instability"] = (dev_g.min(axis=0) / 0.664).tolist()
         out["accel_bias_instability"] = (dev_a.min(axis=0) / 0.664).tolist()
     return out
-
-
-def declared_noise(path: str | os.PathLike[str], topic: str) -> dict[str, Any]:
-    """The per-sample variances (diagonals, (rad/s)^2 and (m/s^2)^2) the bag's first Imu
-    message on ``topic`` declares, or {} (no message, or one that does not decode)."""
-    from mcap.reader import make_reader
-    from rosbags.typesys import Stores, get_typestore
-
-    from .io.bagread import bag_files
-
-    store = get_typestore(Stores.ROS2_JAZZY)
-    for f in bag_files(path):
-        try:
-            with open(f, "rb") as fh:
-                for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
-                    msg = store.deserialize_cdr(message.data, "sensor_msgs/msg/Imu")
-                    gv = np.asarray(msg.angular_velocity_covariance, dtype=float)[[0, 4, 8]]
-                    av = np.asarray(msg.linear_acceleration_covariance, dtype=float)[[0, 4, 8]]
-                    return {"gyro_variance": gv.tolist(), "accel_variance": av.tolist()}
-        except Exception:  # an unreadable first message says nothing about the noise
-            return {}
-    return {}
 
 
 def _log_distance(arw: float, vrw: float, spec: ImuSpec) -> float:

@@ -20,8 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import NavConfig
-from .imu_model import choose, declared_noise, measured_noise, nearest_grade, static_spans
+from .imu_model import choose, measured_noise, nearest_grade, static_spans
 from .io import TopicNames, merge_markers, read_bag, read_markers_csv
+from .io.bagread import declared_imu_noise
 from .io.topics import DEFAULT_TOPICS
 
 GAP_FACTOR = 5.0  # a stamp step over this many median periods is a gap
@@ -75,7 +76,7 @@ def describe_bag(
         topic_rows.append(row)
     spans = static_spans(log)
     noise = measured_noise(log, spans)
-    declared = declared_noise(path, topics.imu)
+    declared = declared_imu_noise(path, topics.imu)
     chosen = choose(log, cfg, declared)
     spec = cfg.imu_spec()
     odo = log.odometer

@@ -31,6 +31,7 @@ from .io import (
     write_output_bag,
 )
 from .io.atomic import check_not_input
+from .io.bagread import declared_imu_noise
 from .smoother import SmoothResult, smooth_log
 from .types import Datum, SensorLog, Trajectory
 
@@ -133,7 +134,7 @@ def smooth_with_imu_model(
     say = progress or (lambda _m: None)
     declared = None
     if config.imu_grade == AUTO_GRADE and bag is not None:
-        declared = imu_model.declared_noise(bag, topics.imu)
+        declared = declared_imu_noise(bag, topics.imu)
     choice = imu_model.choose(log, config, declared)
     auto = config.imu_grade == AUTO_GRADE
     if auto:
@@ -267,7 +268,7 @@ def replay_bag(
         raise ValueError(f"{bag}: no IMU samples on {topics.imu}")
     declared = None
     if config.imu_grade == AUTO_GRADE:
-        declared = imu_model.declared_noise(bag, topics.imu)
+        declared = declared_imu_noise(bag, topics.imu)
     result = replay_log(log, config, declared)
     if not result.estimates:
         raise ValueError(

@@ -29,6 +29,7 @@ import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -946,3 +947,24 @@ def bag_time_range(
     if not starts or not ends:
         return None
     return min(starts), max(ends)
+
+
+def declared_imu_noise(path: str | os.PathLike[str], topic: str) -> dict[str, Any]:
+    """The per-sample variances (diagonals, (rad/s)^2 and (m/s^2)^2) the bag's first Imu
+    message on ``topic`` declares, or {} (no message, or one that does not decode): what the
+    IMU model of imu_grade auto falls back on (imu_model.choose)."""
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for f in bag_files(path):
+        try:
+            with open(f, "rb") as fh:
+                for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
+                    msg = store.deserialize_cdr(message.data, "sensor_msgs/msg/Imu")
+                    gv = np.asarray(msg.angular_velocity_covariance, dtype=float)[[0, 4, 8]]
+                    av = np.asarray(msg.linear_acceleration_covariance, dtype=float)[[0, 4, 8]]
+                    return {"gyro_variance": gv.tolist(), "accel_variance": av.tolist()}
+        except Exception:  # an unreadable first message says nothing about the noise
+            return {}
+    return {}
