@@ -954,16 +954,19 @@ def declared_imu_noise(path: str | os.PathLike[str], topic: str) -> dict[str, An
     message on ``topic`` declares, or {} (no message, or one that does not decode): what the
     IMU model of imu_grade auto falls back on (imu_model.choose)."""
     from mcap.reader import make_reader
-    from rosbags.typesys import Stores, get_typestore
 
-    store = get_typestore(Stores.ROS2_JAZZY)
+    names = ["angular_velocity_covariance", "linear_acceleration_covariance"]
     for f in bag_files(path):
         try:
             with open(f, "rb") as fh:
                 for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
-                    msg = store.deserialize_cdr(message.data, "sensor_msgs/msg/Imu")
-                    gv = np.asarray(msg.angular_velocity_covariance, dtype=float)[[0, 4, 8]]
-                    av = np.asarray(msg.linear_acceleration_covariance, dtype=float)[[0, 4, 8]]
+                    buf = np.frombuffer(message.data, dtype=np.uint8)
+                    values, ok = cdr.decode_batch(
+                        cdr.IMU, buf, np.array([0]), np.array([len(buf)]), names
+                    )
+                    if not ok.all():
+                        return {}
+                    gv, av = (np.asarray(values[n], dtype=float)[0, [0, 4, 8]] for n in names)
                     return {"gyro_variance": gv.tolist(), "accel_variance": av.tolist()}
         except Exception:  # an unreadable first message says nothing about the noise
             return {}
