@@ -31,10 +31,9 @@ from pipe_nav_core.config import ConfigError  # noqa: E402
 from pipe_nav_core.io.rosmsg import stamp_to_sec  # noqa: E402
 from pipe_nav_ros.driver_node import SensorDriverNode  # noqa: E402
 from pipe_nav_ros.sources import nmea_checksum  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from ros_graph import spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 
 SENSOR_DEEP = QoSProfile(
@@ -46,12 +45,6 @@ LATCHED_DEEP = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
-_domains = itertools.count()
-
-
-def new_domain() -> int:
-    """A ROS domain for one test: 120..219, away from the fixed ids people use by hand."""
-    return 120 + (os.getpid() * 7 + next(_domains)) % 100
 
 
 def line(body: str, checksum: bool = True) -> bytes:
@@ -68,30 +61,6 @@ def stamp(msg) -> float:
 
 
 @pytest.fixture
-def ctx():
-    context = Context()
-    rclpy.init(context=context, domain_id=new_domain())
-    yield context
-    rclpy.try_shutdown(context=context)
-
-
-@pytest.fixture
-def graph(ctx):
-    """(executor, helper node, nodes to clean up)."""
-    executor = SingleThreadedExecutor(context=ctx)
-    helper = rclpy.create_node("driver_test_helper", context=ctx)
-    executor.add_node(helper)
-    nodes = [helper]
-    yield executor, helper, nodes
-    for node in nodes:
-        if hasattr(node, "close"):
-            node.close()
-        executor.remove_node(node)
-        node.destroy_node()
-    executor.shutdown()
-
-
-@pytest.fixture
 def pty():
     """(master fd, slave tty path); the test writes into master, the driver opens the path."""
     pytest.importorskip("serial", reason="pyserial (python3-serial) is not installed")
@@ -101,15 +70,6 @@ def pty():
     for fd in fds.values():
         with contextlib.suppress(OSError):
             os.close(fd)
-
-
-def spin_until(executor, predicate, timeout=10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        executor.spin_once(timeout_sec=0.02)
-    return predicate()
 
 
 def start_driver(graph_, ctx, kind, **params):

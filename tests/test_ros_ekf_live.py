@@ -7,7 +7,6 @@ SingleThreadedExecutor from the test thread, and cleans up after itself.
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import time
@@ -27,8 +26,6 @@ from pipe_nav_ros.ekf_core import WARN  # noqa: E402
 from pipe_nav_ros.ekf_node import EkfNode  # noqa: E402
 from pipe_nav_ros.msg_types import rclpy_types  # noqa: E402
 from pipe_nav_ros.params import nav_params_from_config  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import (  # noqa: E402
     DurabilityPolicy,
@@ -36,16 +33,10 @@ from rclpy.qos import (  # noqa: E402
     QoSProfile,
     ReliabilityPolicy,
 )
+from ros_graph import own_domain, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 
 from pipe_nav_ros import ekf_node as ekf_node_module  # noqa: E402
-
-_DOMAINS = itertools.count()
-
-
-def own_domain() -> int:
-    """A ROS domain for one test (0..101, away from the low ids people use by hand)."""
-    return 60 + (os.getpid() + 7 * next(_DOMAINS)) % 40
 
 
 def qos(reliability, depth=5000, durability=DurabilityPolicy.VOLATILE) -> QoSProfile:
@@ -62,37 +53,6 @@ BEST_EFFORT = qos(ReliabilityPolicy.BEST_EFFORT)
 LATCHED = qos(ReliabilityPolicy.RELIABLE, 1, DurabilityPolicy.TRANSIENT_LOCAL)
 TOPICS = {"imu": "/imu/data", "odometer": "/odom/wheel", "mag": "/imu/mag", "markers": "/markers"}
 TYPES = {"imu": Imu, "odometer": Odometry, "mag": MagneticField, "markers": NavSatFix}
-
-
-@pytest.fixture
-def ctx():
-    context = Context()
-    rclpy.init(context=context, domain_id=own_domain())
-    yield context
-    rclpy.try_shutdown(context=context)
-
-
-@pytest.fixture
-def graph(ctx):
-    """(executor, helper node, list of nodes to clean up)."""
-    executor = SingleThreadedExecutor(context=ctx)
-    helper = rclpy.create_node("pipe_nav_live_test_helper", context=ctx)
-    executor.add_node(helper)
-    nodes = [helper]
-    yield executor, helper, nodes
-    for node in nodes:
-        executor.remove_node(node)
-        node.destroy_node()
-    executor.shutdown()
-
-
-def spin_until(executor, predicate, timeout=10.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        executor.spin_once(timeout_sec=0.02)
-    return predicate()
 
 
 @pytest.fixture(scope="module")

@@ -29,8 +29,6 @@ from pipe_nav_ros.driver_node import SensorDriverNode  # noqa: E402
 from pipe_nav_ros.ekf_node import EkfNode  # noqa: E402
 from pipe_nav_ros.msg_types import rclpy_types  # noqa: E402
 from pipe_nav_ros.params import nav_params_from_config  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import (  # noqa: E402
     DurabilityPolicy,
@@ -39,6 +37,7 @@ from rclpy.qos import (  # noqa: E402
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from ros_graph import spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -56,39 +55,6 @@ RELIABLE = QoSProfile(
 SENSOR_DEEP = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=5000, reliability=ReliabilityPolicy.BEST_EFFORT
 )
-
-
-@pytest.fixture
-def ctx():
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.try_shutdown(context=context)
-
-
-@pytest.fixture
-def graph(ctx):
-    """(executor, helper node, list of nodes to clean up)."""
-    executor = SingleThreadedExecutor(context=ctx)
-    helper = rclpy.create_node("pipe_nav_test_helper", context=ctx)
-    executor.add_node(helper)
-    nodes = [helper]
-    yield executor, helper, nodes
-    for node in nodes:
-        if hasattr(node, "close"):
-            node.close()
-        executor.remove_node(node)
-        node.destroy_node()
-    executor.shutdown()
-
-
-def spin_until(executor, predicate, timeout=10.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        executor.spin_once(timeout_sec=0.02)
-    return predicate()
 
 
 def add(graph_, node):
