@@ -286,3 +286,73 @@ def test_usage_errors_are_one_line(tmp_path: Path):
         r = _run_cli(*argv)
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and ": error: " in lines[0], r.stderr
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["--out", "/no/such/folder/o.mcap"], "--out /no/such/folder/o.mcap: no such folder"),
+        (["--out", "o.mcap", "--csv", "same.txt", "--kml", "same.txt"], "--csv and --kml"),
+        (["--out", "o.mcap", "--csv", "afile/c.csv"], "afile is a file, not a folder"),
+        (["--out", "o.mcap", "--spacing", "0"], "--spacing must be a positive number"),
+        (["--out", "o.mcap", "--spacing", "nan"], "--spacing must be a positive number"),
+        (["--out", "o.mcap", "--plot", "."], "--plot .: is a folder"),
+    ],
+)
+def test_every_output_is_checked_before_any_work(tmp_path, extra, named):
+    (tmp_path / "afile").write_text("")
+    r = subprocess.run([sys.executable, "-m", "pipe_nav_core.cli", "smooth", str(SAMPLE), *extra],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=60)  # fmt: skip
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and named in lines[0], r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]  # nothing written
+
+
+def test_a_failing_product_leaves_no_product(tmp_path, monkeypatch, capsys):
+    from pipe_nav_core import plots
+
+    def broken(*_a, **_k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(plots, "plot_report", broken)
+    assert main(["smooth", str(SAMPLE), "--out", f"{tmp_path}/", "--quiet"]) == 2
+    assert "disk full" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # neither the products written before nor staged files
+
+
+def test_sigterm_while_writing_leaves_nothing_behind(tmp_path):
+    import signal
+    import time
+
+    code = (
+        "import sys, time; from pipe_nav_core import plots, cli\n"
+        "plots.plot_report = lambda *a, **k: time.sleep(60)\n"
+        "sys.exit(cli.main(sys.argv[1:]))\n"
+    )
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, "-c", code, "smooth", str(SAMPLE), "--out",
+                             f"{out}/", "--quiet"], stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        end = time.monotonic() + 120
+        while not any(p.suffix == ".part" for p in out.iterdir()):  # the bag, CSV... staged
+            assert proc.poll() is None and time.monotonic() < end, "never got to the plot"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM and "terminated" in err
+    assert list(out.iterdir()) == []
+
+
+def test_an_imu_topic_of_another_type_is_named(tmp_path):
+    from pipe_nav_core.io import TopicNames, write_sensor_bag
+    from pipe_nav_core.sim import simulate
+
+    run = simulate("demo", 0)
+    bag = tmp_path / "swapped.mcap"
+    write_sensor_bag(bag, run.log, topics=TopicNames(imu="/imu/raw", odometer="/imu/data"))
+    r = _run_cli("smooth", str(bag), "--out", str(tmp_path / "o.mcap"))
+    assert r.returncode == 2 and "(it carries nav_msgs/msg/Odometry)" in r.stderr, r.stderr

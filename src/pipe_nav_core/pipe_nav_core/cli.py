@@ -17,7 +17,9 @@ import argparse
 import json
 import math
 import re
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -443,8 +445,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         return int(args.func(args) or 0)
+    except _Terminated:
+        print("pipe-nav: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print("pipe-nav: interrupted", file=sys.stderr)
         return 130
@@ -455,6 +462,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         kind = "" if type(exc).__name__ == "BagError" else f"{type(exc).__name__}: "
         print(f"pipe-nav: error: {kind}{_one_line(exc)}", file=sys.stderr)
         return EXIT_ERROR
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous or signal.SIG_DFL)
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every output being written is cleaned up."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise _Terminated()
 
 
 def _one_line(exc: BaseException) -> str:

@@ -30,7 +30,7 @@ from .io import (
     write_kml,
     write_output_bag,
 )
-from .io.atomic import check_not_input
+from .io.atomic import all_or_none, check_not_input, check_output
 from .io.bagread import declared_imu_noise
 from .smoother import SmoothResult, smooth_log
 from .types import Datum, SensorLog, Trajectory
@@ -49,8 +49,29 @@ class Outputs:
     kml: str | None = None
     plot: str | None = None
 
+    # the command-line option that names each output, for messages
+    OPTIONS = {"bag": "--out", "csv": "--csv", "geojson": "--geojson", "kml": "--kml",
+               "plot": "--plot"}  # fmt: skip
+
     def paths(self) -> list[str]:
         return [p for p in (self.bag, self.csv, self.geojson, self.kml, self.plot) if p]
+
+    def check(self, inputs: Sequence[str | os.PathLike[str]], spacing: float) -> None:
+        """Before any work: every output writable, none an input, no two the same file, and
+        the CSV spacing a positive number; ValueError naming the option otherwise."""
+        if not (math.isfinite(spacing) and spacing > 0.0):
+            raise ValueError(f"--spacing must be a positive number of metres, not {spacing}")
+        seen: dict[str, str] = {}
+        for name, option in self.OPTIONS.items():
+            path = getattr(self, name)
+            if not path:
+                continue
+            check_output(path, option)
+            check_not_input(path, inputs)
+            real = os.path.realpath(path)
+            if real in seen:
+                raise ValueError(f"{seen[real]} and {option} name the same file {path}")
+            seen[real] = option
 
 
 @dataclass
@@ -95,14 +116,12 @@ def smooth_bag(
     progress: Progress | None = None,
 ) -> tuple[SmoothResult, BagReport]:
     """Smooth a recorded run and write the requested outputs."""
-    inputs = [bag] + ([markers_csv] if markers_csv else [])
-    for out in outputs.paths():
-        check_not_input(out, inputs)
+    outputs.check([bag] + ([markers_csv] if markers_csv else []), spacing)
     say = progress or (lambda _m: None)
     say("reading bag")
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
     if len(log.imu) == 0:
-        raise ValueError(f"{bag}: no IMU samples on {topics.imu}")
+        raise ValueError(f"{bag}: no IMU samples on {topics.imu}{_carries(report, topics.imu)}")
     if not log.markers:
         raise ValueError(
             f"{bag}: no markers (topic {topics.markers} or --markers CSV): "
@@ -164,6 +183,12 @@ def centreline_rows(result: SmoothResult, spacing: float) -> Trajectory:
     return resample_by_chainage(result.centreline, spacing, times)
 
 
+def _carries(report: BagReport, topic: str) -> str:
+    """' (it carries TYPE)' when the bag has ``topic`` with a message type we do not read."""
+    found = report.types.get(topic)
+    return f" (it carries {found})" if found else ""
+
+
 def write_products(
     result: SmoothResult,
     outputs: Outputs,
@@ -171,18 +196,32 @@ def write_products(
     spacing: float = 0.5,
     progress: Progress | None = None,
 ) -> Trajectory:
-    """Write the bag, CSV, GeoJSON, KML and plot of a smoothing result."""
+    """Write the bag, CSV, GeoJSON, KML and plot of a smoothing result: all of them or, if
+    one fails (or the run is interrupted), none (io.atomic.all_or_none)."""
     say = progress or (lambda _m: None)
     rows = centreline_rows(result, spacing)
+    with all_or_none(outputs.paths()) as staged:
+        _write_staged(result, outputs, rows, staged, say)
+    return rows
+
+
+def _write_staged(
+    result: SmoothResult,
+    outputs: Outputs,
+    rows: Trajectory,
+    staged: dict[str, Path],
+    say: Progress,
+) -> None:
     if outputs.bag:
         say("writing bag")
-        write_output_bag(outputs.bag, path=rows, datum=result.datum, odometry=result.forward)
+        write_output_bag(staged[outputs.bag], path=rows, datum=result.datum,
+                         odometry=result.forward, file_name=Path(outputs.bag).name)  # fmt: skip
     if outputs.csv:
-        write_centreline_csv(outputs.csv, rows, result.datum)
+        write_centreline_csv(staged[outputs.csv], rows, result.datum)
     if outputs.geojson:
-        write_geojson(outputs.geojson, rows, result.markers)
+        write_geojson(staged[outputs.geojson], rows, result.markers)
     if outputs.kml:
-        write_kml(outputs.kml, rows, result.markers)
+        write_kml(staged[outputs.kml], rows, result.markers)
     if outputs.plot:
         say("plotting")
         from .plots import plot_report
@@ -195,14 +234,13 @@ def write_products(
             ]
         )
         plot_report(
-            outputs.plot,
+            staged[outputs.plot],
             rows,
             result.datum,
             [m for m in result.markers if m.name in result.marker_residuals],
             res.reshape(-1, 3) if len(res) else None,
             title=Path(outputs.plot).stem,
         )
-    return rows
 
 
 def replay_log(

@@ -3,8 +3,10 @@
 :func:`atomic_write` writes to a temporary file in the destination directory and renames it
 over the destination only when the block finishes without an exception, so a reader never
 sees a half-written file and a failure leaves the old file (if any) untouched.
-:func:`ensure_not_input` refuses to write onto one of the inputs (same file, a hard or soft
-link to it, or a file inside an input bag directory).
+:func:`all_or_none` stages several outputs of one run so that either all of them replace
+their targets or none does. :func:`check_output` says before any work whether a path can be
+written. :func:`ensure_not_input` refuses to write onto one of the inputs (same file, a hard or
+soft link to it, or a file inside an input bag directory).
 """
 
 from __future__ import annotations
@@ -109,3 +111,40 @@ def atomic_write(
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+
+
+def check_output(path: str | os.PathLike[str], option: str) -> None:
+    """Raise ValueError naming ``option`` unless ``path`` can be written: its folder exists and
+    is a writable folder, and the path itself is not a folder."""
+    target = Path(path)
+    parent = target.parent if str(target.parent) else Path(".")
+    if target.is_dir():
+        raise ValueError(f"{option} {target}: is a folder, not a file")
+    for up in (parent, *parent.parents):
+        if up.exists():
+            if not up.is_dir():
+                raise ValueError(f"{option} {target}: {up} is a file, not a folder")
+            break
+    if not parent.is_dir():
+        raise ValueError(f"{option} {target}: no such folder {parent}")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {target}: the folder {parent} is not writable")
+
+
+@contextlib.contextmanager
+def all_or_none(paths: Iterable[str | os.PathLike[str]]) -> Iterator[dict[str, Path]]:
+    """Stage the outputs of one run: yields {target: staging path beside it} for the writers
+    to write to; when the block ends normally each staged file replaces its target; on any
+    exception (SIGINT, SIGTERM turned into one) every staged file is removed and no target
+    is touched. Targets must be distinct."""
+    staged = {os.fspath(p): _tmp_name(Path(p)).with_suffix(".part") for p in paths}
+    try:
+        yield staged
+    except BaseException:
+        for tmp in staged.values():
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        raise
+    for target, tmp in staged.items():
+        if tmp.exists():
+            os.replace(tmp, target)

@@ -435,11 +435,12 @@ def _write(
     compression: str,
     chunk_size: int,
     inputs: Sequence[str | os.PathLike[str]],
+    file_name: str | None = None,
 ) -> None:
     ensure_not_input(path, inputs)
     try:
         with atomic_write(path, "wb") as f:
-            b.write(f, compression, chunk_size, os.path.basename(os.fspath(path)))
+            b.write(f, compression, chunk_size, file_name or os.path.basename(os.fspath(path)))
     except OSError as exc:
         raise BagError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from exc
 
@@ -470,6 +471,7 @@ def write_output_bag(
     compression: str = "zstd",
     chunk_size: int = DEFAULT_CHUNK_SIZE,
     inputs: Sequence[str | os.PathLike[str]] = (),
+    file_name: str | None = None,
 ) -> None:
     """Write the estimator's results as a ROS 2 MCAP bag (INTERFACES.md, output topics).
 
@@ -482,7 +484,8 @@ def write_output_bag(
     /pipe_nav/odometry: one nav_msgs/Odometry per sample of ``odometry`` (frame map, child
     base_link; pose covariance from sigma_enu and sigma_att; twist = body-frame velocity and
     attitude-differenced body rate). ``inputs``: paths this must not overwrite (the input bag).
-    The first argument is positional-only because ``path`` names the trajectory.
+    ``file_name``: the bag's name in its rosbag2 metadata when it is written under another
+    (staged) name. The first argument is positional-only because ``path`` names the trajectory.
     """
     b = _BagBuilder()
     ts = jazzy_typestore()
@@ -551,7 +554,7 @@ def write_output_bag(
                 {},
             )
         )
-    _write(b, bag_path, compression, chunk_size, inputs)
+    _write(b, bag_path, compression, chunk_size, inputs, file_name)
 
 
 # rosbag2 metadata version 8 wrote the QoS policies as the rmw enum values
