@@ -356,3 +356,22 @@ def test_an_imu_topic_of_another_type_is_named(tmp_path):
     write_sensor_bag(bag, run.log, topics=TopicNames(imu="/imu/raw", odometer="/imu/data"))
     r = _run_cli("smooth", str(bag), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "(it carries nav_msgs/msg/Odometry)" in r.stderr, r.stderr
+
+
+def test_evaluate_a_centreline_cut_short(tmp_path):
+    run = tmp_path / "run.mcap"
+    assert main(["simulate", "--scenario", "demo", "--seed", "1", "--out", str(run)]) == 0
+    truth = tmp_path / "run.truth.csv"
+    text = truth.read_text()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(text[: len(text) // 2 + 7])  # ends inside a row, as a crash leaves it
+    r = _run_cli("evaluate", str(cut), "--truth", str(truth), "--json")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("\n") == 1 and "cut short" in r.stderr and "Warning" not in r.stderr
+    assert json.loads(r.stdout)["max_h"] < 1e-6  # the rows kept are the truth's own
+    lines = text.splitlines()
+    lines[5] = ",".join(lines[5].split(",")[:4])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    r = _run_cli("evaluate", str(bad), "--truth", str(truth))
+    assert r.returncode == 2 and "bad.csv:6: fewer fields" in r.stderr, r.stderr

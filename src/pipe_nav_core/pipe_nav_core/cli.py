@@ -337,8 +337,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluation import score
     from .io import read_centreline_csv, read_markers_csv
 
-    est, datum = read_centreline_csv(args.centreline)
-    truth, tdatum = read_centreline_csv(args.truth)
+    def warn(message: str) -> None:
+        print(f"pipe-nav: warning: {message}", file=sys.stderr)
+
+    est, datum = read_centreline_csv(args.centreline, warn)
+    truth, tdatum = read_centreline_csv(args.truth, warn)
     markers = read_markers_csv(args.markers) if args.markers else None
     sc = score(est, truth, markers, datum=datum or tdatum)
     data = {

@@ -17,7 +17,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -265,10 +265,14 @@ def datum_from_points(lat: ArrayLike, lon: ArrayLike, h: ArrayLike, enu: ArrayLi
     return Datum(d_lat, d_lon, d_h)
 
 
-def read_centreline_csv(path: str | os.PathLike[str]) -> tuple[Trajectory, Datum | None]:
+def read_centreline_csv(
+    path: str | os.PathLike[str], warn: Callable[[str], None] | None = None
+) -> tuple[Trajectory, Datum | None]:
     """Read a centreline CSV back into a Trajectory (radians; attitude from roll/pitch/azimuth;
     vel_n by differencing the ENU positions; sigma_enu None when the columns are empty) and the
-    datum recovered from the ENU and geodetic columns (None if it cannot be)."""
+    datum recovered from the ENU and geodetic columns (None if it cannot be). A last row cut
+    short (a file truncated while written) is left out and ``warn`` is told; a short row
+    elsewhere is an error naming its line."""
     p = os.fspath(path)
     try:
         with open(p, newline="", encoding="utf-8-sig") as f:
@@ -282,18 +286,28 @@ def read_centreline_csv(path: str | os.PathLike[str]) -> tuple[Trajectory, Datum
     if missing:
         raise CentrelineCsvError(f"{p}:1: missing column(s) {', '.join(missing)}")
     idx = [header.index(c) for c in CENTRELINE_COLUMNS]
-    body = [r for r in rows[1:] if r and any(x.strip() for x in r)]
-    data = np.full((len(body), len(CENTRELINE_COLUMNS)), np.nan)
-    for i, r in enumerate(body):
+    numbered = [(n + 2, r) for n, r in enumerate(rows[1:]) if r and any(x.strip() for x in r)]
+    short = [n for n, r in numbered if len(r) < len(header)]
+    if short and short[-1] == numbered[-1][0]:
+        n, r = numbered.pop()
+        short.pop()
+        if warn is not None:
+            warn(f"{p}:{n}: the last row is cut short ({len(r)} of {len(header)} fields): left out")
+    if short:
+        raise CentrelineCsvError(f"{p}:{short[0]}: fewer fields than the header names")
+    data = np.full((len(numbered), len(CENTRELINE_COLUMNS)), np.nan)
+    for i, (n, r) in enumerate(numbered):
         for j, k in enumerate(idx):
-            s = r[k].strip() if k < len(r) else ""
+            s = r[k].strip()
             if s:
                 try:
                     data[i, j] = float(s)
                 except ValueError:
                     raise CentrelineCsvError(
-                        f"{p}:{i + 2}: {CENTRELINE_COLUMNS[j]} {s!r} is not a number"
+                        f"{p}:{n}: {CENTRELINE_COLUMNS[j]} {s!r} is not a number"
                     ) from None
+    if not len(numbered):
+        raise CentrelineCsvError(f"{p}: no rows")
     c = {name: data[:, j] for j, name in enumerate(CENTRELINE_COLUMNS)}
     t = c["time_s"]
     if np.isnan(t).any():
