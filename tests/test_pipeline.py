@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import pytest
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.sim import get_scenario, simulate
@@ -34,3 +35,47 @@ def test_mount_rotation_is_the_extrinsic_xyz_euler_rotation():
     for rpy in rng.uniform(-3.2, 3.2, size=(20, 3)):
         want = Rotation.from_euler("xyz", rpy).as_matrix()
         np.testing.assert_allclose(mount_rotation(rpy), want, atol=1e-14)
+
+
+def test_markers_outside_the_data_are_left_out_and_named(tmp_path):
+    from pathlib import Path
+
+    from pipe_nav_core.io import read_markers_csv, write_markers_csv
+    from pipe_nav_core.pipeline import Outputs, smooth_bag
+
+    bags = Path(__file__).resolve().parents[1] / "bags"
+    survey = read_markers_csv(bags / "sample.markers.csv")
+    early = dataclasses.replace(survey[1], name="agm_early", t=survey[0].t - 600.0)
+    late = dataclasses.replace(survey[2], name="agm_late", t=survey[-1].t + 900.0)
+    extra = tmp_path / "extra.csv"
+    write_markers_csv(extra, [early, late])
+    cfg = NavConfig()
+    base, _ = smooth_bag(bags / "sample.mcap", Outputs(), config=cfg, iterations=1)
+    got, report = smooth_bag(bags / "sample.mcap", Outputs(), config=cfg, iterations=1,
+                             markers_csv=extra)  # fmt: skip
+    assert any("agm_early passes" in w and "s before the data" in w for w in report.warnings)
+    assert any("agm_late passes" in w and "after the data" in w for w in report.warnings)
+    np.testing.assert_array_equal(got.centreline.lat, base.centreline.lat)
+    assert [m.name for m in got.markers] == [m.name for m in base.markers]
+
+
+def test_a_run_with_no_marker_inside_its_data_is_refused(tmp_path):
+    from pathlib import Path
+
+    from pipe_nav_core.io import read_markers_csv, write_markers_csv
+    from pipe_nav_core.io.bagwrite import write_sensor_bag
+    from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+
+    bags = Path(__file__).resolve().parents[1] / "bags"
+    log, _ = load_log(bags / "sample.mcap")
+    bare = tmp_path / "bare.mcap"
+    write_sensor_bag(bare, dataclasses.replace(log, markers=[]))
+    survey = read_markers_csv(bags / "sample.markers.csv")
+    away = tmp_path / "away.csv"
+    write_markers_csv(away, [dataclasses.replace(m, t=m.t + 3600.0) for m in survey])
+    with pytest.raises(ValueError, match="no markers within the data .*marker agm_00 passes"):
+        smooth_bag(bare, Outputs(), config=NavConfig(), markers_csv=away)
+    one = tmp_path / "one.csv"
+    write_markers_csv(one, [survey[0], dataclasses.replace(survey[1], t=survey[1].t + 3600)])
+    _, report = load_log(bare, markers_csv=one)
+    assert any("the heading is not anchored" in w for w in report.warnings)

@@ -33,7 +33,7 @@ from .io import (
 from .io.atomic import all_or_none, check_not_input, check_output
 from .io.bagread import declared_imu_noise
 from .smoother import SmoothResult, smooth_log
-from .types import Datum, SensorLog, Trajectory
+from .types import Datum, Marker, SensorLog, Trajectory
 
 Progress = Callable[[str], None]
 DEFAULT_TOPICS = TopicNames()
@@ -100,7 +100,27 @@ def load_log(
             f"{len(untimed)} marker(s) without a passage time ignored: {', '.join(untimed[:5])}"
         )
         log.markers = [m for m in log.markers if math.isfinite(m.t)]
+    log.markers = _markers_inside(log, report)
     return log, report
+
+
+def _markers_inside(log: SensorLog, report: BagReport) -> list[Marker]:
+    """The markers whose passage lies within the IMU data (s of stamps); the others are left
+    out and named in a warning (a survey row 600 s before the data moved a centreline 44 m),
+    as is a run that keeps fewer than two (nothing then anchors the heading)."""
+    if len(log.imu.t) == 0 or not log.markers:
+        return log.markers
+    t0, t1 = float(log.imu.t[0]), float(log.imu.t[-1])
+    inside = [m for m in log.markers if t0 <= m.t <= t1]
+    outside = [m for m in log.markers if not t0 <= m.t <= t1]
+    for m in outside:
+        where = f"{t0 - m.t:.1f} s before" if m.t < t0 else f"{m.t - t1:.1f} s after"
+        report.warnings.append(f"marker {m.name} passes {where} the data: left out")
+    if outside and len(inside) == 1:
+        report.warnings.append(
+            f"only one marker ({inside[0].name}) within the data: the heading is not anchored"
+        )
+    return inside
 
 
 def smooth_bag(
@@ -123,8 +143,10 @@ def smooth_bag(
     if len(log.imu) == 0:
         raise ValueError(f"{bag}: no IMU samples on {topics.imu}{_carries(report, topics.imu)}")
     if not log.markers:
+        left = [w for w in report.warnings if w.startswith("marker ")]
+        why = f" ({left[0]}{f' and {len(left) - 1} more' if len(left) > 1 else ''})" if left else ""
         raise ValueError(
-            f"{bag}: no markers (topic {topics.markers} or --markers CSV): "
+            f"{bag}: no markers within the data (topic {topics.markers} or --markers CSV){why}: "
             "nothing ties the run to the ground"
         )
     result = smooth_with_imu_model(
