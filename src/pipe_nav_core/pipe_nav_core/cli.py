@@ -27,6 +27,7 @@ from typing import Any, NoReturn
 from .config import ConfigError, NavConfig
 
 EXIT_ERROR = 2
+EXIT_NOT_OK = 3  # smooth --strict: the run's quality verdict is not OK
 SIM_EPOCH = 1780272000.0  # 2026-06-01T00:00:00Z: simulated bags carry realistic stamps
 
 
@@ -218,7 +219,10 @@ def cmd_smooth(args: argparse.Namespace) -> int:
         print("outputs:")
         for p in outputs.paths():
             print(f"  {p}")
-    return 0
+    status = (result.summary.get("quality") or {}).get("status", "OK")
+    if status != "OK":
+        print(f"pipe-nav: quality {status} (see the summary)", file=sys.stderr)
+    return EXIT_NOT_OK if args.strict and status != "OK" else 0
 
 
 def _print_summary(s: dict[str, Any], method: str) -> None:
@@ -239,6 +243,10 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
     if model:
         how = model["reason"] if model.get("auto") else "given"
         print(f"  IMU model           {model['grade']} ({how})")
+    q = s.get("quality") or {}
+    if q:
+        reasons = "; ".join(q["reasons"])
+        print(f"  quality             {q['status']}" + (f": {reasons}" if reasons else ""))
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -387,6 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="rts", choices=["rts", "two-filter", "forward"])
     p.add_argument("--iterations", type=int, default=2, help="re-linearization passes (default 2)")
     p.add_argument("--spacing", type=float, default=0.5, help="CSV row spacing, m of chainage")
+    p.add_argument("--strict", action="store_true", help="exit 3 unless the quality verdict is OK")
     _add_common(p)
     p.set_defaults(func=cmd_smooth)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import imu_model
+from . import imu_model, quality
 from .config import AUTO_GRADE, NavConfig
 from .engine import NavEstimate, Navigator
 from .io import (
@@ -153,6 +153,8 @@ def smooth_bag(
         log, config, bag=bag, topics=topics, method=method, iterations=iterations, progress=say
     )
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
+    verdict = quality.judge(result.summary, result.centreline, report.warnings)
+    result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
     write_products(result, outputs, spacing=spacing, progress=say)
     return result, report
 
@@ -227,6 +229,21 @@ def write_products(
     return rows
 
 
+def run_metadata(summary: dict[str, object]) -> dict[str, str]:
+    """What the smoothed bag records of its run (MCAP metadata ``pipe_nav``): the quality
+    verdict and its reasons, the IMU model and why, the markers used and rejected."""
+    q = summary.get("quality") or {}
+    model = summary.get("imu_model") or {}
+    return {
+        "quality": str(q.get("status", "")),  # type: ignore[union-attr]
+        "quality_reasons": "; ".join(q.get("reasons", [])),  # type: ignore[union-attr]
+        "imu_model": str(model.get("grade", "")),  # type: ignore[union-attr]
+        "imu_model_reason": str(model.get("reason", "")),  # type: ignore[union-attr]
+        "markers_used": str(summary.get("markers_used", "")),
+        "markers_rejected": str(summary.get("markers_rejected", "")),
+    }
+
+
 def _write_staged(
     result: SmoothResult,
     outputs: Outputs,
@@ -237,7 +254,8 @@ def _write_staged(
     if outputs.bag:
         say("writing bag")
         write_output_bag(staged[outputs.bag], path=rows, datum=result.datum,
-                         odometry=result.forward, file_name=Path(outputs.bag).name)  # fmt: skip
+                         odometry=result.forward, file_name=Path(outputs.bag).name,
+                         run_metadata=run_metadata(result.summary))  # fmt: skip
     if outputs.csv:
         write_centreline_csv(staged[outputs.csv], rows, result.datum)
     if outputs.geojson:

@@ -61,6 +61,7 @@ _INT32_MAX_S = 2**31 - 1
 
 ROS_DISTRO = "jazzy"  # what the bags are written for (rosbag2 metadata ros_distro)
 ROSBAG2_METADATA_VERSION = 9  # rosbag2 bag metadata version of ROS 2 Jazzy
+RUN_METADATA_NAME = "pipe_nav"  # MCAP Metadata record of what a smoothed run says of itself
 ROSBAG2_METADATA_NAME = "rosbag2"  # name of the MCAP Metadata record rosbag2 reads
 _INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE as rosbag2 writes it
 
@@ -241,6 +242,7 @@ class _BagBuilder:
         self.channels: list[tuple[int, int, str, dict[str, str]]] = []
         self.topics: list[tuple[str, str, dict, str]] = []  # name, type, QoS, hash per channel
         self.streams: list[Stream] = []
+        self.metadata: dict[str, dict[str, str]] = {}  # more Metadata records, by name
 
     def channel(self, topic: str, typename: str, qos: dict) -> int:
         """A channel offered with the QoS profile ``qos`` (see :data:`TOPIC_QOS`)."""
@@ -278,6 +280,8 @@ class _BagBuilder:
             end_ns=w.end_time or 0,
         )
         w.add_metadata(ROSBAG2_METADATA_NAME, {"serialized_metadata": yaml_text(meta)})
+        for name, values in self.metadata.items():
+            w.add_metadata(name, values)
         w.finish()
 
 
@@ -472,6 +476,7 @@ def write_output_bag(
     chunk_size: int = DEFAULT_CHUNK_SIZE,
     inputs: Sequence[str | os.PathLike[str]] = (),
     file_name: str | None = None,
+    run_metadata: Mapping[str, str] | None = None,
 ) -> None:
     """Write the estimator's results as a ROS 2 MCAP bag (INTERFACES.md, output topics).
 
@@ -485,7 +490,9 @@ def write_output_bag(
     base_link; pose covariance from sigma_enu and sigma_att; twist = body-frame velocity and
     attitude-differenced body rate). ``inputs``: paths this must not overwrite (the input bag).
     ``file_name``: the bag's name in its rosbag2 metadata when it is written under another
-    (staged) name. The first argument is positional-only because ``path`` names the trajectory.
+    (staged) name. ``run_metadata``: what the run records of itself (quality verdict, IMU
+    model...), written as an MCAP Metadata record named ``pipe_nav``. The first argument is
+    positional-only because ``path`` names the trajectory.
     """
     b = _BagBuilder()
     ts = jazzy_typestore()
@@ -554,6 +561,8 @@ def write_output_bag(
                 {},
             )
         )
+    if run_metadata:
+        b.metadata[RUN_METADATA_NAME] = dict(run_metadata)
     _write(b, bag_path, compression, chunk_size, inputs, file_name)
 
 
