@@ -375,3 +375,63 @@ def test_evaluate_a_centreline_cut_short(tmp_path):
     bad.write_text("\n".join(lines) + "\n")
     r = _run_cli("evaluate", str(bad), "--truth", str(truth))
     assert r.returncode == 2 and "bad.csv:6: fewer fields" in r.stderr, r.stderr
+
+
+def test_no_nan_reaches_an_output(tmp_path):
+    """A clock that steps an hour ahead halfway: the live filter loses itself (NaN estimates);
+    replay refuses to write them, naming how many, instead of writing NaN."""
+    import dataclasses
+
+    from pipe_nav_core.io import write_sensor_bag
+    from pipe_nav_core.pipeline import load_log
+
+    log, _ = load_log(SAMPLE)
+    t_step = log.imu.t[0] + 100.0
+
+    def shifted(t):
+        return np.where(t > t_step, t + 3600.0, t)
+
+    stepped = dataclasses.replace(
+        log,
+        imu=dataclasses.replace(log.imu, t=shifted(log.imu.t)),
+        odometer=dataclasses.replace(log.odometer, t=shifted(log.odometer.t)),
+        mag=dataclasses.replace(log.mag, t=shifted(log.mag.t)),
+        markers=[dataclasses.replace(m, t=float(shifted(np.array(m.t)))) for m in log.markers],
+    )
+    bag = tmp_path / "step.mcap"
+    write_sensor_bag(bag, stepped)
+    out = tmp_path / "r.mcap"
+    r = _run_cli("replay", str(bag), "--out", str(out))
+    assert r.returncode == 2 and "samples are not finite" in r.stderr, r.stderr
+    assert not out.exists()
+
+
+def test_the_writers_refuse_non_finite_samples(tmp_path):
+    import dataclasses
+
+    from pipe_nav_core.io import (
+        read_centreline_csv,
+        write_centreline_csv,
+        write_geojson,
+        write_kml,
+        write_output_bag,
+    )
+
+    truth = tmp_path / "run.truth.csv"
+    assert (
+        main(["simulate", "--scenario", "demo", "--seed", "1", "--out", str(tmp_path / "run.mcap")])
+        == 0
+    )
+    traj, datum = read_centreline_csv(truth)
+    h = traj.h.copy()
+    h[7] = np.nan
+    bad = dataclasses.replace(traj, h=h)
+    for write, name in (
+        (lambda p: write_centreline_csv(p, bad, datum), "c.csv"),
+        (lambda p: write_geojson(p, bad), "c.geojson"),
+        (lambda p: write_kml(p, bad), "c.kml"),
+        (lambda p: write_output_bag(p, path=bad, datum=datum), "c.mcap"),
+    ):
+        with pytest.raises(ValueError, match="1 of .* samples are not finite"):
+            write(tmp_path / name)
+        assert not (tmp_path / name).exists()

@@ -30,6 +30,7 @@ from ..attitude import dcm_from_quat
 from ..types import Datum, Marker, SensorLog, Trajectory
 from . import cdr
 from .atomic import atomic_write, ensure_not_input
+from .centreline import require_finite
 from .mcapwrite import DEFAULT_CHUNK_SIZE, McapWriter, Stream, message_records
 from .rosmsg import (
     BASE_FRAME,
@@ -494,6 +495,9 @@ def write_output_bag(
     model...), written as an MCAP Metadata record named ``pipe_nav``. The first argument is
     positional-only because ``path`` names the trajectory.
     """
+    for traj, what in ((path, "path"), (odometry, "odometry")):
+        if traj is not None:
+            require_finite(traj, f"{os.fspath(bag_path)}: the {what}")
     b = _BagBuilder()
     ts = jazzy_typestore()
     types = rosbags_types()

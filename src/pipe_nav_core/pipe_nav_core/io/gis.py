@@ -19,6 +19,7 @@ import numpy as np
 
 from ..types import Marker, Trajectory
 from .atomic import atomic_write
+from .centreline import require_finite
 
 
 def _coords(traj: Trajectory) -> list[list[float]]:
@@ -89,7 +90,9 @@ def to_geojson(
 def write_geojson(
     path: str | os.PathLike[str], traj: Trajectory, markers: Sequence[Marker] = ()
 ) -> None:
-    """Write :func:`to_geojson` to ``path`` (RFC 7946 GeoJSON, UTF-8)."""
+    """Write :func:`to_geojson` to ``path`` (RFC 7946 GeoJSON, UTF-8); refuses non-finite
+    samples."""
+    require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_geojson(traj, markers, name=os.path.splitext(os.path.basename(path))[0])
     with atomic_write(path, "w") as f:
         json.dump(doc, f, separators=(",", ":"), allow_nan=False)
@@ -139,7 +142,8 @@ def to_kml(traj: Trajectory, markers: Sequence[Marker] = (), name: str = "centre
 def write_kml(
     path: str | os.PathLike[str], traj: Trajectory, markers: Sequence[Marker] = ()
 ) -> None:
-    """Write :func:`to_kml` to ``path`` (UTF-8)."""
+    """Write :func:`to_kml` to ``path`` (UTF-8); refuses non-finite samples."""
+    require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_kml(traj, markers, name=os.path.splitext(os.path.basename(path))[0])
     with atomic_write(path, "w") as f:
         f.write(doc)
