@@ -106,8 +106,8 @@ def load_log(
 
 def _markers_inside(log: SensorLog, report: BagReport) -> list[Marker]:
     """The markers whose passage lies within the IMU data (s of stamps); the others are left
-    out and named in a warning (a survey row 600 s before the data moved a centreline 44 m),
-    as is a run that keeps fewer than two (nothing then anchors the heading)."""
+    out and named in a warning, as is a run that keeps only one (nothing then anchors the
+    heading)."""
     if len(log.imu.t) == 0 or not log.markers:
         return log.markers
     t0, t1 = float(log.imu.t[0]), float(log.imu.t[-1])
@@ -140,8 +140,7 @@ def smooth_bag(
     say = progress or (lambda _m: None)
     say("reading bag")
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
-    if len(log.imu) == 0:
-        raise ValueError(f"{bag}: no IMU samples on {topics.imu}{_carries(report, topics.imu)}")
+    _require_imu(log, report, bag, topics)
     if not log.markers:
         left = [w for w in report.warnings if w.startswith("marker ")]
         why = f" ({left[0]}{f' and {len(left) - 1} more' if len(left) > 1 else ''})" if left else ""
@@ -175,10 +174,7 @@ def smooth_with_imu_model(
     summary's ``imu_model`` says which model was used and why; a named grade is used as given
     (its misfit warnings stay)."""
     say = progress or (lambda _m: None)
-    declared = None
-    if config.imu_grade == AUTO_GRADE and bag is not None:
-        declared = declared_imu_noise(bag, topics.imu)
-    choice = imu_model.choose(log, config, declared)
+    choice = imu_model.choose(log, config, _declared(bag, config, topics))
     auto = config.imu_grade == AUTO_GRADE
     if auto:
         say(f"IMU model: {choice.grade} ({choice.reason})")
@@ -207,10 +203,23 @@ def centreline_rows(result: SmoothResult, spacing: float) -> Trajectory:
     return resample_by_chainage(result.centreline, spacing, times)
 
 
-def _carries(report: BagReport, topic: str) -> str:
-    """' (it carries TYPE)' when the bag has ``topic`` with a message type we do not read."""
-    found = report.types.get(topic)
-    return f" (it carries {found})" if found else ""
+def _require_imu(
+    log: SensorLog, report: BagReport, bag: str | os.PathLike[str], topics: TopicNames
+) -> None:
+    """ValueError when the bag gave no IMU sample, naming the type its IMU topic carries."""
+    if len(log.imu) == 0:
+        found = report.types.get(topics.imu)
+        carries = f" (it carries {found})" if found else ""
+        raise ValueError(f"{bag}: no IMU samples on {topics.imu}{carries}")
+
+
+def _declared(
+    bag: str | os.PathLike[str] | None, config: NavConfig, topics: TopicNames
+) -> dict[str, list[float]] | None:
+    """The IMU variances the bag's Imu messages declare, read only for imu_grade auto."""
+    if config.imu_grade != AUTO_GRADE or bag is None:
+        return None
+    return declared_imu_noise(bag, topics.imu)
 
 
 def write_products(
@@ -342,12 +351,8 @@ def replay_bag(
     """`pipe-nav replay`: the online estimator over a bag; writes /pipe_nav/odometry."""
     check_not_input(out, [bag] + ([markers_csv] if markers_csv else []))
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
-    if len(log.imu) == 0:
-        raise ValueError(f"{bag}: no IMU samples on {topics.imu}")
-    declared = None
-    if config.imu_grade == AUTO_GRADE:
-        declared = declared_imu_noise(bag, topics.imu)
-    result = replay_log(log, config, declared)
+    _require_imu(log, report, bag, topics)
+    result = replay_log(log, config, _declared(bag, config, topics))
     if not result.estimates:
         raise ValueError(
             f"{bag}: the estimator produced no estimate (no static start or no marker)"

@@ -34,31 +34,12 @@ def _warmup_run() -> tuple[SensorLog, NavConfig]:
 
 
 def warm_live() -> float:
-    """Run the live Navigator over the warm-up run (s of wall time taken)."""
-    from .engine import Navigator
+    """Run the live Navigator over the warm-up run as a bag plays (pipeline.replay_log), s of
+    wall time taken."""
+    from .pipeline import replay_log
 
     t0 = time.perf_counter()
-    log, config = _warmup_run()
-    nav = Navigator(config)
-    for m in log.markers:
-        nav.push_marker(m)
-    imu, odo, mag = log.imu, log.odometer, log.mag
-    events = sorted(
-        [(t, 0, i) for i, t in enumerate(imu.t)]
-        + [(t, 1, i) for i, t in enumerate(odo.t)]
-        + [(t, 2, i) for i, t in enumerate(mag.t)]
-    )
-    for t, kind, i in events:  # in stamp order, as a bag plays
-        if kind == 0:
-            nav.push_imu(float(t), imu.gyro[i], imu.accel[i])
-        elif kind == 1:
-            nav.push_odometer(float(t), float(odo.distance[i]), float(odo.speed[i]))
-        else:
-            nav.push_mag(float(t), mag.field[i])
-        if i % 100 == 0:
-            nav.poll()
-    nav.poll()
-    nav.finish()
+    replay_log(*_warmup_run())
     return time.perf_counter() - t0
 
 
