@@ -13,13 +13,12 @@ Skipped where rclpy is missing; every process runs in its own process group and 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import itertools
+import math
 import os
 import re
 import shutil
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -36,8 +35,10 @@ from pipe_nav_core.evaluation import trajectory_enu  # noqa: E402
 from pipe_nav_core.io import write_sensor_bag  # noqa: E402
 from pipe_nav_core.io.rosmsg import datum_from_msg, jazzy_typestore, stamp_to_ns  # noqa: E402
 from pipe_nav_core.sim import get_scenario, simulate  # noqa: E402
+from pipe_nav_core.smoother import slice_log  # noqa: E402
 from pipe_nav_core.types import Datum, SensorLog, Trajectory  # noqa: E402
 from pipe_nav_ros.params import nav_params_from_config, yaml_scalar  # noqa: E402
+from ros_graph import LoggedProcess  # noqa: E402
 from ruamel.yaml import YAML  # noqa: E402
 
 INPUT_TOPICS = ["/imu/data", "/odom/wheel", "/imu/mag", "/markers"]
@@ -62,64 +63,13 @@ def new_domain() -> int:
     return 60 + (os.getpid() * 7 + next(_domains)) % 60
 
 
-class Proc:
-    """A command in its own process group, its output in a log file."""
-
-    def __init__(self, args: list[str], env: dict[str, str], log: Path) -> None:
-        self.args, self.log = args, log
-        self._out = log.open("wb")
-        self.proc = subprocess.Popen(
-            args, stdout=self._out, stderr=subprocess.STDOUT, env=env, start_new_session=True
-        )
-
-    def output(self) -> str:
-        return self.log.read_text(errors="replace")
-
-    def wait_for(self, pattern: str, timeout: float) -> None:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if re.search(pattern, self.output()):
-                return
-            if self.proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise AssertionError(
-            f"{pattern!r} not seen from {' '.join(self.args[:4])}:\n{self.output()[-3000:]}"
-        )
-
-    def wait(self, timeout: float) -> int:
-        try:
-            return self.proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            raise AssertionError(
-                f"{' '.join(self.args[:4])} still running after {timeout} s:\n"
-                f"{self.output()[-3000:]}"
-            ) from None
-
-    def interrupt(self, timeout: float) -> int:
-        """Ctrl-C to the group (as a user stops ros2 bag record); the exit status."""
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGINT)
-        return self.wait(timeout)
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError, AssertionError):
-                self.interrupt(timeout=10.0)
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(timeout=10.0)
-        self._out.close()
-
-
 @pytest.fixture
 def procs():
     """Starts commands; stops every one of them (and its group) at the end of the test."""
-    started: list[Proc] = []
+    started: list[LoggedProcess] = []
 
-    def start(args: list[str], env: dict[str, str], log: Path) -> Proc:
-        p = Proc(args, env, log)
+    def start(args: list[str], env: dict[str, str], log: Path) -> LoggedProcess:
+        p = LoggedProcess(args, env, log)
         started.append(p)
         return p
 
@@ -129,12 +79,8 @@ def procs():
 
 
 def cropped(log: SensorLog, t_end: float) -> SensorLog:
-    return SensorLog(
-        imu=log.imu.slice(log.imu.t <= t_end),
-        odometer=log.odometer.slice(log.odometer.t <= t_end),
-        mag=log.mag.slice(log.mag.t <= t_end),
-        markers=[m for m in log.markers if m.t <= t_end],
-    )
+    """The log's samples and markers stamped up to and including ``t_end`` (s)."""
+    return slice_log(log, -math.inf, float(np.nextafter(t_end, math.inf)))
 
 
 def write_run(tmp_path: Path, seed: int) -> tuple[Path, Path, Trajectory, SensorLog]:

@@ -15,9 +15,8 @@ import contextlib
 import itertools
 import math
 import os
+import re
 import shutil
-import signal
-import subprocess
 import time
 from pathlib import Path
 
@@ -33,7 +32,7 @@ from pipe_nav_ros.driver_node import SensorDriverNode  # noqa: E402
 from pipe_nav_ros.sources import nmea_checksum  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from ros_graph import spin_until  # noqa: E402
+from ros_graph import LoggedProcess, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 
 SENSOR_DEEP = QoSProfile(
@@ -115,7 +114,7 @@ def _ros_param(value) -> str:
     return str(value)
 
 
-class DriverProcess:
+class DriverProcess(LoggedProcess):
     """``ros2 run pipe_nav_ros <executable> --ros-args -p k:=v ...`` in its own process group,
     output (the node's log) in a file."""
 
@@ -133,47 +132,14 @@ class DriverProcess:
         for name, value in params.items():
             args += ["-p", f"{name}:={_ros_param(value)}"]
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
-        self.log = log
-        self._out = log.open("wb")
-        self.proc = subprocess.Popen(
-            args, stdout=self._out, stderr=subprocess.STDOUT, env=env, start_new_session=True
-        )
-
-    def output(self) -> str:
-        return self.log.read_text(errors="replace")
+        super().__init__(args, env, log)
 
     def wait_for_output(self, text: str, timeout: float = 60.0) -> None:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if text in self.output():
-                return
-            if self.proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise AssertionError(f"{text!r} not in the driver's output:\n{self.output()}")
+        self.wait_for(re.escape(text), timeout)
 
-    def wait(self, timeout: float = 60.0) -> int:
-        return self.proc.wait(timeout=timeout)
-
-    def interrupt(self, timeout: float = 20.0) -> int:
-        """Ctrl-C on ``ros2 launch``: SIGINT to the group, and again as launch forwards it;
-        the exit status."""
-        for _ in range(2):
-            if self.proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(self.proc.pid, signal.SIGINT)
-            time.sleep(0.05)
-        return self.proc.wait(timeout=timeout)
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError, subprocess.TimeoutExpired):
-                self.interrupt(timeout=10.0)
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(timeout=10.0)
-        self._out.close()
+    def interrupt(self, timeout: float = 20.0, times: int = 2) -> int:
+        """Ctrl-C as ``ros2 launch`` delivers it (twice); the exit status."""
+        return super().interrupt(timeout, times)
 
 
 @pytest.fixture

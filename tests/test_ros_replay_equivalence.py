@@ -7,6 +7,8 @@ other path is pipe_nav_core.pipeline.replay_bag, what ``pipe-nav replay`` runs.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -22,6 +24,7 @@ bagwrite = pytest.importorskip(
 highlevel = pytest.importorskip("rosbags.highlevel")
 
 from pipe_nav_core.config import NavConfig  # noqa: E402
+from pipe_nav_core.smoother import slice_log  # noqa: E402
 from pipe_nav_core.types import SensorLog  # noqa: E402
 from pipe_nav_ros.ekf_core import EkfCore  # noqa: E402
 
@@ -29,12 +32,8 @@ CROP_S = 90.0
 
 
 def cropped(log: SensorLog, t_end: float) -> SensorLog:
-    return SensorLog(
-        imu=log.imu.slice(log.imu.t <= t_end),
-        odometer=log.odometer.slice(log.odometer.t <= t_end),
-        mag=log.mag.slice(log.mag.t <= t_end),
-        markers=[m for m in log.markers if m.t <= t_end],
-    )
+    """The log's samples and markers stamped up to and including ``t_end`` (s)."""
+    return slice_log(log, -math.inf, float(np.nextafter(t_end, math.inf)))
 
 
 @pytest.fixture(scope="module")

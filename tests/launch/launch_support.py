@@ -77,24 +77,18 @@ def crop_sample_bag(out: Path, seconds: float) -> tuple[float, float, int]:
 
     Returns (first, last) IMU header stamp of the crop in seconds, and its number of markers.
     """
+    import math
+
+    import numpy as np
     from pipe_nav_core.io.bagread import read_bag
     from pipe_nav_core.io.bagwrite import write_sensor_bag
-    from pipe_nav_core.types import SensorLog
+    from pipe_nav_core.smoother import slice_log
 
     log, _ = read_bag(SAMPLE_BAG)
     t_end = float(log.imu.t[0]) + seconds
-    markers = [m for m in log.markers if m.t <= t_end]
-    write_sensor_bag(
-        out,
-        SensorLog(
-            imu=log.imu.slice(log.imu.t <= t_end),
-            odometer=log.odometer.slice(log.odometer.t <= t_end),
-            mag=log.mag.slice(log.mag.t <= t_end),
-            markers=markers,
-        ),
-    )
-    keep = log.imu.t[log.imu.t <= t_end]
-    return float(keep[0]), float(keep[-1]), len(markers)
+    crop = slice_log(log, -math.inf, float(np.nextafter(t_end, math.inf)))  # t <= t_end
+    write_sensor_bag(out, crop)
+    return float(crop.imu.t[0]), float(crop.imu.t[-1]), len(crop.markers)
 
 
 def stamp_s(msg: Any) -> float:
