@@ -8,12 +8,14 @@ import contextlib
 import itertools
 import os
 import re
+import shutil
 import signal
 import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 from rclpy.executors import SingleThreadedExecutor
 
 _domains = itertools.count()
@@ -34,6 +36,21 @@ def spin_until(executor: SingleThreadedExecutor, predicate: Callable[[], bool],
             return True
         executor.spin_once(timeout_sec=0.02)
     return predicate()
+
+
+def ros2_with_workspace() -> str:
+    """The ``ros2`` command, for tests that start the installed nodes; skips the test where
+    it is not on PATH or pipe_nav_ros is not installed."""
+    ros2 = shutil.which("ros2")
+    if ros2 is None:
+        pytest.skip("the ros2 command is not on PATH (source .ci/ros-env)")
+    try:
+        from ament_index_python.packages import get_package_prefix
+
+        get_package_prefix("pipe_nav_ros")
+    except (ImportError, LookupError):
+        pytest.skip("pipe_nav_ros is not installed (colcon build; source install/setup.bash)")
+    return ros2
 
 
 class LoggedProcess:

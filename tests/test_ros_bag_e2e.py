@@ -18,7 +18,6 @@ import itertools
 import math
 import os
 import re
-import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -38,7 +37,7 @@ from pipe_nav_core.sim import get_scenario, simulate  # noqa: E402
 from pipe_nav_core.smoother import slice_log  # noqa: E402
 from pipe_nav_core.types import Datum, SensorLog, Trajectory  # noqa: E402
 from pipe_nav_ros.params import nav_params_from_config, yaml_scalar  # noqa: E402
-from ros_graph import LoggedProcess  # noqa: E402
+from ros_graph import LoggedProcess, ros2_with_workspace  # noqa: E402
 from ruamel.yaml import YAML  # noqa: E402
 
 INPUT_TOPICS = ["/imu/data", "/odom/wheel", "/imu/mag", "/markers"]
@@ -189,15 +188,7 @@ def errors(odo: Odometry, truth: Trajectory) -> np.ndarray:
 
 
 def test_bag_play_into_ekf_node_recorded_matches_pipe_nav_replay(tmp_path, procs):
-    ros2 = shutil.which("ros2")
-    if ros2 is None:
-        pytest.skip("the ros2 command is not on PATH (source .ci/ros-env)")
-    try:
-        from ament_index_python.packages import get_package_prefix
-
-        get_package_prefix("pipe_nav_ros")
-    except (ImportError, LookupError):
-        pytest.skip("pipe_nav_ros is not installed (colcon build; source install/setup.bash)")
+    ros2 = ros2_with_workspace()
 
     bag, config, truth, log = write_run(tmp_path, seed=5)
     marker_times = sorted(m.t for m in log.markers)

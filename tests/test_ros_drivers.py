@@ -16,7 +16,6 @@ import itertools
 import math
 import os
 import re
-import shutil
 import time
 from pathlib import Path
 
@@ -32,7 +31,7 @@ from pipe_nav_ros.driver_node import SensorDriverNode  # noqa: E402
 from pipe_nav_ros.sources import nmea_checksum  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from ros_graph import LoggedProcess, spin_until  # noqa: E402
+from ros_graph import LoggedProcess, ros2_with_workspace, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 
 SENSOR_DEEP = QoSProfile(
@@ -119,15 +118,7 @@ class DriverProcess(LoggedProcess):
     output (the node's log) in a file."""
 
     def __init__(self, executable: str, params: dict, domain: int, log: Path) -> None:
-        ros2 = shutil.which("ros2")
-        if ros2 is None:
-            pytest.skip("the ros2 command is not on PATH (source .ci/ros-env)")
-        try:
-            from ament_index_python.packages import get_package_prefix
-
-            get_package_prefix("pipe_nav_ros")
-        except (ImportError, LookupError):
-            pytest.skip("pipe_nav_ros is not installed (colcon build; source install/setup.bash)")
+        ros2 = ros2_with_workspace()
         args = [ros2, "run", "pipe_nav_ros", executable, "--ros-args"]
         for name, value in params.items():
             args += ["-p", f"{name}:={_ros_param(value)}"]
