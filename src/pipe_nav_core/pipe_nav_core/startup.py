@@ -41,7 +41,7 @@ def measure(bag: Path, repeat: int, cold: bool) -> list[tuple[str, float, float]
     """(what, wall s, x real time) rows."""
     duration = _duration(bag)
     py = sys.executable
-    rows: list[tuple[str, float, float]] = []
+    rows: list[tuple[str, float]] = []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out"
 
@@ -55,15 +55,15 @@ def measure(bag: Path, repeat: int, cold: bool) -> list[tuple[str, float, float]
             src = Path(__file__).resolve().parent
             shutil.copytree(src, fresh / src.name, ignore=shutil.ignore_patterns("__pycache__"))
             env = {**os.environ, "PYTHONPATH": str(fresh)}
-            rows.append(("smooth, fresh install (kernels compiled in the run)", smooth(env), 0.0))
+            rows.append(("smooth, fresh install (kernels compiled in the run)", smooth(env)))
         smooth()  # the kernels loaded once, as after the bootstrap
         walls = [smooth() for _ in range(repeat)]
-        rows.append(("smooth, every product (median)", statistics.median(walls), 0.0))
+        rows.append(("smooth, every product (median)", statistics.median(walls)))
         info = [_wall([py, "-m", "pipe_nav_core.cli", "info", str(bag)]) for _ in range(repeat)]
-        rows.append(("info (median)", statistics.median(info), 0.0))
+        rows.append(("info (median)", statistics.median(info)))
         imports = [_wall([py, "-c", "import pipe_nav_core.pipeline"]) for _ in range(repeat)]
-        rows.append(("import pipe_nav_core.pipeline (median)", statistics.median(imports), 0.0))
-    return [(what, wall, duration / wall) for what, wall, _ in rows]
+        rows.append(("import pipe_nav_core.pipeline (median)", statistics.median(imports)))
+    return [(what, wall, duration / wall) for what, wall in rows]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
