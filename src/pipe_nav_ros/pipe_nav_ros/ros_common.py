@@ -87,6 +87,27 @@ class PipeNavNode(Node):
         """Release resources (threads, ports) before the node is destroyed."""
 
 
+class _CtrlC:
+    """The Python side of SIGINT for :func:`run_node`.
+
+    rclpy's own handler shuts the context down and then calls this one. While the node is
+    being built (kernel loading can take minutes on a fresh install) the first Ctrl-C raises
+    KeyboardInterrupt so the build stops at once; once it spins, Ctrl-C only records the stop,
+    which the loop sees. Every later Ctrl-C is ignored: ``ros2 launch`` delivers it twice, and
+    a KeyboardInterrupt landing in the clean-up would be a traceback instead of a stop.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self.building = True
+
+    def __call__(self, signum: int, frame: object) -> None:
+        first = not self.requested
+        self.requested = True
+        if first and self.building:
+            raise KeyboardInterrupt
+
+
 def run_node(
     factory: Callable[[], PipeNavNode], name: str, args: Sequence[str] | None = None
 ) -> int:
@@ -94,11 +115,13 @@ def run_node(
 
     A ConfigError raised while building the node (an invalid parameter) is logged as an error
     and gives exit status 2, so ``ros2 run`` and launch show a clear message and a failure.
-    Ctrl-C is an ordinary stop (status 0, no traceback) wherever it lands: ``ros2 launch``
-    delivers it twice (to the process group and forwarded), and rclpy's handler shuts the
-    context down while a callback may still be converting a message, which makes that
-    ``spin_once`` raise; once rclpy is shut down such an error is the stop, not a crash.
+    Ctrl-C is an ordinary stop (status 0, no traceback) wherever it lands, however often it
+    comes (:class:`_CtrlC`); rclpy shuts the context down while a callback may still be
+    converting a message, which makes that ``spin_once`` raise: once rclpy is shut down such
+    an error is the stop, not a crash.
     """
+    ctrl_c = _CtrlC()
+    signal.signal(signal.SIGINT, ctrl_c)  # before init: rclpy's handler chains to this one
     rclpy.init(args=list(args) if args is not None else None)
     node: PipeNavNode | None = None
     executor: SingleThreadedExecutor | None = None
@@ -108,20 +131,21 @@ def run_node(
         except ConfigError as exc:
             get_logger(name).error(f"invalid parameters, not starting: {exc}")
             return 2
+        ctrl_c.building = False
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while rclpy.ok() and node.exit_code is None:
+        while rclpy.ok() and node.exit_code is None and not ctrl_c.requested:
             try:
                 executor.spin_once(timeout_sec=0.2)
             except Exception:
-                if rclpy.ok():
+                if rclpy.ok() and not ctrl_c.requested:
                     raise
                 break  # shut down mid-callback by Ctrl-C
         return node.exit_code or 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # stopping already: a second Ctrl-C waits
+        ctrl_c.building = False
         if executor is not None:
             executor.shutdown(timeout_sec=1.0)
         if node is not None:
