@@ -30,6 +30,7 @@ ANGLE_FIELDS = {
     "mag_heading_sigma",
     "mag_dip_gate",
     "stop_gyro_threshold",
+    "bend_min_angle",
 }
 
 
@@ -77,6 +78,13 @@ FIELD_DOCS: dict[str, str] = {
     "initial_tilt_sigma": "initial roll/pitch one-sigma after static levelling, deg",
     "initial_position_sigma": "initial position one-sigma at the first marker, m",
     "gate_probability": "chi-square acceptance probability of every update, in (0.5, 1)",
+    "pipe_outer_diameter": "pipe outer diameter for bending strain, m; 0 = pipe_diameter",
+    "curvature_window": "chainage window of the curvature profile, m; 0 = 3 outer diameters",
+    "bend_min_angle": "smallest bend listed (3-D angle between its end tangents), deg",
+    "bend_threshold_radius": "a bend is where the radius of curvature is below this, m",
+    "bend_class_limits": "bend class by radius, outer diameters: elbow < a <= induction < b"
+    " <= field < c <= elastic",
+    "strain_thresholds": "strain features: bending strain over these levels, percent",
 }
 
 
@@ -164,6 +172,14 @@ class NavConfig:
     # Innovation gating
     gate_probability: float = 0.9999  # chi-square acceptance probability of every update
 
+    # Integrity products, computed from the smoothed solution (products/)
+    pipe_outer_diameter: float = 0.0  # m, for bending strain; 0 = pipe_diameter
+    curvature_window: float = 0.0  # m of chainage; 0 = 3 outer diameters, at least 0.5 m
+    bend_min_angle: float = math.radians(1.0)  # rad, 3-D angle between a bend's end tangents
+    bend_threshold_radius: float = 2000.0  # m: curvature over 1/this is part of a bend
+    bend_class_limits: tuple[float, float, float] = (2.5, 12.0, 150.0)  # outer diameters
+    strain_thresholds: tuple[float, ...] = (0.125, 0.2)  # percent bending strain
+
     def over_epoch(self, sigma: float, epoch_s: float) -> float:
         """Sigma of a white velocity noise averaged over epoch_s (s), given its sigma over
         NOISE_EPOCH_S: sigma * sqrt(NOISE_EPOCH_S / epoch_s), so that the information the
@@ -175,6 +191,14 @@ class NavConfig:
         """The process-noise IMU model: the named grade with overrides applied."""
         spec = imu_grade("industrial" if self.imu_grade == AUTO_GRADE else self.imu_grade)
         return replace(spec, **dict(self.imu_overrides)) if self.imu_overrides else spec
+
+    def outer_diameter(self) -> float:
+        """The pipe's outer diameter for strain, m (pipe_diameter when not given)."""
+        return self.pipe_outer_diameter or self.pipe_diameter
+
+    def window(self) -> float:
+        """The curvature window, m of chainage (default 3 outer diameters, at least 0.5 m)."""
+        return self.curvature_window or max(3.0 * self.outer_diameter(), 0.5)
 
     def tilt_enabled(self) -> bool:
         return self.tilt_update == "on" or (self.tilt_update == "auto" and self.mode == "dr")
@@ -242,6 +266,8 @@ class NavConfig:
             "initial_heading_sigma",
             "initial_tilt_sigma",
             "initial_position_sigma",
+            "bend_min_angle",
+            "bend_threshold_radius",
         )
         for name in positive:
             v = getattr(self, name)
@@ -255,11 +281,26 @@ class NavConfig:
             "stop_gyro_threshold",
             "mag_attenuation",
             "marker_time_sigma",
+            "pipe_outer_diameter",
+            "curvature_window",
         )
         for name in non_negative:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ConfigError(f"{name} must be a number >= 0, not {v!r}")
+        for name, count in (("bend_class_limits", 3), ("strain_thresholds", 0)):
+            v = getattr(self, name)
+            try:
+                ok = all(math.isfinite(float(x)) and float(x) > 0 for x in v) and list(v) == sorted(
+                    v
+                )
+            except (TypeError, ValueError):
+                ok = False
+            if not ok or (count and len(v) != count) or not v:
+                what = f"{count} " if count else ""
+                raise ConfigError(
+                    f"{name} must be {what}positive numbers in increasing order, not {v!r}"
+                )
         if not 0.5 < self.gate_probability < 1.0:
             raise ConfigError(f"gate_probability must be in (0.5, 1), not {self.gate_probability}")
         if self.filter_rate_hz > 1000:

@@ -21,6 +21,7 @@ TOOL_FIELDS = (
     "odometer_lever_arm",
     "odometer_resolution",
     "pipe_diameter",
+    "pipe_outer_diameter",
     "mag_update",
     "mag_declination",
     "mag_hard_iron",
