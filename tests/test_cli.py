@@ -6,6 +6,7 @@ import argparse
 import csv
 import hashlib
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -39,11 +40,14 @@ def smoothed(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_smooth_writes_every_product(smoothed: Path):
     names = sorted(p.name for p in smoothed.iterdir())
     assert names == [
+        "sample_bends.csv",
         "sample_centerline.csv",
         "sample_centerline.geojson",
         "sample_centerline.kml",
         "sample_report.png",
         "sample_smoothed.mcap",
+        "sample_strain.csv",
+        "sample_strain_features.csv",
     ]
     assert (smoothed / "sample_report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     gj = json.loads((smoothed / "sample_centerline.geojson").read_text())
@@ -435,3 +439,43 @@ def test_the_writers_refuse_non_finite_samples(tmp_path):
         with pytest.raises(ValueError, match="1 of .* samples are not finite"):
             write(tmp_path / name)
         assert not (tmp_path / name).exists()
+
+
+def test_the_sample_bends_are_those_of_its_pipe(smoothed: Path):
+    """The bundled run's pipe (sim scenario demo): a 45 deg bend of 3 D at 60 m, a 0.5 m sag
+    over 60 m from 140 m (three lobes: 0.65, 1.3, 0.65 of its peak angle) and a 1 deg crest of
+    50 m radius at 255 m."""
+    import csv
+
+    with (smoothed / "sample_bends.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    got = [(r["direction"], r["class"], float(r["angle_deg"]), float(r["radius_m"])) for r in rows]
+    assert [g[:2] for g in got] == [("right", "induction"), ("over", "elastic"),
+                                    ("sag", "elastic"), ("over", "elastic"),
+                                    ("over", "elastic")]  # fmt: skip
+    assert abs(got[0][2] - 45.0) < 0.1 and abs(got[0][3] - 0.6) < 0.03
+    assert abs(float(rows[0]["apex_m"]) - (60.0 + 0.3 * 45 * math.pi / 180)) < 0.3
+    assert abs(got[1][2] * 2 - got[2][2]) < 0.1 and abs(got[3][2] * 2 - got[2][2]) < 0.1
+    assert abs(got[4][2] - 1.0) < 0.05 and abs(got[4][3] - 50.0) < 5.0
+    for r in rows:
+        assert 0 < float(r["sigma_angle_deg"]) < 0.1
+
+
+def test_bends_recomputes_from_the_smoothed_bag_with_other_settings(smoothed: Path, capsys):
+    run = smoothed / "again"
+    args = ["bends", str(smoothed / "sample_smoothed.mcap"), "--out", str(run), "--window", "2",
+            "--thresholds", "0.5", "--outer-diameter", "0.22"]  # fmt: skip
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "curvature window 2.00 m, outer diameter 0.220 m" in out
+    text = (smoothed / "again_bends.csv").read_text().splitlines()
+    assert len(text) == 1 + 5
+    features = (smoothed / "again_strain_features.csv").read_text().splitlines()
+    assert all(line.split(",")[1] == "0.500" for line in features[1:]) and len(features) >= 2
+
+
+def test_bends_refuses_what_is_not_a_smoothed_run(tmp_path: Path, capsys):
+    assert main(["bends", str(SAMPLE), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a smoothed bag" in err[0] and str(SAMPLE) in err[0]
+    assert not list(tmp_path.iterdir())

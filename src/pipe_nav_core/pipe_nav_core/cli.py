@@ -22,9 +22,12 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from .config import ConfigError, NavConfig
+
+if TYPE_CHECKING:
+    from .products import IntegrityReport
 
 EXIT_ERROR = 2
 EXIT_NOT_OK = 3  # smooth --strict: the run's quality verdict is not OK
@@ -193,6 +196,7 @@ def cmd_smooth(args: argparse.Namespace) -> int:
         outputs = Outputs(
             bag=str(out), csv=args.csv, geojson=args.geojson, kml=args.kml, plot=args.plot
         )
+    outputs = outputs.with_products()
     _warm_kernels()
     bar = _progress(args.quiet)
     token = report_fraction(bar.fraction if bar else None)
@@ -207,6 +211,7 @@ def cmd_smooth(args: argparse.Namespace) -> int:
             spacing=args.spacing,
             topics=_topics(args),
             progress=bar.stage if bar else None,
+            bends_reference=args.bends_reference,
         )
     finally:
         reset_fraction(token)
@@ -239,6 +244,15 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
     print("  accel bias          " + " ".join(f"{x:+.3f}" for x in s["accel_bias_mg"]) + " mg")
     print(f"  max sigma between markers (horizontal) {s['max_sigma_h_between_markers_m']:.3f} m")
     print(f"  max marker residual {s['max_marker_residual_m']:.3f} m")
+    products = s.get("integrity") or {}
+    if products:
+        print(
+            f"  bends               {products['bends']} (window "
+            f"{products['curvature_window_m']:.2f} m), strain features "
+            f"{products['strain_features']}, max strain "
+            f"{products['max_strain_pct']:.4f} %"
+            + "".join(f"; {n}" for n in products.get("notes", []))
+        )
     model = s.get("imu_model") or {}
     if model:
         how = model["reason"] if model.get("auto") else "given"
@@ -341,6 +355,60 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bends(args: argparse.Namespace) -> int:
+    from .pipeline import Outputs, products_of_file
+
+    for name, value in (
+        ("curvature_window", args.window),
+        ("strain_thresholds", args.thresholds),
+        ("bend_min_angle_deg", args.min_angle_deg),
+        ("pipe_outer_diameter", args.outer_diameter),
+    ):
+        if value is not None:
+            args.set = (args.set or []) + [f"{name}={json.dumps(value)}"]
+    cfg = _load_config(args)
+    src = str(args.input).rstrip("/")
+    outputs = Outputs(csv=args.out + ".csv" if args.out else src).with_products()
+    outputs = Outputs(strain=outputs.strain, bends=outputs.bends,
+                      strain_features=outputs.strain_features)  # fmt: skip
+    report, notes = products_of_file(src, outputs, config=cfg, spacing=args.spacing,
+                                     bends_reference=args.bends_reference)  # fmt: skip
+    for note in notes:
+        print(f"pipe-nav: note: {note}", file=sys.stderr)
+    if not args.quiet:
+        print(format_bends(report))
+        print("outputs:")
+        for p in outputs.paths():
+            print(f"  {p}")
+    return 0
+
+
+def format_bends(report: IntegrityReport) -> str:
+    """The bend list and strain features as a table for people."""
+    s = report.summary()
+    lines = [
+        f"curvature window {report.window:.2f} m, outer diameter {report.outer_diameter:.3f} m; "
+        f"max strain {s['max_strain_pct']:.4f} %",
+        f"{'bend':>4} {'apex_m':>10} {'angle_deg':>10} {'radius_m':>10} {'radius_D':>9} "
+        f"{'direction':>10} class",
+    ]
+    lines += [
+        f"{b.number:>4} {b.apex_m:>10.2f} {math.degrees(b.angle):>10.2f} {b.radius:>10.2f} "
+        f"{b.radius_d:>9.1f} {b.direction:>10} {b.kind}"
+        for b in report.bends
+    ]
+    lines.append(f"strain features over {', '.join(f'{t:g} %' for t in report.thresholds_pct)}: "
+                 f"{len(report.features)}")  # fmt: skip
+    lines += [
+        f"  {x.number:>3} {x.start_m:.1f}-{x.end_m:.1f} m peak {x.peak_pct:.4f} % "
+        f"(over {x.threshold_pct:g} %)" + (f", bend {x.bend}" if x.bend else ", no bend")
+        + ("" if x.construction is None else
+           (", as-built" if x.construction else ", not construction-related"))
+        for x in report.features
+    ]
+    return "\n".join(lines)
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluation import score
     from .io import read_centreline_csv, read_markers_csv
@@ -396,6 +464,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, default=2, help="re-linearization passes (default 2)")
     p.add_argument("--spacing", type=float, default=0.5, help="CSV row spacing, m of chainage")
     p.add_argument("--strict", action="store_true", help="exit 3 unless the quality verdict is OK")
+    p.add_argument("--bends-reference", metavar="CSV",
+                   help="as-built bends (start_m,end_m): strain features outside them are "
+                   "marked not construction-related")  # fmt: skip
     _add_common(p)
     p.set_defaults(func=cmd_smooth)
 
@@ -429,6 +500,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="the same as JSON")
     _add_common(p)
     p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("bends", help="bends and strain of a smoothed run, with other settings")
+    p.add_argument("input", help="a smoothed .mcap (pipe-nav smooth --out) or a centreline CSV")
+    p.add_argument("--out", metavar="RUN",
+                   help="write RUN_strain.csv, RUN_bends.csv, RUN_strain_features.csv "
+                   "(default: beside the input, named like it)")  # fmt: skip
+    p.add_argument("--window", type=float, help="curvature window, m of chainage")
+    p.add_argument("--thresholds", type=float, nargs="+", metavar="PCT",
+                   help="strain feature thresholds, percent")  # fmt: skip
+    p.add_argument("--min-angle-deg", type=float, help="smallest bend listed, deg")
+    p.add_argument("--outer-diameter", type=float, help="pipe outer diameter, m")
+    p.add_argument("--spacing", type=float, default=0.5, help="strain row spacing, m")
+    p.add_argument("--bends-reference", metavar="CSV", help="as-built bends (start_m,end_m)")
+    p.add_argument("--config", help="YAML/JSON file of settings")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting")
+    p.add_argument("--imu-grade", choices=["auto", "consumer", "industrial", "tactical"],
+                   help="IMU noise model of the sigmas (default: the bag's)")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no table")
+    p.set_defaults(func=cmd_bends)
 
     p = sub.add_parser("evaluate", help="score a centreline CSV against a truth CSV")
     p.add_argument("centreline")

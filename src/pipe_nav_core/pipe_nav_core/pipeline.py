@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,11 @@ from .io import (
 )
 from .io.atomic import all_or_none, check_not_input, check_output
 from .io.bagread import declared_imu_noise
+from .io.centreline import read_centreline_csv
+from .io.products_csv import write_bends_csv, write_strain_csv, write_strain_features_csv
+from .io.smoothed_bag import read_smoothed_bag
+from .products import IntegrityReport, integrity_report, read_bends_reference
+from .sensors import GRADES
 from .smoother import SmoothResult, smooth_log
 from .types import Datum, Marker, SensorLog, Trajectory
 
@@ -48,13 +53,32 @@ class Outputs:
     geojson: str | None = None
     kml: str | None = None
     plot: str | None = None
+    strain: str | None = None  # the integrity products (products/), named like the centreline
+    bends: str | None = None
+    strain_features: str | None = None
 
     # the command-line option that names each output, for messages
     OPTIONS = {"bag": "--out", "csv": "--csv", "geojson": "--geojson", "kml": "--kml",
-               "plot": "--plot"}  # fmt: skip
+               "plot": "--plot", "strain": "--csv/--out", "bends": "--csv/--out",
+               "strain_features": "--csv/--out"}  # fmt: skip
 
     def paths(self) -> list[str]:
-        return [p for p in (self.bag, self.csv, self.geojson, self.kml, self.plot) if p]
+        return [p for p in (getattr(self, name) for name in self.OPTIONS) if p]
+
+    def with_products(self) -> Outputs:
+        """These outputs plus the integrity products beside the centreline CSV (else beside
+        the bag): ``RUN_strain.csv``, ``RUN_bends.csv``, ``RUN_strain_features.csv`` where RUN
+        is the CSV's (or bag's) name without ``_centerline`` (``_smoothed``) and suffix."""
+        base = self.csv or self.bag
+        if not base:
+            return self
+        stem = str(Path(base).with_suffix(""))
+        for tail in ("_centerline", "_centreline", "_smoothed"):
+            if stem.endswith(tail):
+                stem = stem[: -len(tail)]
+                break
+        return replace(self, strain=f"{stem}_strain.csv", bends=f"{stem}_bends.csv",
+                       strain_features=f"{stem}_strain_features.csv")  # fmt: skip
 
     def check(self, inputs: Sequence[str | os.PathLike[str]], spacing: float) -> None:
         """Before any work: every output writable, none an input, no two the same file, and
@@ -134,9 +158,13 @@ def smooth_bag(
     spacing: float = 0.5,
     topics: TopicNames = DEFAULT_TOPICS,
     progress: Progress | None = None,
+    bends_reference: str | os.PathLike[str] | None = None,
 ) -> tuple[SmoothResult, BagReport]:
-    """Smooth a recorded run and write the requested outputs."""
-    outputs.check([bag] + ([markers_csv] if markers_csv else []), spacing)
+    """Smooth a recorded run, compute its integrity products (bends_reference: a CSV of the
+    as-built bends' chainage intervals) and write the requested outputs."""
+    inputs = [bag] + [p for p in (markers_csv, bends_reference) if p]
+    outputs.check(inputs, spacing)
+    reference = read_bends_reference(bends_reference) if bends_reference else None
     say = progress or (lambda _m: None)
     say("reading bag")
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
@@ -154,6 +182,11 @@ def smooth_bag(
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     verdict = quality.judge(result.summary, result.centreline, report.warnings)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
+    say("bends and strain")
+    result.products = integrity_report(
+        result.centreline, result.config or config, spacing=spacing, reference=reference
+    )
+    result.summary["integrity"] = result.products.summary()
     write_products(result, outputs, spacing=spacing, progress=say)
     return result, report
 
@@ -271,6 +304,8 @@ def _write_staged(
         write_geojson(staged[outputs.geojson], rows, result.markers)
     if outputs.kml:
         write_kml(staged[outputs.kml], rows, result.markers)
+    if result.products is not None:
+        _write_products_csv(result.products, outputs, staged)
     if outputs.plot:
         say("plotting")
         from .plots import plot_report
@@ -290,6 +325,16 @@ def _write_staged(
             res.reshape(-1, 3) if len(res) else None,
             title=Path(outputs.plot).stem,
         )
+
+
+def _write_products_csv(report: IntegrityReport, outputs: Outputs, staged: dict[str, Path]) -> None:
+    if outputs.strain:
+        write_strain_csv(staged[outputs.strain], report.profile, report.strain_pct,
+                         report.sigma_strain_pct)  # fmt: skip
+    if outputs.bends:
+        write_bends_csv(staged[outputs.bends], report.bends)
+    if outputs.strain_features:
+        write_strain_features_csv(staged[outputs.strain_features], report.features)
 
 
 def replay_log(
@@ -362,3 +407,38 @@ def replay_bag(
     write_output_bag(out, path=None, datum=datum, odometry=traj)
     report.warnings += result.warnings
     return result, report
+
+
+def products_of_file(
+    source: str | os.PathLike[str],
+    outputs: Outputs,
+    *,
+    config: NavConfig,
+    spacing: float = 0.5,
+    bends_reference: str | os.PathLike[str] | None = None,
+) -> tuple[IntegrityReport, list[str]]:
+    """`pipe-nav bends`: the integrity products of a run already smoothed, from its smoothed
+    MCAP bag or its centreline CSV, with other settings; writes ``outputs``' product files
+    (all or none). Returns the report and the notes for the user. The sigmas use the IMU model
+    the bag's metadata records when ``config.imu_grade`` is auto (industrial for a CSV)."""
+    inputs = [source] + ([bends_reference] if bends_reference else [])
+    outputs.check(inputs, spacing)
+    reference = read_bends_reference(bends_reference) if bends_reference else None
+    notes: list[str] = []
+    if str(source).lower().endswith(".csv"):
+        traj, _ = read_centreline_csv(source, warn=notes.append)
+        model = ""
+    else:
+        traj, _, metadata = read_smoothed_bag(source)
+        model = metadata.get("imu_model", "").split("+")[0]
+        notes.append(f"{source}: chainage is the arc length of its path (a Path has no distance_m)")
+    if config.imu_grade == AUTO_GRADE:
+        grade = model if model in GRADES else "industrial"
+        config = replace(config, imu_grade=grade)
+        hint = "" if model else " (give --imu-grade)"
+        notes.append(f"sigmas from the {grade} IMU model{hint}")
+    report = integrity_report(traj, config, spacing=spacing, reference=reference)
+    notes += report.notes
+    with all_or_none(outputs.paths()) as staged:
+        _write_products_csv(report, outputs, staged)
+    return report, notes

@@ -28,6 +28,7 @@ import contextvars
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -65,6 +66,9 @@ from .types import (
     markers_sorted,
 )
 
+if TYPE_CHECKING:
+    from .products import IntegrityReport
+
 Array = NDArray[np.float64]
 METHODS = ("forward", "rts", "two-filter")
 # A pass linearized within these of its smoothed result has converged: Gauss-Newton converges
@@ -89,7 +93,9 @@ class SmoothResult:
     forward: forward-filter estimates per epoch (what /pipe_nav/odometry carries);
     datum: origin of map (first marker); markers: the markers used;
     marker_residuals: name -> (3,) ENU m, smoothed position minus survey at the passage;
-    summary: figures for people (see :func:`summarize`).
+    summary: figures for people (see :func:`summarize`); config: the settings the run was
+    smoothed with (the IMU model chosen for it); products: its integrity products, when the
+    pipeline computed them (products.integrity_report).
     """
 
     centreline: Trajectory
@@ -98,7 +104,8 @@ class SmoothResult:
     markers: list[Marker]
     marker_residuals: dict[str, Array]
     summary: dict[str, object] = field(default_factory=dict)
-    final_state: NavState | None = None
+    config: NavConfig | None = None
+    products: IntegrityReport | None = None
 
 
 def reverse_log(log: SensorLog) -> SensorLog:
@@ -243,7 +250,8 @@ def smooth_log(
     def result_of(nav: Navigator, centre: Trajectory) -> SmoothResult:
         centre = _with_free_heading(centre, nav.free_heading)
         result = SmoothResult(
-            centre, forward, datum, markers, marker_residuals(centre, markers), nav.state
+            centre, forward, datum, markers, marker_residuals(centre, markers),
+            config=config,
         )
         result.summary = summarize(result, nav)
         return result

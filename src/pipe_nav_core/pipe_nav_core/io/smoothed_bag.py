@@ -1,0 +1,67 @@
+"""Read back a smoothed bag that ``pipe-nav smooth`` (or the smoother node) wrote: its
+``/pipe_nav/path`` as a Trajectory, its ``/pipe_nav/datum`` and its ``pipe_nav`` metadata.
+
+A cold path (one Path message), so it uses the declared dependencies' own readers: ``mcap``
+for the records and rosbags' Jazzy type store for CDR. The Path carries no odometer chainage:
+the trajectory's ``distance`` is the arc length of its poses from the first, in m.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..earth import enu_to_geodetic
+from ..types import Datum, Trajectory
+from .topics import OUTPUT_PATH_TOPIC
+
+DATUM_TOPIC = "/pipe_nav/datum"
+
+
+def read_smoothed_bag(path: str | os.PathLike[str]) -> tuple[Trajectory, Datum, dict[str, str]]:
+    """(trajectory, datum, metadata) of a smoothed MCAP bag; ValueError naming the file when
+    it is not one (unreadable, no path or no datum)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_typestore
+
+    p = os.fspath(path)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    path_msg = datum_msg = None
+    metadata: dict[str, str] = {}
+    try:
+        with open(p, "rb") as f:
+            reader = make_reader(f)
+            for _schema, channel, message in reader.iter_messages(
+                topics=[OUTPUT_PATH_TOPIC, DATUM_TOPIC]
+            ):
+                if channel.topic == OUTPUT_PATH_TOPIC:
+                    path_msg = store.deserialize_cdr(message.data, "nav_msgs/msg/Path")
+                else:
+                    datum_msg = store.deserialize_cdr(message.data, "sensor_msgs/msg/NavSatFix")
+            for record in reader.iter_metadata():
+                if record.name == "pipe_nav":
+                    metadata = dict(record.metadata)
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    except (McapError, ValueError, KeyError, EOFError) as exc:
+        raise ValueError(f"{p}: not a readable MCAP bag ({exc})") from None
+    if path_msg is None or not path_msg.poses:
+        raise ValueError(f"{p}: no {OUTPUT_PATH_TOPIC} in it: not a smoothed bag")
+    if datum_msg is None:
+        raise ValueError(f"{p}: no {DATUM_TOPIC} in it: not a smoothed bag")
+    datum = Datum(np.radians(datum_msg.latitude), np.radians(datum_msg.longitude),
+                  float(datum_msg.altitude))  # fmt: skip
+    poses = path_msg.poses
+    t = np.array([ps.header.stamp.sec + 1e-9 * ps.header.stamp.nanosec for ps in poses])
+    enu = np.array([[ps.pose.position.x, ps.pose.position.y, ps.pose.position.z] for ps in poses])
+    quat = np.array([[ps.pose.orientation.x, ps.pose.orientation.y, ps.pose.orientation.z,
+                      ps.pose.orientation.w] for ps in poses])  # fmt: skip
+    lat, lon, h = enu_to_geodetic(enu, datum.lat, datum.lon, datum.alt)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(enu, axis=0), axis=1))])
+    dt = np.gradient(t) if len(t) > 1 else np.ones(1)
+    vel = np.gradient(enu, axis=0) / np.where(dt > 0, dt, 1.0)[:, None] if len(t) > 1 else 0 * enu
+    traj = Trajectory(t=t, lat=np.asarray(lat), lon=np.asarray(lon), h=np.asarray(h), vel_n=vel,
+                      quat_nb=quat, distance=arc)  # fmt: skip
+    return traj, datum, metadata

@@ -1,0 +1,236 @@
+"""The bend list: where the pipe bends, by how much, how sharply, which way, and what kind.
+
+A bend is a stretch of the curvature profile above the bend threshold (curvature over
+1 / ``bend_threshold_radius``) whose direction does not reverse (an S, or the two sides of a dip,
+is two bends), listed when its 3-D angle reaches ``bend_min_angle``. Stretches of one direction
+split only by noise dipping under the threshold for less than a window are one bend.
+
+- angle: between the axis before and after the bend, taken where the curvature has fallen to a
+  quarter of the threshold (or reverses, or half-way to the next bend), so that the ramps of
+  an elastic bend are not lost; its sigma from the IMU noise model over that stretch.
+- apex: the middle of the stretch where the curvature is over half its peak (the middle of a
+  circular arc, ramps and all).
+- radius: 1 / the peak curvature on a profile whose window is a quarter of that stretch (at
+  least four track steps), so that a bend shorter than the profile's window is not reported
+  wider than it is; its sigma from that profile's sigma.
+- direction and plane from the vertical and horizontal components of the curvature integrated
+  over the bend; class by radius in outer diameters (``bend_class_limits``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..attitude import quat_from_euler
+from ..sensors import ImuSpec
+from .curvature import AxisTrack, CurvatureProfile, relative_angle_sigma, windowed_curvature
+
+FloatArray = NDArray[np.float64]
+
+BEND_CLASSES = ("elbow", "induction", "field", "elastic")
+
+
+@dataclass(frozen=True)
+class PipeBend:
+    """One bend. Chainages m of distance_m; lat, lon rad, alt m (WGS84, apex); angle, plane,
+    sigma_angle rad; radius, sigma_radius m; radius_d in outer diameters; direction ``left``,
+    ``right``, ``over``, ``sag`` or ``sag+left`` style; kind one of BEND_CLASSES; apex_t s;
+    apex_quat_nb [x, y, z, w] with x along the pipe axis at the apex (ENU, no roll)."""
+
+    number: int
+    start_m: float
+    apex_m: float
+    end_m: float
+    lat: float
+    lon: float
+    alt: float
+    angle: float
+    sigma_angle: float
+    radius: float
+    sigma_radius: float
+    radius_d: float
+    plane: float
+    direction: str
+    kind: str
+    apex_t: float
+    apex_quat_nb: tuple[float, float, float, float]
+
+
+def bend_class(radius_d: float, limits: tuple[float, float, float]) -> str:
+    """``elbow`` / ``induction`` / ``field`` / ``elastic`` by the radius in outer diameters."""
+    return BEND_CLASSES[int(np.searchsorted(np.asarray(limits), radius_d, side="right"))]
+
+
+def bend_direction(vertical: float, horizontal: float) -> str:
+    """The direction word of a bend from its integrated vertical and horizontal turns (rad)."""
+    v = "sag" if vertical > 0 else "over"
+    h = "right" if horizontal > 0 else "left"
+    total = math.hypot(vertical, horizontal)
+    if min(abs(vertical), abs(horizontal)) >= 0.25 * total:
+        return f"{v}+{h}"
+    return v if abs(vertical) >= abs(horizontal) else h
+
+
+def _stretches(profile: CurvatureProfile, threshold: float) -> list[tuple[int, int]]:
+    """Index ranges [i0, i1] over the threshold with one curvature direction, joined across
+    dips shorter than a window that keep the direction."""
+    k = np.stack([profile.vertical, profile.horizontal], axis=1)
+    above = profile.total > threshold
+    out: list[tuple[int, int]] = []
+    i, n = 0, len(above)
+    while i < n:
+        if not above[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and above[j + 1] and k[j + 1] @ k[j] > 0:
+            j += 1
+        out.append((i, j))
+        i = j + 1
+    joined: list[tuple[int, int]] = []
+    for a, b in out:
+        if joined:
+            pa, pb = joined[-1]
+            gap = profile.distance[a] - profile.distance[pb]
+            same = k[pa : pb + 1].sum(axis=0) @ k[a : b + 1].sum(axis=0) > 0
+            if gap <= profile.window and same:
+                joined[-1] = (pa, b)
+                continue
+        joined.append((a, b))
+    return joined
+
+
+def _extend(
+    profile: CurvatureProfile, a: int, b: int, lo: int, hi: int, level: float
+) -> tuple[int, int]:
+    """Widen [a, b] within [lo, hi] while the curvature stays over ``level`` in its direction."""
+    k = np.stack([profile.vertical, profile.horizontal], axis=1)
+    d = k[a : b + 1].sum(axis=0)
+    while a > lo and profile.total[a - 1] > level and k[a - 1] @ d > 0:
+        a -= 1
+    while b < hi and profile.total[b + 1] > level and k[b + 1] @ d > 0:
+        b += 1
+    return a, b
+
+
+def find_bends(
+    profile: CurvatureProfile,
+    track: AxisTrack,
+    spec: ImuSpec,
+    *,
+    threshold_radius: float,
+    min_angle: float,
+    outer_diameter: float,
+    class_limits: tuple[float, float, float],
+) -> list[PipeBend]:
+    """The bends of a curvature profile (see the module), numbered 1, 2, ... in chainage order."""
+    if len(profile) < 2:
+        return []
+    stretches = _stretches(profile, 1.0 / threshold_radius)
+    k = np.stack([profile.vertical, profile.horizontal], axis=1)
+    d = profile.distance
+    junctions = [_junction(k, d, stretches[i], stretches[i + 1]) for i in range(len(stretches) - 1)]
+    bends: list[PipeBend] = []
+    n = len(profile)
+    for idx, (a, b) in enumerate(stretches):
+        lo = 0 if idx == 0 else (stretches[idx - 1][1] + a + 1) // 2
+        hi = n - 1 if idx == len(stretches) - 1 else (b + stretches[idx + 1][0]) // 2
+        ea, eb = _extend(profile, a, b, lo, hi, 0.25 / threshold_radius)
+        # the axis before and after: at the first rows outside (their window barely touches
+        # the bend), or where the curvature reverses towards the neighbouring bend
+        before = float(d[max(ea - 1, 0)])
+        after = float(d[min(eb + 1, n - 1)])
+        if idx > 0:
+            before = max(before, junctions[idx - 1])
+        if idx < len(junctions):
+            after = min(after, junctions[idx])
+        bend = _measure(profile, track, spec, a, b, (before, after), outer_diameter,
+                        class_limits)  # fmt: skip
+        if bend is not None and bend.angle >= min_angle:
+            bends.append(bend)
+    return [_numbered(b, i + 1) for i, b in enumerate(bends)]
+
+
+def _junction(
+    k: FloatArray, d: FloatArray, first: tuple[int, int], second: tuple[int, int]
+) -> float:
+    """Chainage (m) between two stretches where the curvature turns from the first's direction
+    (linear between rows), else half-way between them."""
+    a, b = first
+    direction = k[a : b + 1].sum(axis=0)
+    along = k[b : second[0] + 1] @ direction
+    r = np.flatnonzero(along <= 0)
+    if len(r) == 0 or r[0] == 0:
+        return float(0.5 * (d[b] + d[second[0]]))
+    j = b + int(r[0])
+    f = along[r[0] - 1] / (along[r[0] - 1] - along[r[0]])
+    return float(d[j - 1] + f * (d[j] - d[j - 1]))
+
+
+def _numbered(b: PipeBend, number: int) -> PipeBend:
+    return PipeBend(number, *[getattr(b, f) for f in PipeBend.__dataclass_fields__][1:])
+
+
+def _measure(
+    profile: CurvatureProfile,
+    track: AxisTrack,
+    spec: ImuSpec,
+    a: int,
+    b: int,
+    ends: tuple[float, float],
+    outer_diameter: float,
+    class_limits: tuple[float, float, float],
+) -> PipeBend | None:
+    half_w = 0.5 * profile.window
+    (ax0, ax1), (t0, t1) = track.at_arc(track.arc_at(np.array(ends)))
+    angle = float(np.arccos(np.clip(ax0 @ ax1, -1.0, 1.0)))
+    step = float(profile.distance[1] - profile.distance[0])
+    span = (profile.distance >= ends[0]) & (profile.distance <= ends[1])
+    vert = float(np.sum(profile.vertical[span]) * step)
+    horiz = float(np.sum(profile.horizontal[span]) * step)
+    # apex: middle of the stretch over half the peak, on a profile fine enough to resolve it
+    peak = float(np.max(profile.total[a : b + 1]))
+    over = np.flatnonzero(profile.total[a : b + 1] >= 0.5 * peak) + a
+    half_len = float(profile.distance[over[-1]] - profile.distance[over[0]]) + step
+    fine_w = max(min(profile.window, 0.25 * half_len), 4.0 * float(np.median(np.diff(track.arc))))
+    arc_lo = float(track.arc_at(np.array([profile.distance[a]]))[0]) - half_w
+    arc_hi = float(track.arc_at(np.array([profile.distance[b]]))[0]) + half_w
+    fine_arc = np.arange(arc_lo, arc_hi, 0.25 * fine_w)
+    if len(fine_arc) < 3:
+        return None
+    fine = windowed_curvature(track, fine_arc, fine_w, spec)
+    k_peak = float(np.max(fine["total"]))
+    i_peak = int(np.argmax(fine["total"]))
+    near = np.flatnonzero(fine["total"] >= 0.5 * k_peak)
+    apex_arc = 0.5 * (fine_arc[near[0]] + fine_arc[near[-1]])
+    radius = 1.0 / max(k_peak, 1e-12)
+    sigma_radius = radius**2 * float(fine["sigma"][i_peak])
+    (apex_axis,), (apex_t,) = track.at_arc(np.array([apex_arc]))
+    lat, lon, alt = (float(x[0]) for x in track.position_at(np.array([apex_arc])))
+    pitch = math.asin(max(-1.0, min(1.0, float(apex_axis[2]))))
+    azimuth = math.atan2(float(apex_axis[0]), float(apex_axis[1]))
+    quat = quat_from_euler(0.0, pitch, azimuth).reshape(4)
+    radius_d = radius / outer_diameter
+    return PipeBend(
+        number=0,
+        start_m=float(profile.distance[a]),
+        apex_m=float(track.distance_at(np.array([apex_arc]))[0]),
+        end_m=float(profile.distance[b]),
+        lat=lat,
+        lon=lon,
+        alt=alt,
+        angle=angle,
+        sigma_angle=float(relative_angle_sigma(spec, np.array([t1 - t0]), np.array([angle]))[0]),
+        radius=radius,
+        sigma_radius=sigma_radius,
+        radius_d=radius_d,
+        plane=math.atan2(horiz, vert) % (2.0 * math.pi),
+        direction=bend_direction(vert, horiz),
+        kind=bend_class(radius_d, class_limits),
+        apex_t=float(apex_t),
+        apex_quat_nb=tuple(float(x) for x in quat),  # type: ignore[arg-type]
+    )

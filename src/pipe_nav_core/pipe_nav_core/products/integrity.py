@@ -1,0 +1,67 @@
+"""The integrity products of one run, computed together from its smoothed trajectory."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from ..config import NavConfig
+from ..types import Trajectory
+from .bends import PipeBend, find_bends
+from .curvature import CurvatureProfile, axis_track, curvature_profile
+from .strain import StrainFeature, strain_features, strain_pct
+
+
+@dataclass(frozen=True)
+class IntegrityReport:
+    """Curvature profile, strain (percent, with sigma), bends and strain features of a run, and
+    the settings they were computed with (outer diameter m, window m, thresholds percent)."""
+
+    profile: CurvatureProfile
+    strain_pct: object  # (N,) percent, per profile row
+    sigma_strain_pct: object  # (N,) percent
+    bends: list[PipeBend]
+    features: list[StrainFeature]
+    outer_diameter: float
+    window: float
+    thresholds_pct: tuple[float, ...]
+    notes: list[str] = field(default_factory=list)
+
+    def summary(self) -> dict[str, object]:
+        """Figures for people: counts, the largest bend and strain."""
+        peak = float(self.strain_pct.max()) if len(self.profile) else 0.0  # type: ignore[attr-defined]
+        return {
+            "bends": len(self.bends),
+            "strain_features": len(self.features),
+            "max_strain_pct": peak,
+            "curvature_window_m": self.window,
+            "outer_diameter_m": self.outer_diameter,
+            "strain_thresholds_pct": list(self.thresholds_pct),
+            "notes": list(self.notes),
+        }
+
+
+def integrity_report(
+    traj: Trajectory,
+    config: NavConfig,
+    *,
+    spacing: float = 0.5,
+    reference: Sequence[tuple[float, float]] | None = None,
+) -> IntegrityReport:
+    """Curvature, strain, bends and strain features of a smoothed trajectory, with the
+    settings of ``config`` (its IMU model gives the sigmas) every ``spacing`` m of chainage."""
+    spec = config.imu_spec()
+    window = config.window()
+    diameter = config.outer_diameter()
+    track = axis_track(traj, min(0.02, window / 8.0))
+    profile = curvature_profile(traj, spec, window=window, spacing=spacing, track=track)
+    bends = find_bends(profile, track, spec, threshold_radius=config.bend_threshold_radius,
+                       min_angle=config.bend_min_angle, outer_diameter=diameter,
+                       class_limits=config.bend_class_limits)  # fmt: skip
+    strain, sigma = strain_pct(profile, diameter)
+    features = strain_features(profile, diameter, config.strain_thresholds, bends, reference)
+    notes = []
+    if not config.pipe_outer_diameter:
+        notes.append(f"strain with pipe_diameter {diameter} m (pipe_outer_diameter not set)")
+    return IntegrityReport(profile, strain, sigma, bends, features, diameter, window,
+                           tuple(config.strain_thresholds), notes)  # fmt: skip
