@@ -18,6 +18,7 @@ import numpy as np
 from . import imu_model, quality
 from .config import AUTO_GRADE, NavConfig
 from .engine import NavEstimate, Navigator
+from .gaps import find_holes, remove_clock_steps
 from .io import (
     BagReport,
     TopicNames,
@@ -41,6 +42,7 @@ from .smoother import SmoothResult, smooth_log
 from .types import Datum, Marker, SensorLog, Trajectory
 
 Progress = Callable[[str], None]
+MAX_BRIDGED_M = 0.5  # m: a data gap the pig moved further in fails the run (not bridged yet)
 DEFAULT_TOPICS = TopicNames()
 
 
@@ -114,8 +116,12 @@ def load_log(
     topics: TopicNames = DEFAULT_TOPICS,
     markers_csv: str | os.PathLike[str] | None = None,
 ) -> tuple[SensorLog, BagReport]:
-    """Read a bag into memory (sorted per topic) and merge the marker CSV."""
+    """Read a bag into memory (sorted per topic), re-align its clock steps and name its data
+    gaps (gaps.find_holes; the bag's own markers follow its clock), merge the marker CSV."""
     log, report = read_bag(bag, topics)
+    holes = find_holes(log)
+    log = remove_clock_steps(log, holes)
+    report.warnings += [h.describe() for h in holes]
     if markers_csv is not None:
         log.markers = merge_markers(log.markers, read_markers_csv(markers_csv))
     untimed = [m.name for m in log.markers if not math.isfinite(m.t)]
@@ -180,7 +186,14 @@ def smooth_bag(
         log, config, bag=bag, topics=topics, method=method, iterations=iterations, progress=say
     )
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
-    verdict = quality.judge(result.summary, result.centreline, report.warnings)
+    unbridged = [
+        h.describe()
+        for h in find_holes(log)
+        if h.kind == "data gap" and not h.moved <= MAX_BRIDGED_M
+    ]
+    others = [w for w in report.warnings if w not in unbridged]
+    failures = [f"{w}: the centreline across it is not known" for w in unbridged]
+    verdict = quality.judge(result.summary, result.centreline, others, failures)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
     say("bends and strain")
     result.products = integrity_report(

@@ -36,11 +36,14 @@ class Verdict:
 
 
 def judge(
-    summary: dict[str, object], centreline: Trajectory, warnings: Sequence[str] = ()
+    summary: dict[str, object],
+    centreline: Trajectory,
+    warnings: Sequence[str] = (),
+    failures: Sequence[str] = (),
 ) -> Verdict:
-    """The verdict of a smoothing summary (smoother.summarize), its centreline and the
-    warnings of reading the bag and of the model check."""
-    failed: list[str] = []
+    """The verdict of a smoothing summary (smoother.summarize), its centreline, the warnings
+    of reading the bag and of the model check, and faults known to spoil the answer."""
+    failed: list[str] = list(failures)
     degraded: list[str] = []
     scale = float(summary.get("odometer_scale", 1.0))  # type: ignore[arg-type]
     if not (math.isfinite(scale) and SCALE_LIMITS[0] <= scale <= SCALE_LIMITS[1]):

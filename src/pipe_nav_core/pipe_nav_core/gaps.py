@@ -1,0 +1,106 @@
+"""Holes in the time line of a recorded run: clock steps and data gaps.
+
+A stretch where the IMU (and with it every other topic) is silent for much longer than its
+sample period is one of two things, told apart by the odometer across it:
+
+- a **clock step**: the logger's clock jumped (a GPS time fix, a reset) while the pig moved on
+  as before: the odometer's distance across the hole is what its speed covers in one sample
+  period. The stamps after it are moved back by the step, so the run is continuous again, and
+  the step is named (its size, where) in the warnings.
+- a **data gap**: nothing was recorded while the pig moved (a lost chunk, a logger stall):
+  the distance across the hole is what the pig travelled in it. It is named with its length in
+  seconds and metres; where the pig moved in it, the run's quality is FAILED (the centreline
+  across it is not known: bridging it is not built yet).
+
+All times in s of the bag's header-stamp clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .types import SensorLog
+
+MIN_GAP_S = 1.0  # s: a silence shorter than this (and than 50 IMU periods) is not a hole
+
+
+@dataclass(frozen=True)
+class TimeHole:
+    """A silence of the IMU from ``t_before`` to ``t_after`` (s, the samples either side).
+
+    kind: ``clock step`` or ``data gap``; step: s, how far the stamps after it were moved back
+    (0 for a data gap); moved: m, odometer distance across it.
+    """
+
+    t_before: float
+    t_after: float
+    kind: str
+    step: float
+    moved: float
+
+    def describe(self) -> str:
+        """One line for people."""
+        if self.kind == "clock step":
+            return (
+                f"clock step of {self.step:+.3f} s after t = {self.t_before:.3f} s (all topics "
+                f"silent, the odometer continuous): later stamps moved back by it"
+            )
+        return (
+            f"data gap of {self.t_after - self.t_before:.1f} s after t = {self.t_before:.3f} s "
+            f"(the pig moved {self.moved:.2f} m in it)"
+        )
+
+
+def find_holes(log: SensorLog) -> list[TimeHole]:
+    """The clock steps and data gaps of a time-sorted log (see the module)."""
+    t = log.imu.t
+    if len(t) < 3:
+        return []
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    limit = max(MIN_GAP_S, 50.0 * period)
+    holes: list[TimeHole] = []
+    odo = log.odometer
+    odo_period = float(np.median(np.diff(odo.t))) if len(odo.t) > 2 else math.nan
+    for i in np.flatnonzero(dt > limit):
+        t0, t1 = float(t[i]), float(t[i + 1])
+        if len(odo.t) < 2:
+            holes.append(TimeHole(t0, t1, "data gap", 0.0, math.nan))
+            continue
+        j0 = int(np.searchsorted(odo.t, t0, side="right")) - 1
+        j1 = int(np.searchsorted(odo.t, t1, side="left"))
+        if j0 < 0 or j1 >= len(odo.t):
+            holes.append(TimeHole(t0, t1, "data gap", 0.0, math.nan))
+            continue
+        moved = float(odo.distance[j1] - odo.distance[j0])
+        speed = 0.5 * abs(float(odo.speed[j0]) + float(odo.speed[j1]))
+        expected = speed * odo_period
+        if abs(moved - expected) <= max(0.05, 3.0 * expected) and speed * (t1 - t0) > 1.0:
+            holes.append(TimeHole(t0, t1, "clock step", t1 - t0 - period, moved))
+        else:
+            holes.append(TimeHole(t0, t1, "data gap", 0.0, moved))
+    return holes
+
+
+def remove_clock_steps(log: SensorLog, holes: list[TimeHole]) -> SensorLog:
+    """The log with the stamps after each clock step moved back by it (markers included)."""
+    steps = [h for h in holes if h.kind == "clock step"]
+    if not steps:
+        return log
+
+    def fixed(t: np.ndarray) -> np.ndarray:
+        out = np.array(t, dtype=np.float64, copy=True)
+        for h in steps:
+            out = np.where(np.asarray(t) >= h.t_after, out - h.step, out)
+        return out
+
+    return replace(
+        log,
+        imu=replace(log.imu, t=fixed(log.imu.t)),
+        odometer=replace(log.odometer, t=fixed(log.odometer.t)),
+        mag=replace(log.mag, t=fixed(log.mag.t)),
+        markers=[replace(m, t=float(fixed(np.array([m.t]))[0])) for m in log.markers],
+    )

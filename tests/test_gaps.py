@@ -1,0 +1,92 @@
+"""Clock steps and data gaps (gaps.py): found, named, a clock step undone, a gap not hidden."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.gaps import find_holes, remove_clock_steps
+from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
+from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+
+SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
+
+
+@pytest.fixture(scope="module")
+def log():
+    return load_log(SAMPLE)[0]
+
+
+def _retimed(log, f):
+    return dataclasses.replace(
+        log,
+        imu=dataclasses.replace(log.imu, t=f(log.imu.t)),
+        odometer=dataclasses.replace(log.odometer, t=f(log.odometer.t)),
+        mag=dataclasses.replace(log.mag, t=f(log.mag.t)),
+        markers=[dataclasses.replace(m, t=float(f(np.array(m.t)))) for m in log.markers],
+    )
+
+
+def _cut(log, t0, t1):
+    def keep(t):
+        return (t < t0) | (t > t1)
+
+    o, m = log.odometer, log.mag
+    return dataclasses.replace(
+        log,
+        imu=log.imu.slice(keep(log.imu.t)),
+        odometer=dataclasses.replace(o, t=o.t[keep(o.t)], distance=o.distance[keep(o.t)],
+                                     speed=o.speed[keep(o.t)]),  # fmt: skip
+        mag=dataclasses.replace(m, t=m.t[keep(m.t)], field=m.field[keep(m.t)]),
+    )
+
+
+@pytest.mark.parametrize("step", [3600.0, 2.5, 0.0])
+def test_a_clock_step_is_found_and_undone(log, step):
+    t_step = log.imu.t[0] + 100.0
+    stepped = _retimed(log, lambda t: np.where(t > t_step, t + step, t))
+    holes = find_holes(stepped)
+    if step == 0.0:
+        assert holes == []
+        return
+    (h,) = holes
+    assert h.kind == "clock step" and abs(h.step - step) < 1e-6
+    fixed = remove_clock_steps(stepped, holes)
+    np.testing.assert_allclose(fixed.imu.t, log.imu.t, atol=1e-6)
+    assert [m.t for m in fixed.markers] == pytest.approx([m.t for m in log.markers], abs=1e-6)
+
+
+def test_a_smoothed_run_with_a_clock_step_equals_the_clean_run(log, tmp_path: Path):
+    t_step = log.imu.t[0] + 100.0
+    bag = tmp_path / "step.mcap"
+    write_sensor_bag(bag, _retimed(log, lambda t: np.where(t > t_step, t + 3600.0, t)))
+    csv, clean_csv = tmp_path / "step.csv", tmp_path / "clean.csv"
+    result, report = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
+    clean, _ = smooth_bag(SAMPLE, Outputs(csv=str(clean_csv)), config=NavConfig())
+    assert any("clock step of +3600.000 s" in w for w in report.warnings)
+    assert result.summary["quality"]["status"] == "DEGRADED"
+    a, _ = read_centreline_csv(csv)
+    b, _ = read_centreline_csv(clean_csv)
+    assert len(a.t) == len(b.t)
+    np.testing.assert_allclose(a.t, b.t, atol=1e-6)
+    np.testing.assert_allclose(a.lat, b.lat, atol=1e-9)  # 6 mm
+    np.testing.assert_allclose(a.h, b.h, atol=0.005)
+
+
+def test_a_data_gap_while_moving_fails_the_run_and_says_where(log, tmp_path: Path):
+    t0 = log.imu.t[0] + 80.0
+    damaged = _cut(log, t0, t0 + 30.0)
+    (h,) = find_holes(damaged)
+    assert h.kind == "data gap" and h.moved > 50.0
+    bag = tmp_path / "gap.mcap"
+    write_sensor_bag(bag, damaged)
+    csv = tmp_path / "gap.csv"
+    result, _ = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
+    q = result.summary["quality"]
+    assert q["status"] == "FAILED"
+    assert any("data gap of 30.0 s" in r and "not known" in r for r in q["reasons"])
+    traj, _ = read_centreline_csv(csv)
+    assert np.isfinite(traj.lat).all()
