@@ -36,6 +36,7 @@ from .io.bagread import declared_imu_noise
 from .io.centreline import read_centreline_csv
 from .io.products_csv import write_bends_csv, write_strain_csv, write_strain_features_csv
 from .io.smoothed_bag import read_smoothed_bag
+from .marker_outliers import smooth_without_outliers
 from .products import IntegrityReport, integrity_report, read_bends_reference
 from .sensors import GRADES
 from .smoother import SmoothResult, smooth_log
@@ -186,6 +187,7 @@ def smooth_bag(
         log, config, bag=bag, topics=topics, method=method, iterations=iterations, progress=say
     )
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
+    report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
     unbridged = [
         h.describe()
         for h in find_holes(log)
@@ -224,14 +226,29 @@ def smooth_with_imu_model(
     auto = config.imu_grade == AUTO_GRADE
     if auto:
         say(f"IMU model: {choice.grade} ({choice.reason})")
-    result = smooth_log(log, choice.config, method=method, iterations=iterations, progress=say)
+
+    def run(cfg: NavConfig) -> SmoothResult:
+        result, outliers, warnings = smooth_without_outliers(
+            log,
+            cfg,
+            lambda lg: smooth_log(lg, cfg, method=method, iterations=iterations, progress=say),
+            say,
+        )
+        s = result.summary
+        for key in ("markers_rejected", "markers_total"):
+            s[key] = int(s[key]) + len(outliers)  # type: ignore[call-overload]
+        s["marker_outliers"] = [o.name for o in outliers]
+        s["marker_warnings"] = warnings
+        return result
+
+    result = run(choice.config)
     while auto and result.summary.get("warnings"):
         wider = imu_model.wider(choice)
         if wider is None:
             break
         say(f"IMU model: {wider.reason}")
         choice = wider
-        result = smooth_log(log, choice.config, method=method, iterations=iterations, progress=say)
+        result = run(choice.config)
     result.summary["imu_model"] = {
         "grade": choice.grade,
         "reason": choice.reason,

@@ -1,0 +1,82 @@
+"""Markers surveyed wrong or stamped late (marker_outliers.py): left out and named, and the run
+is then the run without them."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.earth import enu_to_geodetic
+from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
+from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+
+SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
+
+
+@pytest.fixture(scope="module")
+def log():
+    return load_log(SAMPLE)[0]
+
+
+@pytest.fixture(scope="module")
+def without(log, tmp_path_factory):
+    """The sample smoothed without agm_02: what every case below must equal."""
+    d = tmp_path_factory.mktemp("without")
+    bag = d / "without.mcap"
+    write_sensor_bag(bag, dataclasses.replace(log, markers=[m for m in log.markers
+                                                            if m.name != "agm_02"]))  # fmt: skip
+    smooth_bag(bag, Outputs(csv=str(d / "c.csv")), config=NavConfig())
+    return read_centreline_csv(d / "c.csv")[0]
+
+
+def _moved(m, east: float, north: float = 0.0):
+    lat, lon, _ = enu_to_geodetic(np.array([east, north, 0.0]), m.lat, m.lon, m.alt)
+    return dataclasses.replace(m, lat=float(lat), lon=float(lon))
+
+
+@pytest.mark.parametrize(
+    ("damage", "off_m"),
+    [(lambda m: _moved(m, 20.0), 20.0), (lambda m: dataclasses.replace(m, t=m.t + 3.0), 5.8)],
+    ids=["surveyed 20 m off", "stamped 3 s late"],
+)
+def test_a_wrong_marker_is_left_out_and_the_run_equals_the_run_without_it(
+    log, without, tmp_path: Path, damage, off_m
+):
+    bad = [damage(m) if m.name == "agm_02" else m for m in log.markers]
+    bag = tmp_path / "bad.mcap"
+    write_sensor_bag(bag, dataclasses.replace(log, markers=bad))
+    csv = tmp_path / "c.csv"
+    result, report = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
+    s = result.summary
+    assert s["marker_outliers"] == ["agm_02"]
+    assert (s["markers_used"], s["markers_rejected"], s["markers_total"]) == (3, 1, 4)
+    (w,) = [w for w in report.warnings if w.startswith("marker agm_02 left out")]
+    assert abs(float(w.split(": ")[1].split(" m")[0]) - off_m) < 0.3
+    assert s["quality"]["status"] == "DEGRADED"
+    got = read_centreline_csv(csv)[0]
+    np.testing.assert_allclose(got.t, without.t)
+    np.testing.assert_allclose(got.lat, without.lat, atol=1e-12)
+    np.testing.assert_allclose(got.h, without.h, atol=1e-6)
+
+
+def test_a_clean_run_keeps_every_marker(log):
+    from pipe_nav_core.marker_outliers import screening
+    from pipe_nav_core.smoother import smooth_log
+
+    cfg = NavConfig(imu_grade="industrial")
+    result = smooth_log(log, cfg)
+    assert max(screening(result, log, cfg).values()) < 10.0
+
+
+def test_with_two_markers_a_wrong_one_is_warned_about(log, tmp_path: Path):
+    first, last = log.markers[0], log.markers[-1]
+    az = np.radians(75.0)  # the pipe's azimuth at the receive trap: 25 m (8 %) further along it
+    bag = tmp_path / "two.mcap"
+    moved = _moved(last, 25.0 * np.sin(az), 25.0 * np.cos(az))
+    write_sensor_bag(bag, dataclasses.replace(log, markers=[first, moved]))
+    result, report = smooth_bag(bag, Outputs(), config=NavConfig())
+    assert any("odometer scale of" in w and "2 markers cannot tell" in w for w in report.warnings)
+    assert result.summary["quality"]["status"] != "OK"
