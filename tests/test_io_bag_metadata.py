@@ -94,13 +94,19 @@ def test_output_bag_carries_rosbag2_metadata_and_latched_qos(tmp_path):
     meta = check_rosbag2_record(out)
     assert topic_qos(meta) == {
         "/pipe_nav/path": ("keep_last", 1, "reliable", "transient_local"),
+        "/pipe_nav/bends": ("keep_last", 1, "reliable", "transient_local"),
         "/pipe_nav/datum": ("keep_last", 1, "reliable", "transient_local"),
         "/pipe_nav/odometry": ("keep_last", 50, "reliable", "volatile"),
     }
     counts = {
         t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]
     }
-    assert counts == {"/pipe_nav/path": 1, "/pipe_nav/datum": 1, "/pipe_nav/odometry": 2001}
+    assert counts == {
+        "/pipe_nav/path": 1,
+        "/pipe_nav/bends": 1,
+        "/pipe_nav/datum": 1,
+        "/pipe_nav/odometry": 2001,
+    }
     (profile,) = [
         t["topic_metadata"]["offered_qos_profiles"][0]
         for t in meta["topics_with_message_count"]
@@ -275,4 +281,5 @@ def test_ros2_bag_info_shows_the_distro_and_rosbag2_reads_the_qos(tmp_path):
     )
     assert seen["/pipe_nav/path"] == ("keep_last", 1, "reliable", "transient_local")
     assert seen["/pipe_nav/datum"] == ("keep_last", 1, "reliable", "transient_local")
+    assert seen["/pipe_nav/bends"] == ("keep_last", 1, "reliable", "transient_local")
     assert seen["/pipe_nav/odometry"] == ("keep_last", 50, "reliable", "volatile")

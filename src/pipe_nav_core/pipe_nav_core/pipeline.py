@@ -37,6 +37,7 @@ from .io.centreline import read_centreline_csv
 from .io.products_csv import write_bends_csv, write_strain_csv, write_strain_features_csv
 from .io.smoothed_bag import read_smoothed_bag
 from .marker_outliers import smooth_without_outliers
+from .odometer_faults import find_odometer_faults, without_faults
 from .products import IntegrityReport, integrity_report, read_bends_reference
 from .sensors import GRADES
 from .smoother import SmoothResult, smooth_log
@@ -118,11 +119,14 @@ def load_log(
     markers_csv: str | os.PathLike[str] | None = None,
 ) -> tuple[SensorLog, BagReport]:
     """Read a bag into memory (sorted per topic), re-align its clock steps and name its data
-    gaps (gaps.find_holes; the bag's own markers follow its clock), merge the marker CSV."""
+    gaps (gaps.find_holes; the bag's own markers follow its clock), leave out the readings of
+    a stuck or spiking wheel (odometer_faults), merge the marker CSV."""
     log, report = read_bag(bag, topics)
     holes = find_holes(log)
     log = remove_clock_steps(log, holes)
     report.warnings += [h.describe() for h in holes]
+    log, faults = without_faults(log, find_odometer_faults(log))
+    report.warnings += [f.describe() for f in faults]
     if markers_csv is not None:
         log.markers = merge_markers(log.markers, read_markers_csv(markers_csv))
     untimed = [m.name for m in log.markers if not math.isfinite(m.t)]
@@ -323,17 +327,22 @@ def _write_staged(
     staged: dict[str, Path],
     say: Progress,
 ) -> None:
+    products = result.products
+    bends = products.bends if products else []
+    features = products.features if products else []
     if outputs.bag:
         say("writing bag")
         write_output_bag(staged[outputs.bag], path=rows, datum=result.datum,
                          odometry=result.forward, file_name=Path(outputs.bag).name,
-                         run_metadata=run_metadata(result.summary))  # fmt: skip
+                         run_metadata=run_metadata(result.summary), bends=bends)  # fmt: skip
     if outputs.csv:
         write_centreline_csv(staged[outputs.csv], rows, result.datum)
     if outputs.geojson:
-        write_geojson(staged[outputs.geojson], rows, result.markers)
+        write_geojson(staged[outputs.geojson], rows, result.markers, bends=bends,
+                      strain_features=features)  # fmt: skip
     if outputs.kml:
-        write_kml(staged[outputs.kml], rows, result.markers)
+        write_kml(staged[outputs.kml], rows, result.markers, bends=bends,
+                  strain_features=features)  # fmt: skip
     if result.products is not None:
         _write_products_csv(result.products, outputs, staged)
     if outputs.plot:
@@ -354,6 +363,7 @@ def _write_staged(
             [m for m in result.markers if m.name in result.marker_residuals],
             res.reshape(-1, 3) if len(res) else None,
             title=Path(outputs.plot).stem,
+            integrity=products,
         )
 
 

@@ -3,13 +3,18 @@
 Four panels: plan view (east/north in ``map``, equal aspect, markers labelled), elevation
 profile along the chainage with the +-3 sigma band of ``up``, the one-sigma horizontal and
 vertical position uncertainty along the chainage, and the residual (estimate minus survey, ENU
-components) at each marker with the estimate's 3-sigma error bars.
+components) at each marker with the estimate's 3-sigma error bars. With the run's integrity
+products (``integrity``) a fifth, full-width panel below them: the bending strain along the
+chainage (log scale, percent; curvature on the right axis) with its one-sigma band, the strain
+thresholds as horizontal lines, the strain features as bars on their threshold, and the bends
+marked and numbered at their apex.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -19,8 +24,13 @@ from .io.atomic import atomic_write
 from .io.centreline import interpolate_trajectory
 from .types import Datum, Marker, Trajectory
 
+if TYPE_CHECKING:
+    from .products.integrity import IntegrityReport
+
 _MAX_POINTS = 3000  # per line: a panel is about 700 pixels wide
 _COLORS = {"e": "tab:blue", "n": "tab:orange", "u": "tab:green"}
+_MAX_BEND_LABELS = 60  # bends numbered in the strain panel (every k-th beyond that)
+_STRAIN_FLOOR = 1.0 / 25.0  # strain panel bottom, as a fraction of the lowest threshold
 
 
 def _decimate(n: int) -> NDArray[np.int64]:
@@ -28,6 +38,92 @@ def _decimate(n: int) -> NDArray[np.int64]:
         return np.arange(n)
     idx = np.linspace(0, n - 1, _MAX_POINTS).round().astype(np.int64)
     return np.unique(idx)
+
+
+def _envelope(y: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Indices of at most _MAX_POINTS samples keeping each bin's minimum and maximum (a thin
+    peak survives decimation, unlike with evenly spaced samples)."""
+    n = len(y)
+    if n <= _MAX_POINTS:
+        return np.arange(n)
+    bins = _MAX_POINTS // 2
+    edges = np.linspace(0, n, bins + 1).round().astype(np.int64)
+    width = int(np.diff(edges).max())
+    start = np.repeat(edges[:-1], np.diff(edges))
+    slot = np.arange(n) - start + np.repeat(np.arange(bins) * width, np.diff(edges))
+    grid = np.full(bins * width, np.nan)
+    grid[slot] = y
+    grid = grid.reshape(bins, width)
+    finite = np.isfinite(grid)
+    hi = np.where(finite, grid, -np.inf).argmax(axis=1)
+    lo = np.where(finite, grid, np.inf).argmin(axis=1)
+    idx = np.concatenate([edges[:-1] + hi, edges[:-1] + lo])
+    return np.unique(np.clip(idx, 0, n - 1))
+
+
+def _strain_panel(ax: Any, integrity: IntegrityReport, dscale: float, dunit: str) -> None:
+    """The strain-along-chainage panel (see the module docstring)."""
+    from matplotlib.ticker import NullLocator
+
+    prof = integrity.profile
+    d = np.asarray(prof.distance, dtype=np.float64)
+    strain = np.asarray(integrity.strain_pct, dtype=np.float64).reshape(len(d))
+    sigma = np.asarray(integrity.sigma_strain_pct, dtype=np.float64).reshape(len(d))
+    thresholds = sorted(float(x) for x in integrity.thresholds_pct if x > 0)
+    finite = strain[np.isfinite(strain)]
+    peak = float(finite.max()) if len(finite) else 0.0
+    lowest = thresholds[0] if thresholds else max(peak, 1e-3)
+    bottom = lowest * _STRAIN_FLOOR
+    top = 6.0 * max(peak, thresholds[-1] if thresholds else 0.0, bottom * 10.0)  # legend room
+    ax.set_yscale("log", nonpositive="clip")
+    if len(d):
+        idx = _envelope(strain)
+        x = d[idx] / dscale
+        band_lo = np.maximum(strain[idx] - sigma[idx], bottom)
+        ax.fill_between(x, band_lo, strain[idx] + sigma[idx], color="tab:blue", alpha=0.25,
+                        lw=0, label="+-1 sigma")  # fmt: skip
+        ax.plot(x, np.maximum(strain[idx], bottom), "-", color="k", lw=1.0,
+                label="bending strain")  # fmt: skip
+    else:
+        ax.text(0.5, 0.5, "no curvature profile", ha="center", va="center",
+                transform=ax.transAxes)  # fmt: skip
+    for k, th in enumerate(thresholds):
+        ax.axhline(th, color="tab:red", ls="--" if k else ":", lw=1.0,
+                   label=f"threshold {th:g} %")  # fmt: skip
+    feats = [f for f in integrity.features if np.isfinite(f.start_m) and np.isfinite(f.end_m)]
+    if feats:
+        ax.hlines([f.threshold_pct for f in feats], [f.start_m / dscale for f in feats],
+                  [f.end_m / dscale for f in feats], colors="tab:red", lw=5, alpha=0.6,
+                  label="strain features")  # fmt: skip
+    bends = list(integrity.bends)
+    if bends:
+        apex = np.array([b.apex_m for b in bends], dtype=np.float64)
+        at = np.interp(apex, d, strain) if len(d) else np.full(len(apex), bottom)
+        at = np.maximum(np.where(np.isfinite(at), at, bottom), bottom)
+        ax.vlines(apex / dscale, 0.0, 1.0, transform=ax.get_xaxis_transform(),
+                  colors="tab:orange", lw=0.8, alpha=0.5)  # fmt: skip
+        ax.plot(apex / dscale, at, "v", color="tab:orange", ms=6, label="bends (apex)")
+        step = max(1, -(-len(bends) // _MAX_BEND_LABELS))
+        for b, x, y in list(zip(bends, apex, at, strict=True))[::step]:
+            ax.annotate(str(b.number), (x / dscale, y), textcoords="offset points",
+                        xytext=(0, 6), ha="center", fontsize=7, color="tab:orange")  # fmt: skip
+    ax.set_ylim(bottom, top)
+    ax.yaxis.set_minor_locator(NullLocator())  # log minor ticks cost a third of the figure
+    ax.set_xlabel(f"chainage [{dunit}]")
+    ax.set_ylabel("bending strain [%]")
+    to_curv = 2e3 / (100.0 * integrity.outer_diameter) if integrity.outer_diameter > 0 else 0.0
+    if to_curv > 0:
+        sec = ax.secondary_yaxis("right", functions=(lambda s: s * to_curv,
+                                                     lambda k: k / to_curv))  # fmt: skip
+        sec.set_ylabel("curvature [1/km]")
+        sec.yaxis.set_minor_locator(NullLocator())
+    ax.set_title(
+        f"Bending strain (outer diameter {integrity.outer_diameter:g} m, window "
+        f"{integrity.window:.2f} m): {len(bends)} bends, {len(integrity.features)} strain "
+        "features; bends numbered at their apex"
+    )
+    ax.grid(True, alpha=0.3, which="major")
+    ax.legend(loc="upper right", fontsize=8, ncol=3)
 
 
 def marker_residuals_enu(
@@ -58,13 +154,15 @@ def plot_report(
     markers: Sequence[Marker] = (),
     marker_residuals: ArrayLike | None = None,
     title: str = "",
+    integrity: IntegrityReport | None = None,
 ) -> None:
     """Write the four-panel report PNG (see the module docstring) atomically to ``png_path``.
 
     traj: the centreline (any sampling; long ones are decimated for drawing); datum: origin of
     the ENU frame; markers: surveyed markers (their passage times place them on the chainage);
     marker_residuals: (M, 3) estimate minus survey, ENU m, one row per marker -- computed from
-    traj when None.
+    traj when None; integrity: the run's integrity products
+    (:class:`~pipe_nav_core.products.integrity.IntegrityReport`), which add the strain panel.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -109,11 +207,19 @@ def plot_report(
     scale, unit = (1000.0, "km") if extent > 5000.0 else (1.0, "m")
     dscale, dunit = (1000.0, "km") if (n and np.nanmax(np.abs(dist)) > 5000.0) else (1.0, "m")
 
-    fig = Figure(figsize=(14, 10), dpi=100)
-    FigureCanvasAgg(fig)
     # fixed margins: a layout engine would draw the figure twice
-    axs = fig.subplots(2, 2, gridspec_kw=dict(left=0.06, right=0.98, bottom=0.08, top=0.92,
-                                              wspace=0.18, hspace=0.32))  # fmt: skip
+    if integrity is None:
+        fig = Figure(figsize=(14, 10), dpi=100)
+        FigureCanvasAgg(fig)
+        axs = fig.subplots(2, 2, gridspec_kw=dict(left=0.06, right=0.98, bottom=0.08, top=0.92,
+                                                  wspace=0.18, hspace=0.32))  # fmt: skip
+    else:
+        fig = Figure(figsize=(14, 14.5), dpi=100)
+        FigureCanvasAgg(fig)
+        gs = fig.add_gridspec(3, 2, left=0.06, right=0.95, bottom=0.05, top=0.94, wspace=0.18,
+                              hspace=0.32)  # fmt: skip
+        axs = np.array([[fig.add_subplot(gs[r, c]) for c in range(2)] for r in range(2)])
+        _strain_panel(fig.add_subplot(gs[2, :]), integrity, dscale, dunit)
     fig.suptitle(title or "PipeNav centreline report", fontsize=14)
 
     # 1. plan view

@@ -18,6 +18,7 @@ ROS_MESSAGES: dict[str, tuple[str, str]] = {
     "Odometry": ("nav_msgs", "Odometry"),
     "Path": ("nav_msgs", "Path"),
     "PoseStamped": ("geometry_msgs", "PoseStamped"),
+    "PoseArray": ("geometry_msgs", "PoseArray"),
     "Pose": ("geometry_msgs", "Pose"),
     "PoseWithCovariance": ("geometry_msgs", "PoseWithCovariance"),
     "Twist": ("geometry_msgs", "Twist"),

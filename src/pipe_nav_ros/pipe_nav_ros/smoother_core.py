@@ -2,8 +2,9 @@
 
 :class:`SmootherJob` runs :func:`pipe_nav_core.pipeline.smooth_bag` (the same function as
 ``pipe-nav smooth``: it writes the output MCAP and the optional CSV / GeoJSON / KML / plot),
-records its progress for the logs and /diagnostics, and builds the nav_msgs/Path and the datum
-NavSatFix to publish latched. The node runs it in a thread and publishes what it returns.
+records its progress for the logs and /diagnostics, and builds the nav_msgs/Path, the datum
+NavSatFix and the bend apexes' geometry_msgs/PoseArray to publish latched. The node runs it in a
+thread and publishes what it returns.
 """
 
 from __future__ import annotations
@@ -113,6 +114,19 @@ class SmootherJob:
         path = rosmsg.path_to_msg(self.types, traj, datum)
         t0 = float(traj.t[0]) if len(traj.t) else 0.0
         return path, rosmsg.datum_to_msg(self.types, datum, t0)
+
+    def bends(self) -> list[Any]:
+        """The bends of a finished run (``result.products.bends``; [] without products)."""
+        products = getattr(self.result, "products", None)
+        return list(getattr(products, "bends", None) or [])
+
+    def bends_message(self) -> Any:
+        """geometry_msgs/PoseArray of the bend apexes in map (one Pose per bend, x along the
+        pipe), stamped like the path (its last sample); empty without bends."""
+        if self.state != DONE or self.result is None:
+            raise RuntimeError("the smoothing run has not finished successfully")
+        t = float(self.rows.t[-1]) if len(self.rows.t) else 0.0
+        return rosmsg.bends_to_msg(self.types, self.bends(), self.result.datum, t)
 
     def health(self) -> tuple[int, str, dict[str, Any]]:
         """(level, message, values) for /diagnostics and the progress log."""

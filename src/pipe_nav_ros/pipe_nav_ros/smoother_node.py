@@ -2,10 +2,12 @@
 
 Runs :func:`pipe_nav_core.pipeline.smooth_bag` on the parameter ``bag`` (as ``pipe-nav smooth``:
 writes ``output`` and the optional csv / geojson / kml / plot files), reports progress in the
-log and on ``/diagnostics``, then publishes ``pipe_nav/path`` (nav_msgs/Path in map) and
-``pipe_nav/datum`` (sensor_msgs/NavSatFix), both latched (reliable + transient local: a
-subscriber that joins later still gets them). With ``exit_when_done`` the node exits after
-publishing (status 0; 1 when smoothing failed); otherwise it stays up holding the latched path.
+log and on ``/diagnostics``, then publishes ``pipe_nav/path`` (nav_msgs/Path in map),
+``pipe_nav/datum`` (sensor_msgs/NavSatFix) and ``pipe_nav/bends`` (geometry_msgs/PoseArray in
+map: one pose per bend at its apex, x along the pipe; empty without bends), all latched
+(reliable + transient local: a subscriber that joins later still gets them). With
+``exit_when_done`` the node exits after publishing (status 0; 1 when smoothing failed);
+otherwise it stays up holding the latched path.
 The estimator settings are the same parameters as ekf_node's (config/ekf.yaml).
 """
 
@@ -16,6 +18,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray
 from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import NavSatFix
@@ -45,6 +48,7 @@ class SmootherNode(PipeNavNode):
         self.settings = smoother_node_settings(declare(self, SMOOTHER_NODE_SPECS, read_only=True))
         self.path_pub = self.create_publisher(Path, "pipe_nav/path", latched_qos(1))
         self.datum_pub = self.create_publisher(NavSatFix, "pipe_nav/datum", latched_qos(1))
+        self.bends_pub = self.create_publisher(PoseArray, "pipe_nav/bends", latched_qos(1))
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.job = SmootherJob(self.settings, config, rclpy_types())
         self._published_at: float | None = None
@@ -66,13 +70,18 @@ class SmootherNode(PipeNavNode):
             self.exit_code = 1
         elif job.state == DONE and self._published_at is None:
             path, datum = job.messages()
+            bends = job.bends_message()
             self.path_pub.publish(path)
             self.datum_pub.publish(datum)
+            self.bends_pub.publish(bends)
             self._published_at = time.monotonic()
             for warning in job.warnings:
                 self.get_logger().warning(f"bag: {warning}")
             self.get_logger().info(job.health()[1])
-            self.get_logger().info(f"published {len(path.poses)} poses on pipe_nav/path (latched)")
+            self.get_logger().info(
+                f"published {len(path.poses)} poses on pipe_nav/path and {len(bends.poses)} bend "
+                "apexes on pipe_nav/bends (latched)"
+            )
             self._report()
         elif (
             self._published_at is not None

@@ -20,7 +20,7 @@ import os
 import re
 from collections.abc import Mapping, Sequence
 from functools import cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,6 +36,7 @@ from .rosmsg import (
     BASE_FRAME,
     MAP_FRAME,
     ODOM_FRAME,
+    bends_to_msg,
     body_rates_from_quats,
     datum_to_msg,
     enu_of,
@@ -50,13 +51,18 @@ from .topics import (
     MAG_TYPE,
     NAVSATFIX_TYPE,
     ODOMETRY_TYPE,
+    OUTPUT_BENDS_TOPIC,
     OUTPUT_DATUM_TOPIC,
     OUTPUT_ODOMETRY_TOPIC,
     OUTPUT_PATH_TOPIC,
     PATH_TYPE,
+    POSE_ARRAY_TYPE,
     BagError,
     TopicNames,
 )
+
+if TYPE_CHECKING:
+    from ..products.bends import PipeBend
 
 _INT32_MAX_S = 2**31 - 1
 
@@ -97,8 +103,8 @@ def qos_profiles_yaml(
 # sensor data are offered reliable (the drivers publish them best effort, depth 50): a reliable
 # offer matches best-effort and reliable subscribers alike, so a replay reaches every node. The
 # markers are latched as the odometer driver publishes them (depth 1000); ekf_node's
-# /pipe_nav/odometry is reliable (depth 50); the datum and the smoothed path are latched
-# (reliable, transient local, depth 1).
+# /pipe_nav/odometry is reliable (depth 50); the datum, the smoothed path and the bend apexes
+# are latched (reliable, transient local, depth 1).
 TOPIC_QOS: dict[str, dict] = {
     "imu": qos_profile(depth=50),
     "odometer": qos_profile(depth=50),
@@ -107,6 +113,7 @@ TOPIC_QOS: dict[str, dict] = {
     "odometry": qos_profile(depth=50),
     "datum": qos_profile(transient_local=True, depth=1),
     "path": qos_profile(transient_local=True, depth=1),
+    "bends": qos_profile(transient_local=True, depth=1),
 }
 
 _PLAIN = re.compile(r"[A-Za-z_/][A-Za-z0-9_/.\-]*")
@@ -478,6 +485,7 @@ def write_output_bag(
     inputs: Sequence[str | os.PathLike[str]] = (),
     file_name: str | None = None,
     run_metadata: Mapping[str, str] | None = None,
+    bends: Sequence[PipeBend] = (),
 ) -> None:
     """Write the estimator's results as a ROS 2 MCAP bag (INTERFACES.md, output topics).
 
@@ -485,7 +493,11 @@ def write_output_bag(
     position ENU m about the datum, orientation q_nb), stamped ``stamp`` (default: the last
     sample time); not written when ``path`` is None (replay). /pipe_nav/datum: one
     sensor_msgs/NavSatFix (frame map) stamped ``stamp`` (default: the first sample time).
-    Both channels are offered as latched (reliable, transient local, depth 1), as ekf_node and
+    /pipe_nav/bends: one geometry_msgs/PoseArray (frame map) with the same stamp as the path,
+    one Pose per bend of ``bends`` (position = apex ENU m about the datum, orientation =
+    apex_quat_nb, x along the pipe); written whenever the path is (an empty PoseArray when
+    there is no bend), so that readers can rely on it.
+    These channels are offered as latched (reliable, transient local, depth 1), as ekf_node and
     smoother_node publish them.
     /pipe_nav/odometry: one nav_msgs/Odometry per sample of ``odometry`` (frame map, child
     base_link; pose covariance from sigma_enu and sigma_att; twist = body-frame velocity and
@@ -525,6 +537,11 @@ def write_output_bag(
             path_ns, path_t_ns, enu, np.asarray(path.quat_nb, dtype=np.float64).reshape(-1, 4)
         )
         b.streams.append(Stream.variable(cid, [path_ns], [payload]))
+        bmsg = bends_to_msg(types, list(bends), datum, path_stamp)
+        cid = b.channel(OUTPUT_BENDS_TOPIC, POSE_ARRAY_TYPE, TOPIC_QOS["bends"])
+        b.streams.append(
+            Stream.variable(cid, [path_ns], [bytes(ts.serialize_cdr(bmsg, POSE_ARRAY_TYPE))])
+        )
 
     cid = b.channel(OUTPUT_DATUM_TOPIC, NAVSATFIX_TYPE, TOPIC_QOS["datum"])
     dmsg = datum_to_msg(types, datum, datum_stamp)

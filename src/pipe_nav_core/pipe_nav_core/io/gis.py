@@ -1,4 +1,5 @@
-"""GeoJSON (RFC 7946) and KML 2.2 export of a centreline and its markers.
+"""GeoJSON (RFC 7946) and KML 2.2 export of a centreline, its markers, and its bends and strain
+features (points at the bend apexes and at the strain features' peaks).
 
 Coordinates are WGS84 longitude and latitude in degrees (9 decimals, 0.1 mm) and the height
 above the WGS84 ellipsoid in metres (4 decimals). GeoJSON defines its third coordinate as
@@ -13,6 +14,7 @@ import json
 import math
 import os
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import escape
 
 import numpy as np
@@ -20,6 +22,10 @@ import numpy as np
 from ..types import Marker, Trajectory
 from .atomic import atomic_write
 from .centreline import require_finite
+
+if TYPE_CHECKING:
+    from ..products.bends import PipeBend
+    from ..products.strain import StrainFeature
 
 
 def _coords(traj: Trajectory) -> list[list[float]]:
@@ -33,12 +39,78 @@ def _coords(traj: Trajectory) -> list[list[float]]:
     ]
 
 
+def _num(x: float, digits: int) -> float | None:
+    """A rounded float for the properties; None (JSON null) when not finite."""
+    x = float(x)
+    return round(x, digits) if math.isfinite(x) else None
+
+
+def _point_coords(lat: float, lon: float, alt: float) -> list[float]:
+    return [round(math.degrees(lon), 9), round(math.degrees(lat), 9), round(float(alt), 4)]
+
+
+def bend_properties(b: PipeBend) -> dict[str, object]:
+    """GeoJSON properties of a bend apex point (degrees, metres, outer diameters)."""
+    return {
+        "name": f"bend {b.number}",
+        "kind": "bend",
+        "number": int(b.number),
+        "class": b.kind,
+        "direction": b.direction,
+        "angle_deg": _num(math.degrees(b.angle), 4),
+        "sigma_angle_deg": _num(math.degrees(b.sigma_angle), 4),
+        "radius_m": _num(b.radius, 3),
+        "sigma_radius_m": _num(b.sigma_radius, 3),
+        "radius_d": _num(b.radius_d, 2),
+        "plane_deg": _num(math.degrees(b.plane), 2),
+        "start_m": _num(b.start_m, 3),
+        "apex_m": _num(b.apex_m, 3),
+        "end_m": _num(b.end_m, 3),
+        "time_s": _num(b.apex_t, 6),
+    }
+
+
+def strain_feature_properties(f: StrainFeature) -> dict[str, object]:
+    """GeoJSON properties of a strain feature's peak point (percent, metres)."""
+    return {
+        "name": f"strain feature {f.number}",
+        "kind": "strain_feature",
+        "number": int(f.number),
+        "threshold_pct": _num(f.threshold_pct, 6),
+        "peak_pct": _num(f.peak_pct, 6),
+        "sigma_peak_pct": _num(f.sigma_peak_pct, 6),
+        "plane_deg": _num(math.degrees(f.plane), 2),
+        "start_m": _num(f.start_m, 3),
+        "peak_m": _num(f.peak_m, 3),
+        "end_m": _num(f.end_m, 3),
+        "length_m": _num(f.length_m, 3),
+        "bend": int(f.bend),
+        "construction": f.construction,
+    }
+
+
+def _point_feature(coords: list[float], props: dict[str, object]) -> dict[str, object]:
+    return {
+        "type": "Feature",
+        "geometry": {"type": "Point", "coordinates": coords},
+        "properties": props,
+    }
+
+
 def to_geojson(
-    traj: Trajectory, markers: Sequence[Marker] = (), name: str = "centreline"
+    traj: Trajectory,
+    markers: Sequence[Marker] = (),
+    name: str = "centreline",
+    *,
+    bends: Sequence[PipeBend] = (),
+    strain_features: Sequence[StrainFeature] = (),
 ) -> dict[str, object]:
     """GeoJSON FeatureCollection: a LineString of the centreline ([lon, lat, h] degrees and
-    ellipsoidal metres) with properties name, start/end time (s) and length (chainage, m), and
-    one Point per marker with properties name, time_s, sigma_east/north/up_m."""
+    ellipsoidal metres) with properties name, start/end time (s) and length (chainage, m),
+    one Point per marker with properties name, time_s, sigma_east/north/up_m, one Point per
+    bend at its apex (kind ``bend``, :func:`bend_properties`) and one per strain feature at its
+    peak (kind ``strain_feature``, :func:`strain_feature_properties`). Non-finite property
+    values are null."""
     coords = _coords(traj)
     d = np.asarray(traj.distance, dtype=np.float64)
     t = np.asarray(traj.t, dtype=np.float64)
@@ -84,24 +156,99 @@ def to_geojson(
                 },
             }
         )
+    for b in bends:
+        features.append(_point_feature(_point_coords(b.lat, b.lon, b.alt), bend_properties(b)))
+    for f in strain_features:
+        features.append(
+            _point_feature(_point_coords(f.lat, f.lon, f.alt), strain_feature_properties(f))
+        )
     return {"type": "FeatureCollection", "features": features}
 
 
 def write_geojson(
-    path: str | os.PathLike[str], traj: Trajectory, markers: Sequence[Marker] = ()
+    path: str | os.PathLike[str],
+    traj: Trajectory,
+    markers: Sequence[Marker] = (),
+    *,
+    bends: Sequence[PipeBend] = (),
+    strain_features: Sequence[StrainFeature] = (),
 ) -> None:
     """Write :func:`to_geojson` to ``path`` (RFC 7946 GeoJSON, UTF-8); refuses non-finite
     samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
-    doc = to_geojson(traj, markers, name=os.path.splitext(os.path.basename(path))[0])
+    doc = to_geojson(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
+                     bends=bends, strain_features=strain_features)  # fmt: skip
     with atomic_write(path, "w") as f:
         json.dump(doc, f, separators=(",", ":"), allow_nan=False)
         f.write("\n")
 
 
-def to_kml(traj: Trajectory, markers: Sequence[Marker] = (), name: str = "centreline") -> str:
-    """KML 2.2 document: a LineString Placemark of the centreline and a Point Placemark per
-    marker, altitudeMode absolute with WGS84 ellipsoidal heights (see the module docstring)."""
+def _kml_value(v: object) -> str:
+    if v is None:
+        return "unknown"
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return str(v)
+
+
+def _kml_point(
+    name: str, style: str, description: str, props: dict[str, object], lat: float,
+    lon: float, alt: float,
+) -> list[str]:  # fmt: skip
+    """A Point Placemark with the GeoJSON properties as ExtendedData."""
+    data = [
+        f'<Data name="{escape(k)}"><value>{escape(_kml_value(v))}</value></Data>'
+        for k, v in props.items()
+        if k not in ("name", "kind")
+    ]
+    return [
+        "<Placemark>",
+        f"<name>{escape(name)}</name>",
+        f"<description>{escape(description)}</description>",
+        f"<styleUrl>#{style}</styleUrl>",
+        "<ExtendedData>",
+        *data,
+        "</ExtendedData>",
+        "<Point>",
+        "<altitudeMode>absolute</altitudeMode>",
+        f"<coordinates>{math.degrees(lon):.9f},{math.degrees(lat):.9f},{alt:.4f}</coordinates>",
+        "</Point>",
+        "</Placemark>",
+    ]
+
+
+def _kml_bend(b: PipeBend) -> list[str]:
+    p = bend_properties(b)
+    text = (f"{p['class']} bend, {p['direction']}: {math.degrees(b.angle):.2f} +- "
+            f"{math.degrees(b.sigma_angle):.2f} deg, radius {b.radius:.1f} m "
+            f"({b.radius_d:.1f} D), apex at chainage {b.apex_m:.2f} m "
+            f"({b.start_m:.2f} - {b.end_m:.2f} m)")  # fmt: skip
+    return _kml_point(str(p["name"]), "bend", text, p, b.lat, b.lon, b.alt)
+
+
+def _kml_strain(f: StrainFeature) -> list[str]:
+    p = strain_feature_properties(f)
+    why = "no listed bend" if not f.bend else f"bend {f.bend}"
+    if f.construction is not None:
+        why += ", construction-related" if f.construction else ", not construction-related"
+    text = (f"strain over {f.threshold_pct:g} %: peak {f.peak_pct:.4f} +- "
+            f"{f.sigma_peak_pct:.4f} % at chainage {f.peak_m:.2f} m "
+            f"({f.start_m:.2f} - {f.end_m:.2f} m, {f.length_m:.2f} m); {why}")  # fmt: skip
+    return _kml_point(str(p["name"]), "strain_feature", text, p, f.lat, f.lon, f.alt)
+
+
+def to_kml(
+    traj: Trajectory,
+    markers: Sequence[Marker] = (),
+    name: str = "centreline",
+    *,
+    bends: Sequence[PipeBend] = (),
+    strain_features: Sequence[StrainFeature] = (),
+) -> str:
+    """KML 2.2 document: a LineString Placemark of the centreline, a Point Placemark per
+    marker, and one per bend apex and strain feature peak (their GeoJSON properties as
+    ExtendedData), altitudeMode absolute with WGS84 ellipsoidal heights (see the module
+    docstring)."""
     line = " ".join(f"{x:.9f},{y:.9f},{z:.4f}" for x, y, z in _coords(traj))
     parts = [
         '<?xml version="1.0" encoding="UTF-8"?>',
@@ -112,6 +259,14 @@ def to_kml(traj: Trajectory, markers: Sequence[Marker] = (), name: str = "centre
         "ellipsoid in metres (not above mean sea level).</description>",
         '<Style id="centreline"><LineStyle><color>ff0000ff</color><width>3</width>'
         "</LineStyle></Style>",
+    ]
+    if bends:
+        parts.append('<Style id="bend"><IconStyle><color>ff00a5ff</color></IconStyle></Style>')
+    if strain_features:
+        parts.append(
+            '<Style id="strain_feature"><IconStyle><color>ffff00ff</color></IconStyle></Style>'
+        )
+    parts += [
         "<Placemark>",
         f"<name>{escape(name)}</name>",
         "<styleUrl>#centreline</styleUrl>",
@@ -135,15 +290,25 @@ def to_kml(traj: Trajectory, markers: Sequence[Marker] = (), name: str = "centre
             "</Point>",
             "</Placemark>",
         ]
+    for b in bends:
+        parts += _kml_bend(b)
+    for f in strain_features:
+        parts += _kml_strain(f)
     parts += ["</Document>", "</kml>", ""]
     return "\n".join(parts)
 
 
 def write_kml(
-    path: str | os.PathLike[str], traj: Trajectory, markers: Sequence[Marker] = ()
+    path: str | os.PathLike[str],
+    traj: Trajectory,
+    markers: Sequence[Marker] = (),
+    *,
+    bends: Sequence[PipeBend] = (),
+    strain_features: Sequence[StrainFeature] = (),
 ) -> None:
     """Write :func:`to_kml` to ``path`` (UTF-8); refuses non-finite samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
-    doc = to_kml(traj, markers, name=os.path.splitext(os.path.basename(path))[0])
+    doc = to_kml(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
+                 bends=bends, strain_features=strain_features)  # fmt: skip
     with atomic_write(path, "w") as f:
         f.write(doc)

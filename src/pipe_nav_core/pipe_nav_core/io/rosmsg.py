@@ -15,10 +15,10 @@ ellipsoidal metres; inside the core latitude/longitude are radians.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -27,6 +27,9 @@ from ..attitude import dcm_from_quat, quat_conj, quat_mul, rotvec_from_quat
 from ..earth import geodetic_to_enu
 from ..types import Datum, Marker, SensorLog, Trajectory
 from .stamps import NS_PER_S, ns_to_sec_scalar, sec_to_ns_scalar
+
+if TYPE_CHECKING:
+    from ..products.bends import PipeBend
 
 DEFAULT_MARKER_SIGMA_M = 0.05  # used when a NavSatFix carries no usable covariance
 
@@ -58,6 +61,7 @@ class MsgTypes:
     NavSatStatus: Any
     Path: Any
     PoseStamped: Any
+    PoseArray: Any
     Pose: Any
     PoseWithCovariance: Any
     Twist: Any
@@ -99,6 +103,7 @@ def rosbags_types() -> MsgTypes:
         NavSatStatus=t["sensor_msgs/msg/NavSatStatus"],
         Path=t["nav_msgs/msg/Path"],
         PoseStamped=t["geometry_msgs/msg/PoseStamped"],
+        PoseArray=t["geometry_msgs/msg/PoseArray"],
         Pose=t["geometry_msgs/msg/Pose"],
         PoseWithCovariance=t["geometry_msgs/msg/PoseWithCovariance"],
         Twist=t["geometry_msgs/msg/Twist"],
@@ -423,6 +428,39 @@ def path_from_msg(msg: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], N
         o = ps.pose.orientation
         q[i] = (o.x, o.y, o.z, o.w)
     return t, enu, q
+
+
+def bends_to_msg(types: MsgTypes, bends: Sequence[PipeBend], datum: Datum, t: float) -> Any:
+    """geometry_msgs/PoseArray of the bend apexes in map, stamped ``t`` (s; the path's stamp):
+    one Pose per bend in bend order, position = ENU (m) of the apex (lat, lon, alt) about the
+    datum, orientation = apex_quat_nb [x, y, z, w] (x along the pipe, downstream). No bend: an
+    empty PoseArray."""
+    if bends:
+        enu = enu_of(
+            datum,
+            np.array([b.lat for b in bends], dtype=np.float64),
+            np.array([b.lon for b in bends], dtype=np.float64),
+            np.array([b.alt for b in bends], dtype=np.float64),
+        ).reshape(-1, 3)
+    else:
+        enu = np.zeros((0, 3))
+    poses = [
+        types.Pose(position=_point(types, enu[i]), orientation=_quat(types, b.apex_quat_nb))
+        for i, b in enumerate(bends)
+    ]
+    return types.PoseArray(header=_header(types, t, MAP_FRAME), poses=poses)
+
+
+def pose_array_from_msg(msg: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """geometry_msgs/PoseArray -> (position (N, 3), quat [x, y, z, w] (N, 4))."""
+    n = len(msg.poses)
+    pos = np.empty((n, 3))
+    q = np.empty((n, 4))
+    for i, p in enumerate(msg.poses):
+        pos[i] = _xyz(p.position)
+        o = p.orientation
+        q[i] = (o.x, o.y, o.z, o.w)
+    return pos, q
 
 
 def datum_to_msg(types: MsgTypes, datum: Datum, t: float) -> Any:

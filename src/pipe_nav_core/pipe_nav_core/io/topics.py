@@ -9,11 +9,13 @@ ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 MAG_TYPE = "sensor_msgs/msg/MagneticField"
 NAVSATFIX_TYPE = "sensor_msgs/msg/NavSatFix"
 PATH_TYPE = "nav_msgs/msg/Path"
+POSE_ARRAY_TYPE = "geometry_msgs/msg/PoseArray"
 DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 
 OUTPUT_PATH_TOPIC = "/pipe_nav/path"
 OUTPUT_DATUM_TOPIC = "/pipe_nav/datum"
 OUTPUT_ODOMETRY_TOPIC = "/pipe_nav/odometry"
+OUTPUT_BENDS_TOPIC = "/pipe_nav/bends"  # bend apexes (geometry_msgs/PoseArray, map)
 DIAGNOSTICS_TOPIC = "/diagnostics"
 
 # Reasons a message can be skipped while reading (keys of BagReport.skipped).
