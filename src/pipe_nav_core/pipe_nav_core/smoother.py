@@ -507,19 +507,17 @@ def _centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Traject
     nominal starts on lin[k - 1] and ends end_offset[k] short of lin[k]; in between the
     correction is interpolated in time.
     """
-    cols = np.r_[layout.pos, layout.att, layout.k]  # the corrections the centreline needs
-    P, A, Kc = slice(0, 3), slice(3, 6), 6
+    cols = np.r_[layout.pos, layout.att]  # the corrections the centreline needs
+    P, A = slice(0, 3), slice(3, 6)
     d_lin = rec.x_upd[:, cols] + e[:, cols]
     d_end = d_lin + rec.end_offset[:, cols]
     var_c = var[:, cols]
-    k_lin = rec.lin[:, SV_K] + d_lin[:, Kc]
     t_ep = rec.t
     t = rec.s_t.copy()
     N = len(t)
     lat, lon, h = np.empty(N), np.empty(N), np.empty(N)
     q = np.empty((N, 4))
     sig_p, sig_a = np.empty((N, 3)), np.empty((N, 3))
-    scale = np.empty(N)
     for b in range(0, N, SAMPLE_BATCH):
         s = slice(b, b + SAMPLE_BATCH)
         k = rec.s_epoch[s]
@@ -532,12 +530,23 @@ def _centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Traject
         var_s = w0 * var_c[k - 1] + w1 * var_c[k]
         sig_p[s] = np.sqrt(np.maximum(var_s[:, P], 0.0))
         sig_a[s] = np.sqrt(np.maximum(var_s[:, A], 0.0))
-        scale[s] = 1.0 + ((1.0 - frac) * k_lin[k - 1] + frac * k_lin[k])
-    s_odo = rec.s_odo
-    distance = np.cumsum(scale * np.diff(np.r_[s_odo[0], s_odo]))
+    distance = arc_chainage(lat, lon, h, q)
     enu = earth.geodetic_to_enu(lat, lon, h, lat[0], lon[0], h[0])
     vel = np.gradient(enu, t, axis=0) if N > 1 else np.zeros((N, 3))
     return Trajectory(t, lat, lon, h, vel, q, distance, sig_p, sig_a)
+
+
+def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
+    """Chainage (m, 0 at the first sample) as the smoothed path's length, signed along the
+    body axis (backing up counts down): a slipping, stuck or spiking wheel does not corrupt
+    it. Steps in the local ENU of each sample (lat, lon rad, h m; quat_nb base_link->ENU)."""
+    if len(lat) < 2:
+        return np.zeros(len(lat))
+    rm, rn = earth.radii(lat[1:])
+    step = np.stack([np.diff(np.unwrap(lon)) * (rn + h[1:]) * np.cos(lat[1:]),
+                     np.diff(lat) * (rm + h[1:]), np.diff(h)], axis=1)  # fmt: skip
+    axis = att.dcm_from_quat(quat_nb[1:])[:, :, 0]
+    return np.r_[0.0, np.cumsum(np.einsum("ij,ij->i", step, axis))]
 
 
 def _forward_trajectory(rec: Recording) -> Trajectory:

@@ -1,0 +1,167 @@
+"""Wheel odometer faults the IMU can vouch against: a stuck wheel, spikes and steps.
+
+The pig's speed cannot change faster than a few m/s^2 without a shock the IMU would feel. A
+change of the odometer's speed (its distance differenced over ``WINDOW_S`` before and after
+each reading) beyond ``A_MAX`` x the window, with no matching jolt in the specific force, is a
+fault of the wheel, not motion. Between the breaks:
+
+- **stuck**: the distance stands still between a break down and a break up while the pig was
+  moving before and after: the readings in between are left out (else they read as a stop and
+  the filter's zero-velocity updates hold the pig back);
+- **spike**: the distance jumps and comes back within a window: those readings are left out;
+- **step**: the distance jumps by some metres (or back) and goes on from there: named; the
+  filter's gate rejects the one increment, and the chainage (distance_m) comes from the
+  smoothed path, not from the count.
+
+Times s of the header-stamp clock, distances m.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .types import SensorLog
+
+WINDOW_S = 0.25  # s, the speed is differenced over this before and after each reading
+A_MAX = 3.0  # m/s^2, faster speed changes need a shock in the IMU
+MIN_MOVING = 0.1  # m/s, a wheel standing still is stuck only if the pig moved around it
+
+
+@dataclass(frozen=True)
+class OdometerFault:
+    """kind: ``stuck``, ``spike`` or ``step``; from t0 to t1 (s); size: m (the distance the
+    stuck wheel missed, the spike's height, the step); dropped: readings left out."""
+
+    kind: str
+    t0: float
+    t1: float
+    size: float
+    dropped: int
+
+    def describe(self) -> str:
+        if self.kind == "stuck":
+            return (
+                f"odometer stuck for {self.t1 - self.t0:.1f} s from t = {self.t0:.3f} s (it "
+                f"stopped dead with no jolt in the IMU; up to {self.size:.1f} m unread): its "
+                f"{self.dropped} readings left out"
+            )
+        if self.kind == "spike":
+            return (
+                f"odometer spike of {self.size:+.2f} m at t = {self.t0:.3f} s: "
+                f"{self.dropped} reading(s) left out"
+            )
+        way = "backward " if self.size < 0 else ""
+        return f"odometer {way}step of {self.size:+.2f} m at t = {self.t0:.3f} s (not motion)"
+
+
+def _speeds(t: np.ndarray, d: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Speed over the n readings before and after each one (m/s; nan near the ends)."""
+    vb = np.full(len(t), np.nan)
+    va = np.full(len(t), np.nan)
+    vb[n:] = (d[n:] - d[:-n]) / (t[n:] - t[:-n])
+    va[:-n] = (d[n:] - d[:-n]) / (t[n:] - t[:-n])
+    return vb, va
+
+
+def _jolt(log: SensorLog, t0: float, t1: float) -> float:
+    """Largest deviation (m/s^2) of |specific force| from its median around [t0, t1]."""
+    imu = log.imu
+    k = (imu.t >= t0 - WINDOW_S) & (imu.t <= t1 + WINDOW_S)
+    around = (imu.t >= t0 - 10 * WINDOW_S) & (imu.t <= t1 + 10 * WINDOW_S)
+    if not k.any() or not around.any():
+        return np.inf  # no IMU to vouch against the wheel: trust it
+    norm = np.linalg.norm(imu.accel, axis=1)
+    return float(np.max(np.abs(norm[k] - np.median(norm[around]))))
+
+
+def find_odometer_faults(log: SensorLog, resolution: float = 0.0) -> list[OdometerFault]:
+    """The faults of a time-sorted log's odometer (see the module); resolution: m per count
+    (0: the smallest step in the readings)."""
+    odo = log.odometer
+    t, d = odo.t, odo.distance
+    if len(t) < 8:
+        return []
+    period = float(np.median(np.diff(t)))
+    n = max(int(round(WINDOW_S / period)), 2)
+    steps = np.abs(np.diff(d))
+    res = resolution or (float(np.min(steps[steps > 0])) if (steps > 0).any() else 0.0)
+    vb, va = _speeds(t, d, n)
+    w = n * period
+    limit = A_MAX * 2 * w + 4 * res / w
+    breaks = np.flatnonzero(np.abs(va - vb) > limit)
+    if len(breaks) == 0:
+        return []
+    events: list[tuple[int, int]] = []  # index ranges of readings around one break
+    for i in breaks:
+        if events and i - events[-1][1] <= n:
+            events[-1] = (events[-1][0], int(i))
+        else:
+            events.append((int(i), int(i)))
+    faults: list[OdometerFault] = []
+    used: set[int] = set()
+    for e, (a, b) in enumerate(events):
+        if e in used:
+            continue
+        dv = float(np.nan_to_num(va[a] - vb[a]))
+        if _jolt(log, t[a], t[b]) > 0.3 * abs(dv) / (2 * w):
+            continue  # the IMU felt it: real motion
+        before = vb[a]
+        if abs(va[b]) < MIN_MOVING and abs(before) > MIN_MOVING:
+            # stopped dead with no jolt: stuck until the wheel turns again
+            moving = np.flatnonzero(np.abs(d[b:] - d[b]) > 2 * res)
+            f = b + int(moving[0]) if len(moving) else len(t) - 1
+            nxt = events[e + 1] if e + 1 < len(events) else None
+            if nxt is not None and nxt[0] <= f + n:
+                used.add(e + 1)  # the wheel's release: part of the same fault
+                f = max(f, nxt[1])
+            missed = abs(before) * float(t[f] - t[b])  # if it kept its speed
+            faults.append(OdometerFault("stuck", float(t[a]), float(t[f]), missed, 0))
+            continue
+        lo, hi = max(a - n, 0), min(b + n, len(t) - 1)
+        trend_before = d[lo] + (vb[a] if np.isfinite(vb[a]) else 0.0) * (t[hi] - t[lo])
+        offset = float(d[hi] - trend_before)
+        height = float(np.max(np.abs(d[a : b + 1] - np.interp(t[a : b + 1], t[[lo, hi]],
+                                                              d[[lo, hi]]))))  # fmt: skip
+        if abs(offset) <= max(2 * res, 0.5 * height):
+            faults.append(OdometerFault("spike", float(t[a]), float(t[b]), height, 0))
+        else:
+            faults.append(OdometerFault("step", float(t[a]), float(t[b]), offset, 0))
+    return faults
+
+
+def without_faults(
+    log: SensorLog, faults: list[OdometerFault]
+) -> tuple[SensorLog, list[OdometerFault]]:
+    """The log without the readings of stuck and spike faults, and the faults with the number
+    of readings left out."""
+    odo = log.odometer
+    keep = np.ones(len(odo.t), bool)
+    out: list[OdometerFault] = []
+    for f in faults:
+        if f.kind == "stuck":
+            k = (odo.t > f.t0) & (odo.t < f.t1)
+        elif f.kind == "spike":
+            k = _spike_readings(odo.t, odo.distance, f)
+        else:
+            out.append(f)
+            continue
+        keep &= ~k
+        out.append(replace(f, dropped=int(k.sum())))
+    if keep.all():
+        return log, out
+    return replace(log, odometer=replace(odo, t=odo.t[keep], distance=odo.distance[keep],
+                                         speed=odo.speed[keep])), out  # fmt: skip
+
+
+def _spike_readings(t: np.ndarray, d: np.ndarray, f: OdometerFault) -> np.ndarray:
+    """The readings of a spike: those in its event off the line through its neighbours."""
+    k = np.flatnonzero((t >= f.t0 - WINDOW_S) & (t <= f.t1 + WINDOW_S))
+    if len(k) < 3:
+        return np.zeros(len(t), bool)
+    line = np.interp(t[k], t[k[[0, -1]]], d[k[[0, -1]]])
+    off = np.abs(d[k] - line) > 0.5 * abs(f.size)
+    out = np.zeros(len(t), bool)
+    out[k[off]] = True
+    return out

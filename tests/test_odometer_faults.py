@@ -1,0 +1,76 @@
+"""A stuck wheel, a spike and a step in the odometer (odometer_faults.py): named, left out, and
+the centreline and its chainage as good as without them."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.evaluation import score
+from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
+from pipe_nav_core.odometer_faults import find_odometer_faults, without_faults
+from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+
+
+@pytest.fixture(scope="module")
+def log():
+    return load_log(BAGS / "sample.mcap")[0]
+
+
+def stuck(log, a: float, b: float):
+    """The wheel stands still from a to b s after the start, then counts on from there."""
+    o, t0 = log.odometer, log.imu.t[0]
+    k = (o.t > t0 + a) & (o.t < t0 + b)
+    i0, i1 = np.flatnonzero(k)[[0, -1]]
+    d, v = o.distance.copy(), o.speed.copy()
+    d[k], v[k] = d[i0], 0.0
+    d[o.t >= t0 + b] -= o.distance[i1] - o.distance[i0]
+    return dataclasses.replace(log, odometer=dataclasses.replace(o, distance=d, speed=v))
+
+
+def spike(log, at: float, size: float, step: bool):
+    o = log.odometer
+    d = o.distance.copy()
+    j = int(np.searchsorted(o.t, log.imu.t[0] + at))
+    if step:
+        d[j:] += size
+    else:
+        d[j] += size
+    return dataclasses.replace(log, odometer=dataclasses.replace(o, distance=d))
+
+
+def test_a_clean_odometer_has_no_fault(log):
+    assert find_odometer_faults(log) == []
+
+
+@pytest.mark.parametrize(
+    ("damage", "kind", "named"),
+    [
+        (lambda lg: stuck(lg, 40.0, 60.0), "stuck", "odometer stuck for 20.0 s"),
+        (lambda lg: spike(lg, 100.0, 5.0, step=False), "spike", "odometer spike of +5.00 m"),
+        (lambda lg: spike(lg, 100.0, -0.5, step=True), "step", "backward step of -0.50 m"),
+    ],
+    ids=["stuck 20 s", "spike 5 m", "backward step 0.5 m"],
+)
+def test_a_wheel_fault_is_named_and_does_not_spoil_the_run(log, tmp_path, damage, kind, named):
+    damaged = damage(log)
+    (fault,) = without_faults(damaged, find_odometer_faults(damaged))[1]
+    assert fault.kind == kind
+    bag = tmp_path / "bad.mcap"
+    write_sensor_bag(bag, damaged)
+    csv = tmp_path / "c.csv"
+    result, report = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
+    assert any(named in w for w in report.warnings), report.warnings
+    assert result.summary["quality"]["status"] == "DEGRADED"
+    est, _ = read_centreline_csv(csv)
+    truth, datum = read_centreline_csv(BAGS / "sample.truth.csv")
+    s = score(est, truth, datum=datum)
+    assert s.max_h < 0.08 and s.max_v < 0.05, s
+    assert s.inside_3sigma >= 0.95
+    # the chainage is the smoothed path's: nothing lost to the wheel
+    assert abs(est.distance[-1] - truth.distance[-1]) < 0.1
