@@ -18,7 +18,8 @@ import numpy as np
 from . import imu_model, quality
 from .config import AUTO_GRADE, NavConfig
 from .engine import NavEstimate, Navigator
-from .gaps import find_holes, remove_clock_steps
+from .gaps import fill_short_holes, find_holes, remove_clock_steps
+from .imu_faults import without_imu_faults
 from .io import (
     BagReport,
     TopicNames,
@@ -33,18 +34,19 @@ from .io import (
 )
 from .io.atomic import all_or_none, check_not_input, check_output
 from .io.bagread import declared_imu_noise
-from .io.centreline import read_centreline_csv
+from .io.centreline import concat, pieces_of, read_centreline_csv
 from .io.products_csv import write_bends_csv, write_strain_csv, write_strain_features_csv
 from .io.smoothed_bag import read_smoothed_bag
 from .marker_outliers import smooth_without_outliers
 from .odometer_faults import find_odometer_faults, without_faults
 from .products import IntegrityReport, integrity_report, read_bends_reference
+from .segments import smooth_segments
 from .sensors import GRADES
 from .smoother import SmoothResult, smooth_log
 from .types import Datum, Marker, SensorLog, Trajectory
 
 Progress = Callable[[str], None]
-MAX_BRIDGED_M = 0.5  # m: a data gap the pig moved further in fails the run (not bridged yet)
+MAX_BRIDGED_M = 0.5  # m: the filter carries a gap the pig moved less in; else segments
 DEFAULT_TOPICS = TopicNames()
 
 
@@ -118,13 +120,23 @@ def load_log(
     topics: TopicNames = DEFAULT_TOPICS,
     markers_csv: str | os.PathLike[str] | None = None,
 ) -> tuple[SensorLog, BagReport]:
-    """Read a bag into memory (sorted per topic), re-align its clock steps and name its data
-    gaps (gaps.find_holes; the bag's own markers follow its clock), leave out the readings of
-    a stuck or spiking wheel (odometer_faults), merge the marker CSV."""
+    """Read a bag into memory (sorted per topic), leave out saturated IMU samples and shocks
+    (imu_faults), re-align its clock steps and name its data gaps (gaps.find_holes; the bag's
+    own markers follow its clock), leave out the readings of a stuck or spiking wheel
+    (odometer_faults), merge the marker CSV."""
     log, report = read_bag(bag, topics)
-    holes = find_holes(log)
+    log, imu_faults = without_imu_faults(log)
+    report.warnings += [f.describe() for f in imu_faults]
+    steps = [h for h in find_holes(log) if h.kind == "clock step"]
+    log = remove_clock_steps(log, steps)
+    log, filled, added = fill_short_holes(log)
+    if filled:
+        report.warnings.append(
+            f"IMU: {added} missing samples in {filled} short hole(s) filled by interpolation"
+        )
+    holes = find_holes(log, short=True)  # what is left: short clock glitches and data gaps
     log = remove_clock_steps(log, holes)
-    report.warnings += [h.describe() for h in holes]
+    report.warnings += [h.describe() for h in steps + holes]
     log, faults = without_faults(log, find_odometer_faults(log))
     report.warnings += [f.describe() for f in faults]
     if markers_csv is not None:
@@ -187,19 +199,30 @@ def smooth_bag(
             f"{bag}: no markers within the data (topic {topics.markers} or --markers CSV){why}: "
             "nothing ties the run to the ground"
         )
-    result = smooth_with_imu_model(
-        log, config, bag=bag, topics=topics, method=method, iterations=iterations, progress=say
-    )
+
+    def smooth(part: SensorLog) -> SmoothResult:
+        return smooth_with_imu_model(part, config, bag=bag, topics=topics, method=method,
+                                     iterations=iterations, progress=say)  # fmt: skip
+
+    gaps = [h for h in find_holes(log, short=True)
+            if h.kind == "data gap" and not h.moved <= MAX_BRIDGED_M]  # fmt: skip
+    if gaps:
+        say(f"smoothing {len(gaps) + 1} segments between data gaps")
+        result, segments = smooth_segments(log, config, gaps, smooth)
+        result.summary["segments"] = [vars(s) for s in segments]
+        described = {h.describe() for h in gaps}
+        report.warnings = [w for w in report.warnings if w not in described]
+        report.warnings += [f"{h.describe()}: the pipe across it is not mapped" for h in gaps]
+        report.warnings += [
+            f"{s.t1 - s.t0:.1f} s of data from t = {s.t0:.3f} s not mapped ({s.why})"
+            for s in segments
+            if s.how == "unmapped"
+        ]
+    else:
+        result = smooth(log)
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
-    unbridged = [
-        h.describe()
-        for h in find_holes(log)
-        if h.kind == "data gap" and not h.moved <= MAX_BRIDGED_M
-    ]
-    others = [w for w in report.warnings if w not in unbridged]
-    failures = [f"{w}: the centreline across it is not known" for w in unbridged]
-    verdict = quality.judge(result.summary, result.centreline, others, failures)
+    verdict = quality.judge(result.summary, result.centreline, report.warnings)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
     say("bends and strain")
     result.products = integrity_report(
@@ -263,11 +286,15 @@ def smooth_with_imu_model(
 
 
 def centreline_rows(result: SmoothResult, spacing: float) -> Trajectory:
-    """The centreline resampled every ``spacing`` m of chainage plus a row at every marker."""
-    times = [
-        m.t for m in result.markers if result.centreline.t[0] <= m.t <= result.centreline.t[-1]
-    ]
-    return resample_by_chainage(result.centreline, spacing, times)
+    """The centreline resampled every ``spacing`` m of chainage plus a row at every marker;
+    a centreline in pieces (segments across data gaps) gets no row across its holes."""
+    c = result.centreline
+    pieces = pieces_of(c)
+    rows = []
+    for p in pieces:
+        times = [m.t for m in result.markers if p.t[0] <= m.t <= p.t[-1]]
+        rows.append(resample_by_chainage(p, spacing, times))
+    return rows[0] if len(rows) == 1 else concat(rows)
 
 
 def _require_imu(

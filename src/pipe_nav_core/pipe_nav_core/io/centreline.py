@@ -94,7 +94,7 @@ def interpolate_trajectory(traj: Trajectory, times: ArrayLike) -> Trajectory:
     q = np.asarray(traj.quat_nb, dtype=np.float64).reshape(n, 4)
     if n == 1:
         idx = np.zeros(len(tq), dtype=np.int64)
-        return _take(traj, idx)
+        return take(traj, idx)
     tq = np.clip(tq, t[0], t[-1])
     i = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, n - 2)
     dt = t[i + 1] - t[i]
@@ -122,23 +122,6 @@ def interpolate_trajectory(traj: Trajectory, times: ArrayLike) -> Trajectory:
         distance=lin(traj.distance),
         sigma_enu=lin(traj.sigma_enu),
         sigma_att=lin(traj.sigma_att),
-    )
-
-
-def _take(traj: Trajectory, idx: NDArray[np.int64]) -> Trajectory:
-    def sel(a: ArrayLike | None) -> NDArray[np.float64] | None:
-        return None if a is None else np.asarray(a, dtype=np.float64)[idx]
-
-    return Trajectory(
-        t=sel(traj.t),
-        lat=sel(traj.lat),
-        lon=sel(traj.lon),
-        h=sel(traj.h),
-        vel_n=sel(traj.vel_n),
-        quat_nb=sel(traj.quat_nb),
-        distance=sel(traj.distance),
-        sigma_enu=sel(traj.sigma_enu),
-        sigma_att=sel(traj.sigma_att),
     )
 
 
@@ -182,6 +165,36 @@ def resample_by_chainage(
     extra = extra[np.isfinite(extra) & (extra >= t[0]) & (extra <= t[-1])]
     times = np.concatenate([chainage_times(t, traj.distance, spacing_m), [t[0], t[-1]], extra])
     return interpolate_trajectory(traj, np.unique(times))
+
+
+HOLE_S = 1.0  # s without a sample: a trajectory is in pieces (segments across data gaps)
+
+
+def pieces_of(traj: Trajectory) -> list[Trajectory]:
+    """A trajectory cut where it has no sample for over HOLE_S (segments across gaps)."""
+    cuts = np.flatnonzero(np.diff(np.asarray(traj.t)) > HOLE_S) + 1
+    if not len(cuts):
+        return [traj]
+    edges = [0, *cuts.tolist(), len(traj.t)]
+    return [take(traj, slice(a, b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def take(traj: Trajectory, s: slice | NDArray[np.int64]) -> Trajectory:
+    """Samples ``s`` (a slice or indexes) of a trajectory."""
+    return Trajectory(**{k: None if (v := getattr(traj, k)) is None else v[s]
+                         for k in Trajectory.__dataclass_fields__})  # fmt: skip
+
+
+def concat(trajs: list[Trajectory]) -> Trajectory:
+    """Trajectories one after the other (optional fields kept only if all have them)."""
+
+    def cat(name: str) -> np.ndarray | None:
+        values = [getattr(t, name) for t in trajs]
+        if any(v is None for v in values):
+            return None
+        return np.concatenate([np.asarray(v) for v in values])
+
+    return Trajectory(**{name: cat(name) for name in Trajectory.__dataclass_fields__})
 
 
 # ----------------------------------------------------------------------------- CSV

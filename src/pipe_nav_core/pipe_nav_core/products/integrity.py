@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from ..config import NavConfig
+from ..io.centreline import pieces_of
 from ..types import Trajectory
 from .bends import PipeBend, find_bends
 from .curvature import CurvatureProfile, axis_track, curvature_profile
@@ -49,7 +52,13 @@ def integrity_report(
     reference: Sequence[tuple[float, float]] | None = None,
 ) -> IntegrityReport:
     """Curvature, strain, bends and strain features of a smoothed trajectory, with the
-    settings of ``config`` (its IMU model gives the sigmas) every ``spacing`` m of chainage."""
+    settings of ``config`` (its IMU model gives the sigmas) every ``spacing`` m of chainage.
+    A trajectory in pieces (segments smoothed apart across data gaps: io.centreline.pieces_of)
+    gets the products of each piece, numbered on."""
+    pieces = pieces_of(traj)
+    if len(pieces) > 1:
+        return _merged([integrity_report(p, config, spacing=spacing, reference=reference)
+                        for p in pieces if len(p.t) > 1])  # fmt: skip
     spec = config.imu_spec()
     window = config.window()
     diameter = config.outer_diameter()
@@ -65,3 +74,27 @@ def integrity_report(
         notes.append(f"strain with pipe_diameter {diameter} m (pipe_outer_diameter not set)")
     return IntegrityReport(profile, strain, sigma, bends, features, diameter, window,
                            tuple(config.strain_thresholds), notes)  # fmt: skip
+
+
+def _merged(reports: list[IntegrityReport]) -> IntegrityReport:
+    """One report from those of consecutive pieces: rows one after the other, renumbered."""
+    first = reports[0]
+    fields_ = CurvatureProfile.__dataclass_fields__
+    profile = CurvatureProfile(**{
+        k: first.window if k == "window" else np.concatenate([getattr(r.profile, k)
+                                                              for r in reports])
+        for k in fields_
+    })  # fmt: skip
+    bends = [b for r in reports for b in r.bends]
+    bends = [replace(b, number=i + 1) for i, b in enumerate(bends)]
+    features = []
+    for r, offset in zip(reports, np.cumsum([0] + [len(r.bends) for r in reports[:-1]]),
+                         strict=True):  # fmt: skip
+        for f in r.features:
+            features.append(replace(f, bend=f.bend + int(offset) if f.bend else 0))
+    features = [replace(f, number=i + 1) for i, f in enumerate(features)]
+    notes = list(dict.fromkeys(n for r in reports for n in r.notes))
+    strain = np.concatenate([r.strain_pct for r in reports])
+    sigma = np.concatenate([r.sigma_strain_pct for r in reports])
+    return IntegrityReport(profile, strain, sigma, bends, features, first.outer_diameter,
+                           first.window, first.thresholds_pct, notes)  # fmt: skip

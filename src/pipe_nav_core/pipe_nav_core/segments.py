@@ -1,0 +1,153 @@
+"""A run cut by data gaps, smoothed segment by segment and joined.
+
+Across a gap the pig moved with nothing recorded, so no filter can carry its attitude over:
+each segment between gaps is smoothed on its own, tied to the ground by its own markers. A
+segment that starts at rest (the launch trap) is smoothed forward; one that ends at rest (the
+receive trap) is smoothed in reversed time (smoother.reverse_log), aligning at its end; one
+with neither (between two gaps, the pig moving at both ends) cannot be aligned and is left
+unmapped, named. The centreline then has no rows across the gaps; its chainage goes on across
+each gap by the odometer distance in it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .config import NavConfig
+from .gaps import TimeHole
+from .io.centreline import concat
+from .smoother import SmoothResult, arc_chainage, reverse_log
+from .types import SensorLog, Trajectory
+
+
+@dataclass(frozen=True)
+class Segment:
+    """The data from t0 to t1 (s); how it was smoothed: ``forward``, ``reversed`` or
+    ``unmapped`` (and why)."""
+
+    t0: float
+    t1: float
+    how: str
+    why: str = ""
+
+
+def cut(log: SensorLog, t0: float, t1: float) -> SensorLog:
+    """The samples and markers of ``log`` with t0 <= t <= t1 (s)."""
+
+    def inside(t: np.ndarray) -> np.ndarray:
+        return (t >= t0) & (t <= t1)
+
+    o, m = log.odometer, log.mag
+    ko, km = inside(o.t), inside(m.t)
+    return replace(
+        log,
+        imu=log.imu.slice(inside(log.imu.t)),
+        odometer=replace(o, t=o.t[ko], distance=o.distance[ko], speed=o.speed[ko]),
+        mag=replace(m, t=m.t[km], field=m.field[km]),
+        markers=[x for x in log.markers if t0 <= x.t <= t1],
+    )
+
+
+def at_rest(log: SensorLog, config: NavConfig, end: bool) -> bool:
+    """Whether the odometer stands still over the static alignment span at the start (or end)."""
+    o = log.odometer
+    if len(o.t) < 2:
+        return False
+    span = config.static_alignment_s
+    k = o.t >= o.t[-1] - span if end else o.t <= o.t[0] + span
+    still = max(config.stop_speed_threshold, 0.01)
+    return bool(np.ptp(o.distance[k]) < 0.01 and np.all(np.abs(o.speed[k]) < still))
+
+
+def unreversed(traj: Trajectory) -> Trajectory:
+    """A trajectory estimated in reversed time (t -> -t) back in forward time."""
+
+    def flip(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else np.asarray(a)[::-1].copy()
+
+    return Trajectory(t=-traj.t[::-1], lat=flip(traj.lat), lon=flip(traj.lon), h=flip(traj.h),
+                      vel_n=-np.asarray(traj.vel_n)[::-1], quat_nb=flip(traj.quat_nb),
+                      distance=flip(traj.distance), sigma_enu=flip(traj.sigma_enu),
+                      sigma_att=flip(traj.sigma_att), cov_pose=flip(traj.cov_pose))  # fmt: skip
+
+
+def smooth_segments(
+    log: SensorLog,
+    config: NavConfig,
+    gaps: list[TimeHole],
+    smooth: Callable[[SensorLog], SmoothResult],
+) -> tuple[SmoothResult, list[Segment]]:
+    """Smooth each segment between ``gaps`` (see the module) and join them; ValueError when no
+    segment can be smoothed."""
+    bounds = [-math.inf] + [x for g in gaps for x in (g.t_before, g.t_after)] + [math.inf]
+    pieces: list[tuple[Segment, SmoothResult]] = []
+    segments: list[Segment] = []
+    for a, b in zip(bounds[::2], bounds[1::2], strict=True):
+        part = cut(log, a, b)
+        t0, t1 = (float(part.imu.t[0]), float(part.imu.t[-1])) if len(part.imu.t) else (a, b)
+        if len([m for m in part.markers if math.isfinite(m.t)]) < 1 or len(part.imu.t) < 10:
+            segments.append(Segment(t0, t1, "unmapped", "no marker in it"))
+            continue
+        if at_rest(part, config, end=False):
+            res, how = smooth(part), "forward"
+        elif at_rest(part, config, end=True):
+            res, how = _reversed(smooth(reverse_log(part))), "reversed"
+        else:
+            segments.append(Segment(t0, t1, "unmapped", "the pig moves at both ends"))
+            continue
+        seg = Segment(t0, t1, how)
+        segments.append(seg)
+        pieces.append((seg, res))
+    if not pieces:
+        raise ValueError("no segment between the data gaps can be smoothed (each needs a marker "
+                         "and a start or end at rest)")  # fmt: skip
+    return _joined(log, [p[1] for p in pieces]), segments
+
+
+def _reversed(res: SmoothResult) -> SmoothResult:
+    c = unreversed(res.centreline)
+    c = replace(c, distance=arc_chainage(c.lat, c.lon, c.h, c.quat_nb))
+    markers = sorted(res.markers, key=lambda m: m.t)
+    markers = [replace(m, t=-m.t) for m in markers[::-1]]
+    return replace(res, centreline=c, forward=unreversed(res.forward), markers=markers)
+
+
+def _joined(log: SensorLog, parts: list[SmoothResult]) -> SmoothResult:
+    """One result from the segments' (in time order): centreline and forward estimates one
+    after the other, the chainage going on across each gap by the odometer distance in it."""
+    odo = log.odometer
+    centre: list[Trajectory] = []
+    forward: list[Trajectory] = []
+    offset = 0.0
+    for k, p in enumerate(parts):
+        c = p.centreline
+        if k:
+            prev = centre[-1]
+            across = float(np.interp(c.t[0], odo.t, odo.distance)
+                           - np.interp(prev.t[-1], odo.t, odo.distance))  # fmt: skip
+            offset = float(prev.distance[-1]) + max(across, 0.0) - float(c.distance[0])
+        centre.append(replace(c, distance=c.distance + offset))
+        forward.append(p.forward)
+    first = parts[0]
+    summary = dict(first.summary)
+    for key in ("markers_used", "markers_rejected", "markers_total"):
+        summary[key] = sum(int(p.summary.get(key, 0)) for p in parts)  # type: ignore[call-overload]
+    for key in ("warnings", "marker_warnings", "marker_outliers"):
+        summary[key] = [w for p in parts for w in p.summary.get(key, [])]  # type: ignore[attr-defined]
+    for key in ("max_sigma_h_between_markers_m", "max_marker_residual_m"):
+        summary[key] = max(float(p.summary.get(key, 0.0)) for p in parts)  # type: ignore[arg-type]
+    rejected: dict[str, int] = {}
+    for p in parts:
+        for name, n in (p.summary.get("rejected_updates") or {}).items():  # type: ignore[attr-defined]
+            rejected[name] = rejected.get(name, 0) + int(n)
+    summary["rejected_updates"] = rejected
+    joined = concat(centre)
+    summary["distance_m"] = float(joined.distance[-1])
+    summary["duration_s"] = float(joined.t[-1] - joined.t[0])
+    residuals = {name: r for p in parts for name, r in p.marker_residuals.items()}
+    return SmoothResult(joined, concat(forward), first.datum, [m for p in parts for m in p.markers],
+                        residuals, summary, first.config)  # fmt: skip
