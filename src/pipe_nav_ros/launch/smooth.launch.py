@@ -4,8 +4,8 @@
     ros2 launch pipe_nav_ros smooth.launch.py bag:=run.mcap csv:=centreline.csv exit_when_done:=true
 
 smoother_node writes <output> like ``pipe-nav smooth`` and publishes /pipe_nav/path,
-/pipe_nav/datum and /pipe_nav/bends latched. The estimator settings are the ekf_node section of config/ekf.yaml
-(ekf_params:= to use another file). The launch ends when the node exits (exit_when_done:=true,
+/pipe_nav/datum and /pipe_nav/bends latched. The estimator settings are the ekf_node section
+of config/ekf.yaml (ekf_params:= to use another file). The launch ends when the node exits (exit_when_done:=true,
 or a failure).
 """
 
