@@ -5,8 +5,8 @@
 
 smoother_node writes <output> like ``pipe-nav smooth`` and publishes /pipe_nav/path,
 /pipe_nav/datum and /pipe_nav/bends latched. The estimator settings are the ekf_node section
-of config/ekf.yaml (ekf_params:= to use another file). The launch ends when the node exits (exit_when_done:=true,
-or a failure).
+of config/ekf.yaml (ekf_params:= to use another file). The launch ends when the node exits
+(exit_when_done:=true, or a failure).
 """
 
 import os
