@@ -79,7 +79,11 @@ def damaged(log, d):
     keep_i[0] = keep_i[-1] = True
     ti, g, a = ti[keep_i], g[keep_i], a[keep_i]
     dup = rng.integers(1, len(ti) - 1, d["duplicate"])
-    ti, g, a = np.insert(ti, dup, ti[dup]), np.insert(g, dup, g[dup], 0), np.insert(a, dup, a[dup], 0)
+    ti, g, a = (
+        np.insert(ti, dup, ti[dup]),
+        np.insert(g, dup, g[dup], 0),
+        np.insert(a, dup, a[dup], 0),
+    )
     for i in rng.integers(1, len(ti) - 2, d["reorder"]):
         ti[i], ti[i + 1] = ti[i + 1], ti[i]
     for i in rng.integers(0, len(ti), d["nan"]):
@@ -92,7 +96,8 @@ def damaged(log, d):
     return dataclasses.replace(
         log, imu=dataclasses.replace(imu, t=ti, gyro=g, accel=a),
         odometer=dataclasses.replace(o, t=shift(o.t[ko]), distance=dist, speed=speed),
-        mag=dataclasses.replace(m, t=shift(m.t[km]), field=m.field[km]), markers=markers)  # fmt: skip
+        mag=dataclasses.replace(m, t=shift(m.t[km]), field=m.field[km]), markers=markers,
+    )  # fmt: skip
 
 
 @SETTINGS

@@ -17,7 +17,7 @@ import numpy as np
 
 from . import imu_model, quality
 from .config import AUTO_GRADE, NavConfig
-from .engine import NavEstimate, Navigator
+from .engine import NavEstimate
 from .gaps import fill_short_holes, find_holes, remove_clock_steps
 from .imu_faults import without_imu_faults
 from .io import (
@@ -37,6 +37,7 @@ from .io.bagread import declared_imu_noise
 from .io.centreline import concat, pieces_of, read_centreline_csv
 from .io.products_csv import write_bends_csv, write_strain_csv, write_strain_features_csv
 from .io.smoothed_bag import read_smoothed_bag
+from .live_guard import GuardedNavigator
 from .marker_outliers import smooth_without_outliers
 from .odometer_faults import find_odometer_faults, without_faults
 from .products import IntegrityReport, integrity_report, read_bends_reference
@@ -119,12 +120,16 @@ def load_log(
     *,
     topics: TopicNames = DEFAULT_TOPICS,
     markers_csv: str | os.PathLike[str] | None = None,
+    repair: bool = True,
 ) -> tuple[SensorLog, BagReport]:
     """Read a bag into memory (sorted per topic), leave out saturated IMU samples and shocks
     (imu_faults), re-align its clock steps and name its data gaps (gaps.find_holes; the bag's
     own markers follow its clock), leave out the readings of a stuck or spiking wheel
-    (odometer_faults), merge the marker CSV."""
+    (odometer_faults), merge the marker CSV. ``repair=False``: the data as recorded (what
+    ekf_node would see; the live guard checks it then)."""
     log, report = read_bag(bag, topics)
+    if not repair:
+        return _with_markers(log, report, markers_csv)
     log, imu_faults = without_imu_faults(log)
     report.warnings += [f.describe() for f in imu_faults]
     steps = [h for h in find_holes(log) if h.kind == "clock step"]
@@ -139,6 +144,14 @@ def load_log(
     report.warnings += [h.describe() for h in steps + holes]
     log, faults = without_faults(log, find_odometer_faults(log))
     report.warnings += [f.describe() for f in faults]
+    return _with_markers(log, report, markers_csv)
+
+
+def _with_markers(
+    log: SensorLog, report: BagReport, markers_csv: str | os.PathLike[str] | None
+) -> tuple[SensorLog, BagReport]:
+    """The log with the marker CSV merged in and the markers without a time or outside the
+    data left out (named in the report)."""
     if markers_csv is not None:
         log.markers = merge_markers(log.markers, read_markers_csv(markers_csv))
     untimed = [m.name for m in log.markers if not math.isfinite(m.t)]
@@ -410,7 +423,7 @@ def replay_log(
     """Run the online engine over a log exactly as ekf_node does: samples pushed one by one in
     stamp order (the engine's reorder buffer makes arrival order within its window irrelevant).
     declared: the per-sample IMU variances the Imu messages declare (imu_grade auto)."""
-    nav = Navigator(config)
+    nav = GuardedNavigator(config)
     nav.declared_imu_noise = declared
     events: list[tuple[float, int, int]] = []
     events += [(t, 0, i) for i, t in enumerate(log.imu.t)]
@@ -462,7 +475,7 @@ def replay_bag(
 ) -> tuple[ReplayResult, BagReport]:
     """`pipe-nav replay`: the online estimator over a bag; writes /pipe_nav/odometry."""
     check_not_input(out, [bag] + ([markers_csv] if markers_csv else []))
-    log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
+    log, report = load_log(bag, topics=topics, markers_csv=markers_csv, repair=False)
     _require_imu(log, report, bag, topics)
     result = replay_log(log, config, _declared(bag, config, topics))
     if not result.estimates:
@@ -473,6 +486,12 @@ def replay_bag(
     datum = result.datum or Datum(traj.lat[0], traj.lon[0], traj.h[0])
     write_output_bag(out, path=None, datum=datum, odometry=traj)
     report.warnings += result.warnings
+    if "lost_since" in result.diagnostics:
+        d = result.diagnostics
+        report.warnings.append(
+            f"the live solution was lost at t = {float(d['lost_since']):.3f} s "  # type: ignore[arg-type]
+            f"({d['lost_reason']}): {d.get('withheld_lost', 0)} estimates after it withheld"
+        )
     return result, report
 
 

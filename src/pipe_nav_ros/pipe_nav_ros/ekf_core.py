@@ -49,8 +49,9 @@ from typing import Any
 
 import numpy as np
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.engine import NavEstimate, Navigator
+from pipe_nav_core.engine import NavEstimate
 from pipe_nav_core.io import rosmsg
+from pipe_nav_core.live_guard import GuardedNavigator
 from pipe_nav_core.types import Datum, Marker
 
 from pipe_nav_core import attitude as att
@@ -271,7 +272,7 @@ class EkfCore:
     def _configure(self, config: NavConfig, survey: Sequence[Marker]) -> None:
         self.config = config
         self.survey = list(survey)
-        self.nav = Navigator(config, self.survey)
+        self.nav = GuardedNavigator(config, self.survey)
         self._datum_sent: Datum | None = None
         # the data's clock: newest accepted stamp of the streams, and per stream
         self.clock_s = -math.inf
@@ -696,7 +697,10 @@ class EkfCore:
         self._error_mark = self.poll_errors
         new_nonfinite = self.estimates_nonfinite - self._nonfinite_mark
         self._nonfinite_mark = self.estimates_nonfinite
-        if new_errors:
+        lost = getattr(self.nav, "lost_since", None)
+        if lost is not None:
+            level, message = ERROR, f"position lost since t = {lost:.3f} s: {self.nav.lost_reason}"
+        elif new_errors:
             level, message = ERROR, f"engine failed {new_errors} time(s) since the last report"
         elif new_nonfinite:
             level = ERROR

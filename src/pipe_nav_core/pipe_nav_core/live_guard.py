@@ -1,0 +1,139 @@
+"""The online engine behind the checks the live IMU stream needs (ekf_node, ``pipe-nav replay``).
+
+Offline, the whole log is repaired before filtering (imu_faults, gaps, odometer_faults,
+segments). Live, each IMU sample is checked as it comes, in its own stamp order:
+
+- a **shock** (specific force over ``imu_faults.MAX_ACCEL`` from gravity, a rate over
+  ``imu_faults.MAX_RATE``) or a **saturated** reading (an axis repeating one value at least
+  ``imu_faults.MIN_FLAT`` times at a magnitude no pig reaches in normal running: 2 g, 5 rad/s)
+  is dropped;
+- a **short hole** (over 1.5 sample periods, under a data gap) is filled by interpolating the
+  samples either side before the next one goes in (the filter cannot integrate across it),
+  when those agree (``QUIET_TURN``, ``QUIET_PUSH``); in a turn or a surge it is a data gap;
+- a **data gap** (the IMU silent for longer: a lost stretch, or a clock step) leaves the
+  filter's attitude unknown: from then on the solution is **lost**: the engine gets no more
+  input, its estimates after the loss are withheld, and the diagnostics say since when and
+  why (``lost_since``, ``lost_reason``).
+
+Each is counted in the diagnostics as ``imu_fault_<kind>``. Times s, rates rad/s, forces m/s^2.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from .engine import NavEstimate, Navigator
+from .gaps import MIN_GAP_S
+from .imu_faults import MAX_ACCEL, MAX_RATE, MIN_FLAT
+from .types import Marker
+
+SATURATED_ACCEL = 19.6  # m/s^2 (2 g): an axis pinned at this or more is saturated
+SATURATED_RATE = 5.0  # rad/s
+GRAVITY = 9.81  # m/s^2, the reference of the shock test
+QUIET_TURN = 1e-3  # rad: a hole is filled only if the rates either side differ by less ...
+QUIET_PUSH = 0.05  # m/s: ... and the forces too (else the solution is lost)
+
+
+class GuardedNavigator(Navigator):
+    """A Navigator whose IMU input is checked first (see the module)."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        self._last: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None
+        self._period: float | None = None
+        self._repeat = np.zeros(6, dtype=np.int64)
+        self.lost_since: float | None = None
+        self.lost_reason = ""
+
+    def push_imu(self, t: float, gyro: Sequence[float], accel: Sequence[float]) -> None:
+        if self.lost_since is not None:
+            self._counts["ignored_lost"] += 1
+            return
+        g = tuple(float(v) for v in gyro)
+        a = tuple(float(v) for v in accel)
+        if not all(map(math.isfinite, (t, *g, *a))):
+            super().push_imu(t, g, a)  # counted and dropped there
+            return
+        if abs(math.hypot(*a) - GRAVITY) > MAX_ACCEL or math.hypot(*g) > MAX_RATE:
+            self._counts["imu_fault_shock"] += 1
+            return
+        if self._saturated(g, a):
+            self._counts["imu_fault_saturated"] += 1
+            return
+        last = self._last
+        if last is not None and t > last[0]:
+            dt = t - last[0]
+            period = self._period or dt
+            if dt > max(MIN_GAP_S, 50.0 * period):
+                self._lose(last[0], f"the IMU was silent for {dt:.1f} s (a data gap or a "
+                                    "clock step): the attitude is not known across it")  # fmt: skip
+            elif dt > 1.5 * period:
+                turn = max(abs(x - y) for x, y in zip(g, last[1], strict=True)) * dt
+                push = max(abs(x - y) for x, y in zip(a, last[2], strict=True)) * dt
+                if turn <= QUIET_TURN and push <= QUIET_PUSH:
+                    self._fill(last, (t, g, a), period)
+                else:
+                    why = (f"{dt:.2f} s of IMU samples missing while the pig turned or "
+                           "accelerated: the attitude is not known across it")  # fmt: skip
+                    self._lose(last[0], why)
+            else:
+                self._period = dt if self._period is None else 0.99 * self._period + 0.01 * dt
+        self._last = (t, g, a)
+        super().push_imu(t, g, a)
+
+    def push_odometer(self, t: float, distance: float, speed: float) -> None:
+        if self.lost_since is None:
+            super().push_odometer(t, distance, speed)
+
+    def push_mag(self, t: float, field_t: Sequence[float]) -> None:
+        if self.lost_since is None:
+            super().push_mag(t, field_t)
+
+    def push_marker(self, marker: Marker) -> None:
+        if self.lost_since is None:
+            super().push_marker(marker)
+
+    def _saturated(self, g: tuple[float, ...], a: tuple[float, ...]) -> bool:
+        """True while an axis repeats one high reading MIN_FLAT times or more."""
+        values = (*g, *a)
+        prev = (*self._last[1], *self._last[2]) if self._last is not None else None
+        high = [abs(v) >= (SATURATED_RATE if i < 3 else SATURATED_ACCEL)
+                for i, v in enumerate(values)]  # fmt: skip
+        for i, v in enumerate(values):
+            same = prev is not None and high[i] and v == prev[i]
+            self._repeat[i] = self._repeat[i] + 1 if same else 0
+        return bool(np.any(self._repeat >= MIN_FLAT - 1))
+
+    def _fill(self, last: tuple, nxt: tuple, period: float) -> None:
+        t0, g0, a0 = last
+        t1, g1, a1 = nxt
+        n = int(round((t1 - t0) / period)) - 1
+        for k in range(1, n + 1):
+            f = k / (n + 1)
+            super().push_imu(t0 + f * (t1 - t0), tuple(x + f * (y - x) for x, y in zip(g0, g1)),
+                             tuple(x + f * (y - x) for x, y in zip(a0, a1)))  # fmt: skip
+        self._counts["imu_fault_filled"] += n
+
+    def _lose(self, t: float, why: str) -> None:
+        self._counts["imu_fault_data_gap"] += 1
+        if self.lost_since is None:
+            self.lost_since, self.lost_reason = t, why
+
+    def poll(self) -> list[NavEstimate]:
+        out = super().poll()
+        if self.lost_since is None:
+            return out
+        kept = [e for e in out if e.t <= self.lost_since]
+        self._counts["withheld_lost"] += len(out) - len(kept)
+        return kept
+
+    def diagnostics(self) -> dict[str, int | float | str]:
+        d = super().diagnostics()
+        if self.lost_since is not None:
+            d["state"] = "lost"
+            d["lost_since"] = self.lost_since
+            d["lost_reason"] = self.lost_reason
+        return d
