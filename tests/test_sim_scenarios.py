@@ -12,7 +12,8 @@ from pipe_nav_core.sensors import imu_grade
 from pipe_nav_core.sim import Bend, Sag, Scenario, get_scenario, scenario_names, simulate
 from pipe_nav_core.sim.run import build_motion
 
-NAMES = ["drag180", "sag104", "sag104_deep", "undulation90", "field10k", "field10k_sparse", "demo"]
+NAMES = ["drag180", "sag104", "sag104_deep", "undulation90", "field10k", "field10k_sparse", "demo",
+         "bends_test", "strain_span"]  # fmt: skip
 
 
 def world(name: str, seed: int = 0):

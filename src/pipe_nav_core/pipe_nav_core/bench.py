@@ -3,7 +3,8 @@ experiments, beside the figures the papers published (shared/seeds/README.md).
 
 Each scenario is simulated for several seeds (reproducible), smoothed with each method, and
 scored against the simulator's truth. Results go to a Markdown table (BENCHMARKS.md, with the
-command that made it) and to JSON.
+command that made it) and to JSON. ``--products`` adds the bend/curvature/strain table per IMU
+grade (:mod:`.bench_products`), ``--speed`` the speed table.
 """
 
 from __future__ import annotations
@@ -335,7 +336,8 @@ def markdown(
 def main(args: argparse.Namespace) -> int:
     """Entry of ``pipe-nav bench``."""
     command = ("pipe-nav bench " + " ".join(sys.argv[2:])).strip()
-    if getattr(args, "speed_only", False):
+    products = getattr(args, "products", False) or getattr(args, "products_only", False)
+    if getattr(args, "speed_only", False) or getattr(args, "products_only", False):
         names: list[str] = []
     else:
         names = args.scenarios or (list(QUICK) if args.quick else [c.scenario for c in CASES])
@@ -358,6 +360,12 @@ def main(args: argparse.Namespace) -> int:
         "cases": [asdict(c) for c in CASES if c.scenario in results],
         "results": results,
     }
+    if products:
+        from . import bench_products
+
+        rows_p = bench_products.run(quick=args.quick)
+        md += "\n" + bench_products.markdown(rows_p, command)
+        payload["products"] = rows_p
     if getattr(args, "speed", False) or getattr(args, "speed_only", False):
         from . import speed
 

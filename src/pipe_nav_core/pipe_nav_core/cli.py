@@ -289,6 +289,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .io import write_centreline_csv, write_markers_csv, write_sensor_bag
     from .io.atomic import check_not_input
     from .sim import get_scenario, simulate
+    from .sim.truth_products import truth_product_paths, write_truth_products
 
     out = Path(args.out)
     scenario = dataclasses.replace(get_scenario(args.scenario), t0=float(args.t0))
@@ -296,15 +297,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     truth_csv = out.with_name(out.stem + ".truth.csv")
     markers_csv = out.with_name(out.stem + ".markers.csv")
     config_yaml = out.with_name(out.stem + ".config.yaml")
-    for p in (out, truth_csv, markers_csv, config_yaml):
+    for p in (out, truth_csv, markers_csv, config_yaml, *truth_product_paths(out)):
         check_not_input(str(p), [])
     write_sensor_bag(str(out), run.log)
     write_centreline_csv(str(truth_csv), run.truth, run.datum)
+    truth_strain, truth_bends = write_truth_products(out, run)
     write_markers_csv(str(markers_csv), run.log.markers)
     _write_settings(config_yaml, scenario.estimator_settings(), out.name)
     if not args.quiet:
         print(f"simulated {args.scenario} (seed {args.seed}): {len(run.log.imu)} IMU samples")
         print(f"  bag    {out}\n  truth  {truth_csv}\n  survey {markers_csv}")
+        print(f"  truth of the products {truth_strain}, {truth_bends}")
         print(f"  settings {config_yaml} (pipe-nav smooth {out.name} --config {config_yaml.name})")
     return 0
 
@@ -531,6 +534,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="fewer scenarios and seeds")
     p.add_argument("--speed", action="store_true", help="also run the speed benchmark")
     p.add_argument("--speed-only", action="store_true", help="only the speed benchmark")
+    p.add_argument(
+        "--products", action="store_true", help="also the bend/strain table per IMU grade"
+    )
+    p.add_argument("--products-only", action="store_true", help="only the bend/strain table")
     p.add_argument("--length-km", type=float, default=10.0, help="field run length for --speed")
     p.add_argument("--out", default="BENCHMARKS.md", help="Markdown table")
     p.add_argument("--json", default="bench_out/benchmarks.json", help="JSON results")

@@ -15,7 +15,12 @@ segments). Live, each IMU sample is checked as it comes, in its own stamp order:
   input, its estimates after the loss are withheld, and the diagnostics say since when and
   why (``lost_since``, ``lost_reason``).
 
-Each is counted in the diagnostics as ``imu_fault_<kind>``. Times s, rates rad/s, forces m/s^2.
+A **marker** whose survey lies beyond ``MARKER_BOUND`` (chi-square, 3 dof) of the latest
+estimate carried to its passage (the live filter cannot leave one out afterwards as the
+smoother does) is dropped and named (``marker_outliers``, ``marker_fault_outlier``).
+
+Each IMU fault is counted in the diagnostics as ``imu_fault_<kind>``. Times s, rates rad/s,
+forces m/s^2.
 """
 
 from __future__ import annotations
@@ -24,7 +29,9 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.stats import chi2
 
+from .earth import geodetic_to_enu
 from .engine import NavEstimate, Navigator
 from .gaps import MIN_GAP_S
 from .imu_faults import MAX_ACCEL, MAX_RATE, MIN_FLAT
@@ -35,6 +42,7 @@ SATURATED_RATE = 5.0  # rad/s
 GRAVITY = 9.81  # m/s^2, the reference of the shock test
 QUIET_TURN = 1e-3  # rad: a hole is filled only if the rates either side differ by less ...
 QUIET_PUSH = 0.05  # m/s: ... and the forces too (else the solution is lost)
+MARKER_BOUND = float(chi2.ppf(1.0 - 1e-6, 3))  # a marker this far off the estimate is dropped
 
 
 class GuardedNavigator(Navigator):
@@ -47,6 +55,8 @@ class GuardedNavigator(Navigator):
         self._repeat = np.zeros(6, dtype=np.int64)
         self.lost_since: float | None = None
         self.lost_reason = ""
+        self._latest: NavEstimate | None = None
+        self.marker_outliers: list[str] = []
 
     def push_imu(self, t: float, gyro: Sequence[float], accel: Sequence[float]) -> None:
         if self.lost_since is not None:
@@ -93,8 +103,28 @@ class GuardedNavigator(Navigator):
             super().push_mag(t, field_t)
 
     def push_marker(self, marker: Marker) -> None:
-        if self.lost_since is None:
-            super().push_marker(marker)
+        if self.lost_since is not None:
+            return
+        nis = self._marker_nis(marker)
+        if nis > MARKER_BOUND:
+            self._counts["marker_fault_outlier"] += 1
+            self.marker_outliers.append(f"{marker.name} ({nis:.0f})")
+            return
+        super().push_marker(marker)
+
+    def _marker_nis(self, marker: Marker) -> float:
+        """The marker's normalized squared innovation against the latest estimate carried to
+        its passage (position covariance + survey + passage time x speed); 0 when unknown."""
+        e = self._latest
+        if e is None or not 0.0 <= marker.t - e.t <= 2.0:
+            return 0.0
+        vel = np.asarray(e.vel_n, dtype=np.float64)
+        pos = geodetic_to_enu(e.lat, e.lon, e.h, marker.lat, marker.lon, marker.alt).reshape(3)
+        r = pos + vel * (marker.t - e.t)
+        cov = np.asarray(e.cov_pose, dtype=np.float64)[:3, :3] + np.diag(
+            np.square(np.asarray(marker.sigma_enu, dtype=np.float64))
+        ) + self.cfg.marker_time_sigma**2 * np.outer(vel, vel)
+        return float(r @ np.linalg.solve(cov, r))
 
     def _saturated(self, g: tuple[float, ...], a: tuple[float, ...]) -> bool:
         """True while an axis repeats one high reading MIN_FLAT times or more."""
@@ -124,6 +154,8 @@ class GuardedNavigator(Navigator):
 
     def poll(self) -> list[NavEstimate]:
         out = super().poll()
+        if out:
+            self._latest = out[-1]
         if self.lost_since is None:
             return out
         kept = [e for e in out if e.t <= self.lost_since]
@@ -132,6 +164,8 @@ class GuardedNavigator(Navigator):
 
     def diagnostics(self) -> dict[str, int | float | str]:
         d = super().diagnostics()
+        if self.marker_outliers:
+            d["marker_outliers"] = ", ".join(self.marker_outliers)
         if self.lost_since is not None:
             d["state"] = "lost"
             d["lost_since"] = self.lost_since

@@ -10,8 +10,12 @@ no longer fits. So the test has two steps:
    odometer speed along the axis; P: the smoothed position covariance there). A clean run
    ends here.
 2. when a marker fails it, leave-one-out: the run is smoothed without each marker in turn and
-   that marker's position predicted by the others is tested against R + P; the worst one over
-   the chi-square bound is left out, and the test repeats on the run without it.
+   that marker's position predicted by the others is tested against R + P; of those over the
+   chi-square bound whose removal makes all the others pass the screening, the one leaving
+   them most consistent is left out, and the test repeats on the run without it. When no
+   single removal makes the others agree, the fault is not a marker (the IMU or odometer
+   model, a bad segment): nothing is left out and the result's summary names the
+   disagreement (``marker_disagreement``): its sigmas do not cover its error.
 
 The result is then the run without the outlier, exactly, and the marker is named with its
 leave-one-out residual. With fewer than three markers an outlier cannot be told from the
@@ -127,11 +131,18 @@ def smooth_without_outliers(
             if value <= bound:
                 continue
             misfit = max(screening(without, rest, config).values(), default=0.0)
+            if misfit > bound:
+                continue  # the others still disagree: not this marker alone
             if best is None or misfit < best[0]:
                 along = r / max(float(np.linalg.norm(r)), 1e-12)
                 sigma = math.sqrt(float(along @ cov @ along))
                 best = (misfit, MarkerOutlier(m.name, r, sigma, value), without, rest)
         if best is None:
+            disagree = sorted(k for k, v in screen.items() if v > bound)
+            result.summary["marker_disagreement"] = (
+                f"marker(s) {', '.join(disagree)} disagree with the smoothed run beyond their "
+                "sigmas, and leaving out any one does not make the others agree"
+            )
             break
         outliers.append(best[1])
         result, log = best[2], best[3]

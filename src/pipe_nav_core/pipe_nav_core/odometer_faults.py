@@ -9,9 +9,13 @@ fault of the wheel, not motion. Between the breaks:
   moving before and after: the readings in between are left out (else they read as a stop and
   the filter's zero-velocity updates hold the pig back);
 - **spike**: the distance jumps and comes back within a window: those readings are left out;
-- **step**: the distance jumps by some metres (or back) and goes on from there: named; the
-  filter's gate rejects the one increment, and the chainage (distance_m) comes from the
-  smoothed path, not from the count.
+- **step**: the distance jumps by some metres (or back) in one reading and goes on from there:
+  named; the filter's gate rejects the one increment, and the chainage (distance_m) comes
+  from the smoothed path, not from the count.
+
+Slips (the wheel reading slow or fast, or standing still for under ``MIN_STUCK_S``, over a
+few readings) are not faults here: pigs slip often, and the smoother finds and leaves out
+those epochs itself (smoother.find_slips).
 
 Times s of the header-stamp clock, distances m.
 """
@@ -27,6 +31,7 @@ from .types import SensorLog
 WINDOW_S = 0.25  # s, the speed is differenced over this before and after each reading
 A_MAX = 3.0  # m/s^2, faster speed changes need a shock in the IMU
 MIN_MOVING = 0.1  # m/s, a wheel standing still is stuck only if the pig moved around it
+MIN_STUCK_S = 2.0  # s: a wheel standing still for less is a slip (the smoother handles those)
 
 
 @dataclass(frozen=True)
@@ -116,17 +121,20 @@ def find_odometer_faults(log: SensorLog, resolution: float = 0.0) -> list[Odomet
             if nxt is not None and nxt[0] <= f + n:
                 used.add(e + 1)  # the wheel's release: part of the same fault
                 f = max(f, nxt[1])
-            missed = abs(before) * float(t[f] - t[b])  # if it kept its speed
-            faults.append(OdometerFault("stuck", float(t[a]), float(t[f]), missed, 0))
+            if t[f] - t[a] >= MIN_STUCK_S:  # shorter: a slip, which the smoother handles
+                missed = abs(before) * float(t[f] - t[b])  # if it kept its speed
+                faults.append(OdometerFault("stuck", float(t[a]), float(t[f]), missed, 0))
             continue
         lo, hi = max(a - n, 0), min(b + n, len(t) - 1)
         trend_before = d[lo] + (vb[a] if np.isfinite(vb[a]) else 0.0) * (t[hi] - t[lo])
         offset = float(d[hi] - trend_before)
         height = float(np.max(np.abs(d[a : b + 1] - np.interp(t[a : b + 1], t[[lo, hi]],
                                                               d[[lo, hi]]))))  # fmt: skip
+        inc = np.diff(d[lo : hi + 1])
+        jump = float(np.max(np.abs(inc - np.median(inc))))  # one reading's jump, not a slip
         if abs(offset) <= max(2 * res, 0.5 * height):
             faults.append(OdometerFault("spike", float(t[a]), float(t[b]), height, 0))
-        else:
+        elif jump >= 0.8 * abs(offset):
             faults.append(OdometerFault("step", float(t[a]), float(t[b]), offset, 0))
     return faults
 

@@ -235,7 +235,9 @@ def smooth_bag(
         result = smooth(log)
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
-    verdict = quality.judge(result.summary, result.centreline, report.warnings)
+    failures = [f"{d}: the centreline does not fit its markers"
+                for d in [result.summary.get("marker_disagreement")] if d]  # fmt: skip
+    verdict = quality.judge(result.summary, result.centreline, report.warnings, failures)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
     say("bends and strain")
     result.products = integrity_report(

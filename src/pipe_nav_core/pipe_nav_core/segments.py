@@ -4,9 +4,10 @@ Across a gap the pig moved with nothing recorded, so no filter can carry its att
 each segment between gaps is smoothed on its own, tied to the ground by its own markers. A
 segment that starts at rest (the launch trap) is smoothed forward; one that ends at rest (the
 receive trap) is smoothed in reversed time (smoother.reverse_log), aligning at its end; one
-with neither (between two gaps, the pig moving at both ends) cannot be aligned and is left
-unmapped, named. The centreline then has no rows across the gaps; its chainage goes on across
-each gap by the odometer distance in it.
+with neither (between two gaps, the pig moving at both ends) cannot be aligned, and one whose
+markers disagree with its solution is not trusted: both are left unmapped, named. The
+centreline then has no rows across the gaps; its chainage goes on across each gap by the
+odometer distance in it.
 """
 
 from __future__ import annotations
@@ -98,6 +99,10 @@ def smooth_segments(
             res, how = _reversed(smooth(reverse_log(part))), "reversed"
         else:
             segments.append(Segment(t0, t1, "unmapped", "the pig moves at both ends"))
+            continue
+        if res.summary.get("marker_disagreement"):
+            segments.append(Segment(t0, t1, "unmapped", f"smoothed {how}, its "
+                                    f"{res.summary['marker_disagreement']}"))  # fmt: skip
             continue
         seg = Segment(t0, t1, how)
         segments.append(seg)

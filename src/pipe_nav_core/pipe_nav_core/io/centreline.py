@@ -144,7 +144,8 @@ def chainage_times(t: ArrayLike, distance: ArrayLike, spacing_m: float) -> NDArr
     out = t[j].copy()
     inner = j > 0
     jj = j[inner]
-    frac = (g[inner] - dm[jj - 1]) / (dm[jj] - dm[jj - 1])
+    step = dm[jj] - dm[jj - 1]
+    frac = np.where(step > 0, (g[inner] - dm[jj - 1]) / np.where(step > 0, step, 1.0), 0.0)
     out[inner] = t[jj - 1] + frac * (t[jj] - t[jj - 1])
     return out
 

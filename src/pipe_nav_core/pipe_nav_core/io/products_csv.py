@@ -50,6 +50,7 @@ BEND_COLUMNS = [
     "class",
     "sigma_radius_m",
     "apex_time_s",
+    "radius_resolved",
 ]
 FEATURE_COLUMNS = [
     "feature",
@@ -100,14 +101,15 @@ def bend_row(b: PipeBend) -> list[object]:
     """A bend as the values of BEND_COLUMNS (degrees for people)."""
     return [b.number, b.start_m, b.apex_m, b.end_m, math.degrees(b.lat), math.degrees(b.lon),
             b.alt, math.degrees(b.angle), math.degrees(b.sigma_angle), b.radius, b.radius_d,
-            math.degrees(b.plane), b.direction, b.kind, b.sigma_radius, b.apex_t]  # fmt: skip
+            math.degrees(b.plane), b.direction, b.kind, b.sigma_radius, b.apex_t,
+            int(b.radius_resolved)]  # fmt: skip
 
 
 def write_bends_csv(path: str | os.PathLike[str], bends: Sequence[PipeBend]) -> None:
     """The bend list CSV, one row per bend in chainage order."""
     fmt = ",".join(["{}", "{:.3f}", "{:.3f}", "{:.3f}", "{:.9f}", "{:.9f}", "{:.4f}", "{:.3f}",
                     "{:.3f}", "{:.4f}", "{:.2f}", "{:.1f}", "{}", "{}", "{:.4f}",
-                    "{:.6f}"])  # fmt: skip
+                    "{:.6f}", "{}"])  # fmt: skip
     rows = [bend_row(b) for b in bends]
     for r in rows:
         _finite(r, os.fspath(path))

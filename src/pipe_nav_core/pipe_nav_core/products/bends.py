@@ -11,8 +11,10 @@ split only by noise dipping under the threshold for less than a window are one b
 - apex: the middle of the stretch where the curvature is over half its peak (the middle of a
   circular arc, ramps and all).
 - radius: 1 / the peak curvature on a profile whose window is a quarter of that stretch (at
-  least four track steps), so that a bend shorter than the profile's window is not reported
-  wider than it is; its sigma from that profile's sigma.
+  least four track steps), narrowed while the stretch shrinks with it, so that a bend shorter
+  than the profile's window is not reported wider than it is, and a long elastic bend is
+  measured over a window long enough that noise does not bias its peak; its sigma from that
+  profile's sigma.
 - direction and plane from the vertical and horizontal components of the curvature integrated
   over the bend; class by radius in outer diameters (``bend_class_limits``).
 """
@@ -20,7 +22,7 @@ split only by noise dipping under the threshold for less than a window are one b
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +34,7 @@ from .curvature import AxisTrack, CurvatureProfile, relative_angle_sigma, window
 FloatArray = NDArray[np.float64]
 
 BEND_CLASSES = ("elbow", "induction", "field", "elastic")
+APEX_STEP_M = 0.1  # m, at most this between the points where apex and radius are looked for
 
 
 @dataclass(frozen=True)
@@ -39,7 +42,9 @@ class PipeBend:
     """One bend. Chainages m of distance_m; lat, lon rad, alt m (WGS84, apex); angle, plane,
     sigma_angle rad; radius, sigma_radius m; radius_d in outer diameters; direction ``left``,
     ``right``, ``over``, ``sag`` or ``sag+left`` style; kind one of BEND_CLASSES; apex_t s;
-    apex_quat_nb [x, y, z, w] with x along the pipe axis at the apex (ENU, no roll)."""
+    apex_quat_nb [x, y, z, w] with x along the pipe axis at the apex (ENU, no roll);
+    radius_resolved: False when the bend is shorter than the track resolves (a few cm): its
+    radius is then at most ``radius`` (sigma_radius = radius)."""
 
     number: int
     start_m: float
@@ -58,6 +63,7 @@ class PipeBend:
     kind: str
     apex_t: float
     apex_quat_nb: tuple[float, float, float, float]
+    radius_resolved: bool = True
 
 
 def bend_class(radius_d: float, limits: tuple[float, float, float]) -> str:
@@ -150,9 +156,9 @@ def find_bends(
             after = min(after, junctions[idx])
         bend = _measure(profile, track, spec, a, b, (before, after), outer_diameter,
                         class_limits)  # fmt: skip
-        if bend is not None and bend.angle >= min_angle:
+        if bend is not None and bend.angle >= min_angle - 1e-9:
             bends.append(bend)
-    return [_numbered(b, i + 1) for i, b in enumerate(bends)]
+    return [replace(b, number=i + 1) for i, b in enumerate(bends)]
 
 
 def _junction(
@@ -169,10 +175,6 @@ def _junction(
     j = b + int(r[0])
     f = along[r[0] - 1] / (along[r[0] - 1] - along[r[0]])
     return float(d[j - 1] + f * (d[j] - d[j - 1]))
-
-
-def _numbered(b: PipeBend, number: int) -> PipeBend:
-    return PipeBend(number, *[getattr(b, f) for f in PipeBend.__dataclass_fields__][1:])
 
 
 def _measure(
@@ -192,23 +194,34 @@ def _measure(
     span = (profile.distance >= ends[0]) & (profile.distance <= ends[1])
     vert = float(np.sum(profile.vertical[span]) * step)
     horiz = float(np.sum(profile.horizontal[span]) * step)
-    # apex: middle of the stretch over half the peak, on a profile fine enough to resolve it
+    # apex and radius on a profile whose window is a quarter of the stretch over half the
+    # peak, refined until that stretch stops shrinking (a short bend is not averaged wider)
     peak = float(np.max(profile.total[a : b + 1]))
     over = np.flatnonzero(profile.total[a : b + 1] >= 0.5 * peak) + a
     half_len = float(profile.distance[over[-1]] - profile.distance[over[0]]) + step
-    fine_w = max(min(profile.window, 0.25 * half_len), 4.0 * float(np.median(np.diff(track.arc))))
+    floor = 4.0 * float(np.median(np.diff(track.arc)))
     arc_lo = float(track.arc_at(np.array([profile.distance[a]]))[0]) - half_w
     arc_hi = float(track.arc_at(np.array([profile.distance[b]]))[0]) + half_w
-    fine_arc = np.arange(arc_lo, arc_hi, 0.25 * fine_w)
-    if len(fine_arc) < 3:
-        return None
-    fine = windowed_curvature(track, fine_arc, fine_w, spec)
-    k_peak = float(np.max(fine["total"]))
+    fine_w = max(0.25 * half_len, floor)
+    for _ in range(4):
+        fine_arc = np.arange(arc_lo, arc_hi, min(0.25 * fine_w, APEX_STEP_M))
+        if len(fine_arc) < 3:
+            return None
+        fine = windowed_curvature(track, fine_arc, fine_w, spec)
+        k_peak = float(np.max(fine["total"]))
+        near = np.flatnonzero(fine["total"] >= 0.5 * k_peak)
+        span = float(fine_arc[near[-1]] - fine_arc[near[0]]) + float(fine_arc[1] - fine_arc[0])
+        narrower = max(0.25 * span, floor)
+        if narrower >= 0.9 * fine_w:
+            break
+        fine_w = narrower
     i_peak = int(np.argmax(fine["total"]))
-    near = np.flatnonzero(fine["total"] >= 0.5 * k_peak)
     apex_arc = 0.5 * (fine_arc[near[0]] + fine_arc[near[-1]])
     radius = 1.0 / max(k_peak, 1e-12)
     sigma_radius = radius**2 * float(fine["sigma"][i_peak])
+    resolved = span >= 3.0 * floor
+    if not resolved:  # shorter than the track resolves: the radius is at most this
+        sigma_radius = max(sigma_radius, radius)
     (apex_axis,), (apex_t,) = track.at_arc(np.array([apex_arc]))
     lat, lon, alt = (float(x[0]) for x in track.position_at(np.array([apex_arc])))
     pitch = math.asin(max(-1.0, min(1.0, float(apex_axis[2]))))
@@ -233,4 +246,5 @@ def _measure(
         kind=bend_class(radius_d, class_limits),
         apex_t=float(apex_t),
         apex_quat_nb=tuple(float(x) for x in quat),  # type: ignore[arg-type]
+        radius_resolved=resolved,
     )

@@ -68,7 +68,8 @@ def integrity_report(
                        min_angle=config.bend_min_angle, outer_diameter=diameter,
                        class_limits=config.bend_class_limits)  # fmt: skip
     strain, sigma = strain_pct(profile, diameter)
-    features = strain_features(profile, diameter, config.strain_thresholds, bends, reference)
+    features = strain_features(profile, diameter, config.strain_thresholds, bends, reference,
+                               track, spec)  # fmt: skip
     notes = []
     if not config.pipe_outer_diameter:
         notes.append(f"strain with pipe_diameter {diameter} m (pipe_outer_diameter not set)")

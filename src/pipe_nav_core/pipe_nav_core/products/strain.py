@@ -14,13 +14,14 @@ import csv
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..sensors import ImuSpec
 from .bends import PipeBend
-from .curvature import CurvatureProfile
+from .curvature import AxisTrack, CurvatureProfile, windowed_curvature
 
 FloatArray = NDArray[np.float64]
 
@@ -86,9 +87,12 @@ def strain_features(
     thresholds: Sequence[float],
     bends: Sequence[PipeBend] = (),
     reference: Sequence[tuple[float, float]] | None = None,
+    track: AxisTrack | None = None,
+    spec: ImuSpec | None = None,
 ) -> list[StrainFeature]:
     """Every stretch over each threshold (percent), in chainage order then threshold; stretches
-    apart by less than a window are one."""
+    apart by less than a window are one. With the profile's ``track`` and ``spec`` each peak
+    is taken on a grid of an eighth of the window (the rows may straddle a short peak)."""
     strain, sigma = strain_pct(profile, outer_diameter)
     found: list[StrainFeature] = []
     d = profile.distance
@@ -105,18 +109,34 @@ def strain_features(
         for a, b in merged:
             i = a + int(np.argmax(strain[a : b + 1]))
             start, end = float(d[a]), float(d[b])
+            peak = _peak(profile, outer_diameter, track, spec, i) if track and spec else None
             bend = next((x.number for x in bends if x.start_m <= end and start <= x.end_m), 0)
             construction = (
                 None
                 if reference is None
                 else any(r0 <= end and start <= r1 for r0, r1 in reference)
             )
-            found.append(StrainFeature(0, float(thr), start, float(d[i]), end,
-                                       float(profile.lat[i]), float(profile.lon[i]),
-                                       float(profile.alt[i]), float(strain[i]), float(sigma[i]),
-                                       float(profile.plane[i]), bend, construction))  # fmt: skip
+            if peak is None:
+                peak = (float(d[i]), float(profile.lat[i]), float(profile.lon[i]),
+                        float(profile.alt[i]), float(strain[i]), float(sigma[i]),
+                        float(profile.plane[i]))  # fmt: skip
+            found.append(StrainFeature(0, float(thr), start, peak[0], end, *peak[1:], bend,
+                                       construction))  # fmt: skip
     found.sort(key=lambda f: (f.start_m, f.threshold_pct))
-    return [
-        StrainFeature(n + 1, *[getattr(f, k) for k in StrainFeature.__dataclass_fields__][1:])
-        for n, f in enumerate(found)
-    ]
+    return [replace(f, number=n + 1) for n, f in enumerate(found)]
+
+
+def _peak(
+    profile: CurvatureProfile, outer_diameter: float, track: AxisTrack, spec: ImuSpec, i: int
+) -> tuple[float, ...]:
+    """(chainage m, lat, lon rad, alt m, strain %, sigma %, plane rad) of the peak near row i,
+    on a grid of an eighth of the window within a window of it."""
+    w = profile.window
+    centre = float(track.arc_at(np.array([profile.distance[i]]))[0])
+    arc = np.arange(centre - w, centre + w + 1e-9, w / 8.0)
+    v = windowed_curvature(track, arc, w, spec)
+    j = int(np.argmax(v["total"]))
+    k = 0.5 * outer_diameter * 100.0
+    lat, lon, alt = (float(x[0]) for x in track.position_at(arc[j : j + 1]))
+    return (float(track.distance_at(arc[j : j + 1])[0]), lat, lon, alt,
+            float(v["total"][j]) * k, float(v["sigma"][j]) * k, float(v["plane"][j]))  # fmt: skip

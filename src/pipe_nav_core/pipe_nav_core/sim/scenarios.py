@@ -35,7 +35,9 @@ class Scenario:
 
     Location and pipe: ``lat``, ``lon`` (rad) and ``alt`` (m, ellipsoidal) of the launch trap;
     ``azimuth`` (rad clockwise from north) and ``pitch`` (rad up) of the pipe at the launch;
-    ``length`` (m), ``pipe_diameter`` (m), ``features`` (Bend, Sag at chainages in m);
+    ``length`` (m), ``pipe_diameter`` (m, the bore), ``pipe_outer_diameter`` (m, for bending
+    strain; 0 = not stated, the estimator then uses the bore), ``features`` (Bend, Sag at
+    chainages in m);
     ``pipe_seed``: the pipe's identity; it draws the field bends and grade changes (with
     ``field_line``), the girth weld anomalies and the marker survey errors, so scenarios that
     share it are runs through one pipe;
@@ -77,6 +79,7 @@ class Scenario:
     pitch: float = 0.0
     length: float = 100.0
     pipe_diameter: float = 0.2
+    pipe_outer_diameter: float = 0.0
     features: tuple[Feature, ...] = ()
     field_line: bool = False
     pipe_seed: int = 0
@@ -141,12 +144,15 @@ class Scenario:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be positive, not {v!r}")
         for k in ("static_start", "static_end", "odo_tick", "odo_scale_sigma", "mag_noise",
-                  "marker_time_sigma", "survey_sigma_h", "survey_sigma_v", "speed_fluctuation"):
+                  "marker_time_sigma", "survey_sigma_h", "survey_sigma_v", "speed_fluctuation",
+                  "pipe_outer_diameter"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be >= 0, not {v!r}")
         if self.imu_spec is None:
             imu_grade(self.imu_grade)  # raises a clear ValueError for unknown grades
+        if 0 < self.pipe_outer_diameter < self.pipe_diameter:
+            raise ValueError(f"scenario {self.name!r}: pipe_outer_diameter is below the bore")
         if self.marker_spacing is not None and self.marker_spacing <= 0:
             raise ValueError(f"scenario {self.name!r}: marker_spacing must be positive")
 
@@ -246,6 +252,9 @@ class Scenario:
             "mag_declination": float(self.mag_declination),
             "marker_time_sigma": float(self.marker_time_sigma),
             "odometer_scale_sigma": max(float(self.odo_scale_sigma), 1e-4),
+            # the outer diameter is a nominal pipe dimension the user knows (strain products)
+            **({"pipe_outer_diameter": float(self.pipe_outer_diameter)}
+               if self.pipe_outer_diameter > 0 else {}),
         }
 
 
@@ -489,6 +498,111 @@ def _demo() -> Scenario:
     )
 
 
+def _bends_test() -> Scenario:
+    d, od = 0.3, 0.3239  # 12" pipe: bore and outer diameter (12.75 in)
+    h, v = "h", "v"
+    return Scenario(
+        name="bends_test",
+        pipe_seed=5,
+        description=(
+            "Bend test pipe (issue 18): 500 m of 12 in pipe (0.3 m bore, 0.324 m outer "
+            "diameter) with 17 bends of 0.5 to 10 deg, 25 m apart, at 3 D, 5 D and 40 D "
+            "(outer diameters) and elastic radii of 400 to 1000 m, horizontal, vertical and one "
+            "3-D (overlapping horizontal and vertical) bend; the bends of about 1 deg turn by "
+            "1.1 deg, so that the 1 deg listing threshold is not a coin toss; pulled at about "
+            "1 m/s, industrial MEMS IMU, odometer, markers every 125 m, no magnetometer."
+        ),
+        lat=31.00 * DEG,
+        lon=121.00 * DEG,
+        alt=8.0,
+        azimuth=80.0 * DEG,
+        length=500.0,
+        pipe_diameter=d,
+        pipe_outer_diameter=od,
+        features=(
+            Bend(20.0, 10.0 * DEG, 3.0 * od, h),
+            Bend(45.0, -10.0 * DEG, 40.0 * od, h),
+            Bend(70.0, 5.0 * DEG, 5.0 * od, h),
+            Bend(95.0, 2.0 * DEG, 400.0, h),
+            Bend(125.0, -1.1 * DEG, 3.0 * od, h),
+            Bend(150.0, -0.5 * DEG, 40.0 * od, h),
+            Bend(175.0, 1.1 * DEG, 1000.0, h),
+            Bend(215.0, -2.0 * DEG, 600.0, h),
+            Bend(260.0, 3.0 * DEG, 5.0 * od, v),
+            Bend(285.0, -3.0 * DEG, 40.0 * od, v),
+            Bend(310.0, 1.1 * DEG, 5.0 * od, v),
+            Bend(335.0, -1.1 * DEG, 500.0, v),
+            Bend(360.0, 0.5 * DEG, 3.0 * od, v),
+            Bend(385.0, -0.5 * DEG, 1000.0, v),
+            Bend(410.0, 10.0 * DEG, 40.0 * od, v),
+            Bend(440.0, -10.0 * DEG, 3.0 * od, v),
+            Bend(470.0, 6.0 * DEG, 5.0 * od, h),
+            Bend(470.1, -4.0 * DEG, 5.0 * od, v),
+        ),
+        speed=1.0,
+        speed_fluctuation=0.06,
+        speed_interval=6.0,
+        accel=0.3,
+        static_start=10.0,
+        static_end=10.0,
+        roll0=0.1,
+        roll_wander=0.01,
+        imu_grade="industrial",
+        imu_rate_hz=200.0,
+        odo_rate_hz=50.0,
+        odo_tick=0.002,
+        odo_scale_sigma=0.003,
+        odo_slip_interval=25.0,
+        mag_enabled=False,
+        marker_spacing=125.0,
+        tags=("issue18", "test_pipe", "bends"),
+    )
+
+
+def _strain_span() -> Scenario:
+    d, od = 0.889, 0.914  # 36" pipe: bore and outer diameter
+    return Scenario(
+        name="strain_span",
+        pipe_seed=6,
+        description=(
+            "Strain span (issue 18): 200 m of straight 36 in pipe (0.889 m bore, 0.914 m outer "
+            "diameter) with two local ground-movement features over 20 m each: a settlement "
+            "(vertical sag, 3.4 cm deep, minimum radius 300 m, peak bending strain 0.152 %, "
+            "over the 0.125 % threshold) at 80-100 m and a lateral shift (1 cm, minimum "
+            "radius 1000 m, 0.046 %) at 140-160 m; tactical MEMS IMU, odometer, markers every "
+            "100 m, no magnetometer, about 1.5 m/s."
+        ),
+        lat=47.50 * DEG,
+        lon=8.50 * DEG,
+        alt=420.0,
+        azimuth=135.0 * DEG,
+        length=200.0,
+        pipe_diameter=d,
+        pipe_outer_diameter=od,
+        features=(
+            Sag(80.0, 20.0, 0.033774, "v"),  # minimum radius 300 m
+            Sag(140.0, 20.0, 0.010132, "h"),  # minimum radius 1000 m
+        ),
+        speed=1.5,
+        speed_fluctuation=0.06,
+        speed_interval=6.0,
+        accel=0.3,
+        static_start=10.0,
+        static_end=10.0,
+        roll0=0.0,
+        roll_wander=0.01,
+        imu_grade="tactical",
+        imu_rate_hz=200.0,
+        odo_rate_hz=50.0,
+        odo_tick=0.005,
+        odo_scale_sigma=0.005,
+        odo_slip_interval=30.0,
+        mag_enabled=False,
+        marker_spacing=100.0,
+        tags=("issue18", "test_pipe", "strain"),
+    )
+
+
 _REGISTRY = {
     "drag180": _drag180,
     "sag104": lambda: _sag104(0.2, "sag104"),
@@ -497,6 +611,8 @@ _REGISTRY = {
     "field10k": lambda: _field10k(1000.0, "field10k"),
     "field10k_sparse": lambda: _field10k(2500.0, "field10k_sparse"),
     "demo": _demo,
+    "bends_test": _bends_test,
+    "strain_span": _strain_span,
 }
 
 
