@@ -106,7 +106,7 @@ def test_window_mean_uses_the_estimators_formula():
     g = pipe(Bend(20.0, 30 * DEG, 2.0, "h"), Bend(21.0, -10 * DEG, 3.0, "v"), pitch0=5 * DEG)
     s = np.arange(0.0, 60.0, 0.001)
     lat, lon, h = g.position(s)
-    track = AxisTrack(s, s, s, lat, lon, h, g.tangent_enu(s))
+    track = AxisTrack(s, s, s, lat, lon, h, g.tangent_enu(s), 0 * s, 0 * s)
     q = np.arange(15.0, 30.0, 0.25)
     est = windowed_curvature(track, q, 1.5, imu_grade("tactical"))
     exact = window_curvature(g, q, 1.5)

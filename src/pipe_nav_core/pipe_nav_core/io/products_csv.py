@@ -51,6 +51,8 @@ BEND_COLUMNS = [
     "sigma_radius_m",
     "apex_time_s",
     "radius_resolved",
+    "sigma_h_m",
+    "sigma_v_m",
 ]
 FEATURE_COLUMNS = [
     "feature",
@@ -102,20 +104,21 @@ def bend_row(b: PipeBend) -> list[object]:
     return [b.number, b.start_m, b.apex_m, b.end_m, math.degrees(b.lat), math.degrees(b.lon),
             b.alt, math.degrees(b.angle), math.degrees(b.sigma_angle), b.radius, b.radius_d,
             math.degrees(b.plane), b.direction, b.kind, b.sigma_radius, b.apex_t,
-            int(b.radius_resolved)]  # fmt: skip
+            int(b.radius_resolved), b.sigma_h, b.sigma_v]  # fmt: skip
 
 
 def write_bends_csv(path: str | os.PathLike[str], bends: Sequence[PipeBend]) -> None:
     """The bend list CSV, one row per bend in chainage order."""
     fmt = ",".join(["{}", "{:.3f}", "{:.3f}", "{:.3f}", "{:.9f}", "{:.9f}", "{:.4f}", "{:.3f}",
                     "{:.3f}", "{:.4f}", "{:.2f}", "{:.1f}", "{}", "{}", "{:.4f}",
-                    "{:.6f}", "{}"])  # fmt: skip
+                    "{:.6f}", "{}", "{:.4f}", "{:.4f}"])  # fmt: skip
     rows = [bend_row(b) for b in bends]
     for r in rows:
-        _finite(r, os.fspath(path))
+        _finite(r[:-2], os.fspath(path))  # the apex sigmas may be unknown (empty)
+    text = "".join(fmt.format(*r).replace("nan", "") + "\n" for r in rows)
     with atomic_write(path, "w", newline="") as f:
         f.write(",".join(BEND_COLUMNS) + "\n")
-        f.write("".join(fmt.format(*r) + "\n" for r in rows))
+        f.write(text)
 
 
 def feature_row(x: StrainFeature) -> list[object]:

@@ -44,7 +44,8 @@ class PipeBend:
     ``right``, ``over``, ``sag`` or ``sag+left`` style; kind one of BEND_CLASSES; apex_t s;
     apex_quat_nb [x, y, z, w] with x along the pipe axis at the apex (ENU, no roll);
     radius_resolved: False when the bend is shorter than the track resolves (a few cm): its
-    radius is then at most ``radius`` (sigma_radius = radius)."""
+    radius is then at most ``radius`` (sigma_radius = radius); sigma_h, sigma_v: m, one-sigma
+    horizontal and vertical position of the apex (the smoothed centreline's)."""
 
     number: int
     start_m: float
@@ -64,6 +65,8 @@ class PipeBend:
     apex_t: float
     apex_quat_nb: tuple[float, float, float, float]
     radius_resolved: bool = True
+    sigma_h: float = float("nan")
+    sigma_v: float = float("nan")
 
 
 def bend_class(radius_d: float, limits: tuple[float, float, float]) -> str:
@@ -247,4 +250,6 @@ def _measure(
         apex_t=float(apex_t),
         apex_quat_nb=tuple(float(x) for x in quat),  # type: ignore[arg-type]
         radius_resolved=resolved,
+        sigma_h=float(track.sigma_at(np.array([apex_arc]))[0][0]),
+        sigma_v=float(track.sigma_at(np.array([apex_arc]))[1][0]),
     )

@@ -46,7 +46,8 @@ class AxisTrack:
 
     distance: (N,) m, the run's distance_m (increasing); arc: (N,) m, arc length of the
     smoothed positions from the first point; t: (N,) s; lat, lon: rad; h: m ellipsoidal;
-    axis: (N, 3) unit pipe axis in local ENU.
+    axis: (N, 3) unit pipe axis in local ENU; sigma_h, sigma_v: (N,) m, one-sigma horizontal
+    and vertical position (NaN when the trajectory has none).
     """
 
     distance: FloatArray
@@ -56,6 +57,8 @@ class AxisTrack:
     lon: FloatArray
     h: FloatArray
     axis: FloatArray
+    sigma_h: FloatArray
+    sigma_v: FloatArray
 
     def at_arc(self, a: FloatArray) -> tuple[FloatArray, FloatArray]:
         """(axis (M, 3) unit, t (M,) s) at arc lengths ``a`` (m, clipped to the track)."""
@@ -74,6 +77,10 @@ class AxisTrack:
     def distance_at(self, arc: FloatArray) -> FloatArray:
         """Chainage (m of distance_m) at arc lengths ``arc`` (m)."""
         return np.interp(arc, self.arc, self.distance)
+
+    def sigma_at(self, arc: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(sigma_h, sigma_v) m at arc lengths ``arc`` (m)."""
+        return np.interp(arc, self.arc, self.sigma_h), np.interp(arc, self.arc, self.sigma_v)
 
     def position_at(self, arc: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(lat rad, lon rad, h m) at arc lengths ``arc`` (m)."""
@@ -96,9 +103,11 @@ def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
     d_e = np.diff(np.unwrap(s.lon)) * (rn[1:] + s.h[1:]) * np.cos(s.lat[1:])
     d_u = np.diff(s.h)
     arc = np.concatenate([[0.0], np.cumsum(np.sqrt(d_n**2 + d_e**2 + d_u**2))])
+    sig = (np.full((len(arc), 3), np.nan) if s.sigma_enu is None
+           else np.asarray(s.sigma_enu, dtype=np.float64).reshape(-1, 3))  # fmt: skip
     return AxisTrack(np.maximum.accumulate(np.asarray(s.distance, dtype=np.float64)), arc,
                      np.asarray(s.t), np.asarray(s.lat), np.asarray(s.lon), np.asarray(s.h),
-                     axis)  # fmt: skip
+                     axis, np.hypot(sig[:, 0], sig[:, 1]), sig[:, 2])  # fmt: skip
 
 
 def relative_angle_sigma(spec: ImuSpec, duration: FloatArray, angle: FloatArray) -> FloatArray:
