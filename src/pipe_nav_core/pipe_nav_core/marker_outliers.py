@@ -38,6 +38,7 @@ from .types import Marker, SensorLog
 
 OUTLIER_PROBABILITY = 1.0 - 1e-6  # chi-square (3 dof) bound on a marker's normalized residual
 MIN_MARKERS = 3  # fewer cannot tell an outlier from the others
+MAX_FAILING = 3  # more markers failing the screening at once: not one outlier (no leave-one-out)
 
 
 @dataclass(frozen=True)
@@ -115,10 +116,12 @@ def smooth_without_outliers(
         screen = screening(result, log, config)
         if not screen or max(screen.values()) <= bound:
             break
-        say("a marker disagrees with the others: testing each against the rest")
-        # the marker whose removal leaves the others most consistent, if it fails against them
+        failing = sum(v > bound for v in screen.values())
         best: tuple[float, MarkerOutlier, SmoothResult, SensorLog] | None = None
-        for m in log.markers:
+        if failing <= MAX_FAILING:
+            say("a marker disagrees with the others: testing each against the rest")
+        # the marker whose removal leaves the others most consistent, if it fails against them
+        for m in log.markers if failing <= MAX_FAILING else ():
             if m.name not in screen:
                 continue
             rest = replace(log, markers=[x for x in log.markers if x.name != m.name])
@@ -139,9 +142,11 @@ def smooth_without_outliers(
                 best = (misfit, MarkerOutlier(m.name, r, sigma, value), without, rest)
         if best is None:
             disagree = sorted(k for k, v in screen.items() if v > bound)
+            why = ("leaving out any one does not make the others agree" if failing <= MAX_FAILING
+                   else "too many for one wrong marker")  # fmt: skip
             result.summary["marker_disagreement"] = (
                 f"marker(s) {', '.join(disagree)} disagree with the smoothed run beyond their "
-                "sigmas, and leaving out any one does not make the others agree"
+                f"sigmas ({why})"
             )
             break
         outliers.append(best[1])
