@@ -37,3 +37,25 @@ def test_each_fault(size, clean, case, tmp_path):
     assert o.max_h < max(0.15, 2 * clean.max_h) and o.max_v < max(0.15, 2 * clean.max_v), o
     assert o.inside >= 0.95, o
     assert o.live in ("navigating", "lost") and o.live_inside >= 0.95, o
+
+
+def test_the_command_line_on_a_damaged_run(size, tmp_path, capsys):
+    """pipe-nav smooth on the 30 s gap: every product written, the fault on stderr, exit 0;
+    with --strict exit 3 (DEGRADED)."""
+    from pipe_nav_core.cli import main
+    from pipe_nav_core.io import write_sensor_bag
+
+    case = next(c for c in CORPUS if c.name.startswith("data gap"))
+    duration = float(size.log.imu.t[-1] - size.log.imu.t[0])
+    bag = tmp_path / "gap.mcap"
+    write_sensor_bag(bag, case.inject(size.log, duration))
+    out = tmp_path / "out"
+    assert main(["smooth", str(bag), "--out", f"{out}/", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "data gap of 30.0 s" in err and "quality DEGRADED" in err
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        f"gap_{x}" for x in ("smoothed.mcap", "centerline.csv", "centerline.geojson",
+                             "centerline.kml", "report.png", "strain.csv", "bends.csv",
+                             "strain_features.csv")
+    )  # fmt: skip
+    assert main(["smooth", str(bag), "--out", f"{tmp_path}/strict/", "--quiet", "--strict"]) == 3

@@ -135,3 +135,18 @@ def test_a_damaged_run_is_smoothed_honestly_or_refused(short_log, truth, tmp_pat
     if status == "OK":
         s = score(est, truth[0], datum=truth[1])
         assert s.inside_3sigma >= 0.9, (s, result.summary["quality"])
+
+
+@SETTINGS
+@given(d=damage)
+def test_the_live_engine_stays_finite_and_honest(short_log, truth, d):
+    """The same damage through the live engine as ekf_node feeds it (replay_log): no exception,
+    every estimate finite, and the estimates it publishes inside their sigmas (or it says it
+    is lost and publishes nothing after)."""
+    from pipe_nav_core.pipeline import estimates_to_trajectory, replay_log
+
+    r = replay_log(damaged(short_log, d), NavConfig())
+    traj = estimates_to_trajectory(r.estimates)
+    assert np.isfinite(traj.lat).all() and np.isfinite(traj.sigma_enu).all()
+    if len(traj.t) > 10 and d["step_s"] == 0.0:
+        assert score(traj, truth[0], datum=truth[1]).inside_3sigma >= 0.9
