@@ -2,7 +2,8 @@
 and ``RUN_strain_features.csv``.
 
 The first columns of the strain and bend files are exactly the documented ones; further
-columns follow (``sigma_curvature_per_m``, ``time_s``; ``sigma_radius_m``, ``apex_time_s``).
+columns follow (``sigma_curvature_per_m``, ``time_s``, the strain and its sigma in
+microstrain; ``sigma_radius_m``, ``apex_time_s``, ``radius_resolved``, the apex's sigmas).
 Chainages m of distance_m; latitude/longitude WGS84 degrees with 9 decimals; altitude
 ellipsoidal m; angles degrees; curvature 1/m; strain percent; sigmas one-sigma. Files are
 written atomically and refuse non-finite values (a NaN never reaches an output).
@@ -32,6 +33,8 @@ STRAIN_COLUMNS = [
     "sigma_strain_pct",
     "sigma_curvature_per_m",
     "time_s",
+    "strain_microstrain",
+    "sigma_strain_microstrain",
 ]
 BEND_COLUMNS = [
     "bend",
@@ -87,13 +90,15 @@ def write_strain_csv(
     """The strain CSV: one row per profile row (chainage step)."""
     cols = [profile.distance, np.degrees(profile.lat), np.degrees(profile.lon), profile.alt,
             profile.vertical, profile.horizontal, profile.total, np.degrees(profile.plane),
-            strain_pct, sigma_strain_pct, profile.sigma, profile.t]  # fmt: skip
+            strain_pct, sigma_strain_pct, profile.sigma, profile.t, 1e4 * strain_pct,
+            1e4 * sigma_strain_pct]  # fmt: skip
     data = np.column_stack([np.asarray(c, dtype=np.float64) for c in cols]).reshape(-1, len(cols))
     if not np.isfinite(data).all():
         n = int((~np.isfinite(data).all(axis=1)).sum())
         raise ValueError(f"{os.fspath(path)}: {n} strain rows are not finite: refusing to write")
     fmt = ",".join(["{:.4f}", "{:.9f}", "{:.9f}", "{:.4f}", "{:.4e}", "{:.4e}", "{:.4e}",
-                    "{:.2f}", "{:.6f}", "{:.6f}", "{:.3e}", "{:.6f}"])  # fmt: skip
+                    "{:.2f}", "{:.6f}", "{:.6f}", "{:.3e}", "{:.6f}", "{:.2f}",
+                    "{:.2f}"])  # fmt: skip
     with atomic_write(path, "w", newline="") as f:
         f.write(",".join(STRAIN_COLUMNS) + "\n")
         f.write("".join(fmt.format(*row) + "\n" for row in data.tolist()))
