@@ -51,7 +51,7 @@ def test_a_clean_odometer_has_no_fault(log):
 @pytest.mark.parametrize(
     ("damage", "kind", "named"),
     [
-        (lambda lg: stuck(lg, 40.0, 60.0), "stuck", "odometer stuck for 20.0 s"),
+        (lambda lg: stuck(lg, 90.0, 110.0), "stuck", "odometer stuck for 20.0 s"),
         (lambda lg: spike(lg, 100.0, 5.0, step=False), "spike", "odometer spike of +5.00 m"),
         (lambda lg: spike(lg, 100.0, -0.5, step=True), "step", "backward step of -0.50 m"),
     ],
@@ -74,3 +74,17 @@ def test_a_wheel_fault_is_named_and_does_not_spoil_the_run(log, tmp_path, damage
     assert s.inside_3sigma >= 0.95
     # the chainage is the smoothed path's: nothing lost to the wheel
     assert abs(est.distance[-1] - truth.distance[-1]) < 0.1
+
+
+def test_a_wheel_stuck_before_the_heading_is_anchored_fails_honestly(log, tmp_path):
+    """Stuck for 20 s through the 45 deg bend before the second marker, which anchors the
+    heading from the dead-reckoned path: the run cannot be trusted and says so (FAILED, the
+    markers disagree with it), and its sigmas still cover its error."""
+    bag = tmp_path / "bad.mcap"
+    write_sensor_bag(bag, stuck(log, 40.0, 60.0))
+    csv = tmp_path / "c.csv"
+    result, _ = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
+    q = result.summary["quality"]
+    assert q["status"] == "FAILED" and any("disagree" in r for r in q["reasons"])
+    truth, datum = read_centreline_csv(BAGS / "sample.truth.csv")
+    assert score(read_centreline_csv(csv)[0], truth, datum=datum).inside_3sigma >= 0.95

@@ -788,8 +788,14 @@ class Navigator:
         o = self._odo
         s_odo = self._odometer_at(t)
         if len(o):
-            first = o.t[np.maximum(np.searchsorted(o.t, t_start) - 1, 0)]
-            has_odo = (o.t[-1] >= t_end) & (first <= t_start + ODOMETER_TIMEOUT_S)
+            # readings around the epoch, neither over ODOMETER_TIMEOUT_S away: across a longer
+            # silence (a dropout, a stuck wheel's readings left out) the count interpolated
+            # between its ends is not a measurement
+            before = o.t[np.maximum(np.searchsorted(o.t, t_start, side="right") - 1, 0)]
+            after = o.t[np.minimum(np.searchsorted(o.t, t_end, side="left"), len(o.t) - 1)]
+            has_odo = ((o.t[-1] >= t_end) & (before <= t_start + 1e-9)
+                       & (t_start - before <= ODOMETER_TIMEOUT_S)
+                       & (after - t_end <= ODOMETER_TIMEOUT_S))  # fmt: skip
         else:
             has_odo = np.zeros(len(ends), dtype=bool)
         ex = self.odometer_exclude

@@ -5,9 +5,9 @@ change of the odometer's speed (its distance differenced over ``WINDOW_S`` befor
 each reading) beyond ``A_MAX`` x the window, with no matching jolt in the specific force, is a
 fault of the wheel, not motion. Between the breaks:
 
-- **stuck**: the distance stands still between a break down and a break up while the pig was
-  moving before and after: the readings in between are left out (else they read as a stop and
-  the filter's zero-velocity updates hold the pig back);
+- **stuck**: the distance stands still for ``MIN_STUCK_S`` or more after the wheel stopped
+  faster than ``A_STOP`` with no jolt: the readings until it turns again are left out (else
+  they read as a stop and the filter's zero-velocity updates hold the pig back);
 - **spike**: the distance jumps and comes back within a window: those readings are left out;
 - **step**: the distance jumps by some metres (or back) in one reading and goes on from there:
   named; the filter's gate rejects the one increment, and the chainage (distance_m) comes
@@ -32,6 +32,7 @@ WINDOW_S = 0.25  # s, the speed is differenced over this before and after each r
 A_MAX = 3.0  # m/s^2, faster speed changes need a shock in the IMU
 MIN_MOVING = 0.1  # m/s, a wheel standing still is stuck only if the pig moved around it
 MIN_STUCK_S = 2.0  # s: a wheel standing still for less is a slip (the smoother handles those)
+A_STOP = 1.0  # m/s^2: a wheel that stops faster than this, with no jolt, is stuck
 
 
 @dataclass(frozen=True)
@@ -94,37 +95,21 @@ def find_odometer_faults(log: SensorLog, resolution: float = 0.0) -> list[Odomet
     res = resolution or (float(np.min(steps[steps > 0])) if (steps > 0).any() else 0.0)
     vb, va = _speeds(t, d, n)
     w = n * period
+    faults = _stuck(log, t, d, vb, n, w, res)
+    inside = [(f.t0, f.t1) for f in faults]
     limit = A_MAX * 2 * w + 4 * res / w
-    breaks = np.flatnonzero(np.abs(va - vb) > limit)
-    if len(breaks) == 0:
-        return []
+    breaks = [i for i in np.flatnonzero(np.abs(va - vb) > limit)
+              if not any(a - 2 * w <= t[i] <= b + 2 * w for a, b in inside)]  # fmt: skip
     events: list[tuple[int, int]] = []  # index ranges of readings around one break
     for i in breaks:
         if events and i - events[-1][1] <= n:
             events[-1] = (events[-1][0], int(i))
         else:
             events.append((int(i), int(i)))
-    faults: list[OdometerFault] = []
-    used: set[int] = set()
-    for e, (a, b) in enumerate(events):
-        if e in used:
-            continue
+    for a, b in events:
         dv = float(np.nan_to_num(va[a] - vb[a]))
         if _jolt(log, t[a], t[b]) > 0.3 * abs(dv) / (2 * w):
             continue  # the IMU felt it: real motion
-        before = vb[a]
-        if abs(va[b]) < MIN_MOVING and abs(before) > MIN_MOVING:
-            # stopped dead with no jolt: stuck until the wheel turns again
-            moving = np.flatnonzero(np.abs(d[b:] - d[b]) > 2 * res)
-            f = b + int(moving[0]) if len(moving) else len(t) - 1
-            nxt = events[e + 1] if e + 1 < len(events) else None
-            if nxt is not None and nxt[0] <= f + n:
-                used.add(e + 1)  # the wheel's release: part of the same fault
-                f = max(f, nxt[1])
-            if t[f] - t[a] >= MIN_STUCK_S:  # shorter: a slip, which the smoother handles
-                missed = abs(before) * float(t[f] - t[b])  # if it kept its speed
-                faults.append(OdometerFault("stuck", float(t[a]), float(t[f]), missed, 0))
-            continue
         lo, hi = max(a - n, 0), min(b + n, len(t) - 1)
         trend_before = d[lo] + (vb[a] if np.isfinite(vb[a]) else 0.0) * (t[hi] - t[lo])
         offset = float(d[hi] - trend_before)
@@ -136,7 +121,31 @@ def find_odometer_faults(log: SensorLog, resolution: float = 0.0) -> list[Odomet
             faults.append(OdometerFault("spike", float(t[a]), float(t[b]), height, 0))
         elif jump >= 0.8 * abs(offset):
             faults.append(OdometerFault("step", float(t[a]), float(t[b]), offset, 0))
-    return faults
+    return sorted(faults, key=lambda f: f.t0)
+
+
+def _stuck(
+    log: SensorLog, t: np.ndarray, d: np.ndarray, vb: np.ndarray, n: int, w: float, res: float
+) -> list[OdometerFault]:
+    """Stretches of at least MIN_STUCK_S where the wheel stands still, entered faster than
+    A_STOP decelerates (the speed over the window before, over one window) with no jolt in
+    the IMU: stuck until the wheel turns again."""
+    still = np.r_[False, np.abs(np.diff(d)) <= 0.0]
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+    out = []
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        start, end = a - 1, min(b, len(t) - 1)  # the last reading before, the first that moved
+        if start < n or t[end] - t[start] < MIN_STUCK_S or not np.isfinite(vb[start]):
+            continue
+        before = abs(float(vb[start]))
+        if before < MIN_MOVING or before / w < A_STOP:
+            continue  # a gradual stop: the pig stopped
+        if _jolt(log, t[start], t[start + 1]) > 0.3 * before / w:
+            continue  # the IMU felt a stop that sudden: it happened
+        missed = before * float(t[end] - t[start])  # if it kept its speed
+        # from the reading before: the one it stopped at may carry the stuck speed already
+        out.append(OdometerFault("stuck", float(t[start - 1]), float(t[end]), missed, 0))
+    return out
 
 
 def without_faults(

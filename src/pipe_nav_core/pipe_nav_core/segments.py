@@ -3,7 +3,9 @@
 Across a gap the pig moved with nothing recorded, so no filter can carry its attitude over:
 each segment between gaps is smoothed on its own, tied to the ground by its own markers. A
 segment that starts at rest (the launch trap) is smoothed forward; one that ends at rest (the
-receive trap) is smoothed in reversed time (smoother.reverse_log), aligning at its end; one
+receive trap) is smoothed in reversed time (smoother.reverse_log), aligning at its end, when
+it has three markers or more (the reversed smoother is the less proven: its markers must be
+able to catch it out, marker_outliers.screening); one
 with neither (between two gaps, the pig moving at both ends) cannot be aligned, and one whose
 markers disagree with its solution is not trusted: both are left unmapped, named. The
 centreline then has no rows across the gaps; its chainage goes on across each gap by the
@@ -23,6 +25,8 @@ from .gaps import TimeHole
 from .io.centreline import concat
 from .smoother import SmoothResult, arc_chainage, reverse_log
 from .types import SensorLog, Trajectory
+
+MIN_REVERSED_MARKERS = 3  # a segment smoothed in reversed time must be checkable by its markers
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,11 @@ def smooth_segments(
         if at_rest(part, config, end=False):
             res, how = smooth(part), "forward"
         elif at_rest(part, config, end=True):
+            if len(part.markers) < MIN_REVERSED_MARKERS:
+                segments.append(Segment(t0, t1, "unmapped", f"it would be smoothed in reversed "
+                                        f"time, which needs {MIN_REVERSED_MARKERS} markers to "
+                                        f"check it; it has {len(part.markers)}"))  # fmt: skip
+                continue
             res, how = _reversed(smooth(reverse_log(part))), "reversed"
         else:
             segments.append(Segment(t0, t1, "unmapped", "the pig moves at both ends"))
