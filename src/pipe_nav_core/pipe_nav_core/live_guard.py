@@ -29,12 +29,12 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.stats import chi2
 
 from .earth import geodetic_to_enu
 from .engine import NavEstimate, Navigator
 from .gaps import MIN_GAP_S
 from .imu_faults import MAX_ACCEL, MAX_RATE, MIN_FLAT
+from .kalman import chi2_threshold
 from .types import Marker
 
 SATURATED_ACCEL = 19.6  # m/s^2 (2 g): an axis pinned at this or more is saturated
@@ -42,7 +42,7 @@ SATURATED_RATE = 5.0  # rad/s
 GRAVITY = 9.81  # m/s^2, the reference of the shock test
 QUIET_TURN = 1e-3  # rad: a hole is filled only if the rates either side differ by less ...
 QUIET_PUSH = 0.05  # m/s: ... and the forces too (else the solution is lost)
-MARKER_BOUND = float(chi2.ppf(1.0 - 1e-6, 3))  # a marker this far off the estimate is dropped
+MARKER_BOUND = chi2_threshold(1.0 - 1e-6, 3)  # a marker this far off the estimate is dropped
 
 
 class GuardedNavigator(Navigator):

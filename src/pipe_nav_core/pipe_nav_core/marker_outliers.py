@@ -29,10 +29,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import chi2
 
 from .attitude import dcm_from_quat
 from .config import NavConfig
+from .kalman import chi2_threshold
 from .smoother import SmoothResult, marker_residuals
 from .types import Marker, SensorLog
 
@@ -109,7 +109,7 @@ def smooth_without_outliers(
 ) -> tuple[SmoothResult, list[MarkerOutlier], list[str]]:
     """``smooth(log)``, and again without each marker that fails the test of the module (while
     at least three are left); returns the result, the markers left out and warnings."""
-    bound = float(chi2.ppf(OUTLIER_PROBABILITY, 3))
+    bound = chi2_threshold(OUTLIER_PROBABILITY, 3)
     result = smooth(log)
     outliers: list[MarkerOutlier] = []
     while len(log.markers) >= MIN_MARKERS:
