@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
@@ -18,7 +18,7 @@ from pipe_nav_core.io import read_bag, read_centreline_csv, write_sensor_bag
 from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
-SETTINGS = settings(max_examples=25, deadline=None, derandomize=True,
+SETTINGS = settings(max_examples=25, deadline=None, derandomize=True, database=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture,
                                            HealthCheck.too_slow])  # fmt: skip
 
@@ -137,8 +137,14 @@ def test_a_damaged_run_is_smoothed_honestly_or_refused(short_log, truth, tmp_pat
         assert s.inside_3sigma >= 0.9, (s, result.summary["quality"])
 
 
+# found by CI: odometer spikes during the initial rest ended it, and the live filter diverged
+ODOMETER_SPIKES_AT_REST = {"drop": 0.0, "duplicate": 0, "reorder": 0, "nan": 8, "step_s": 0.0,
+                           "spikes": 2, "gap_s": 0.5, "at": 0.5, "seed": 2}  # fmt: skip
+
+
 @SETTINGS
 @given(d=damage)
+@example(d=ODOMETER_SPIKES_AT_REST)
 def test_the_live_engine_stays_finite_and_honest(short_log, truth, d):
     """The same damage through the live engine as ekf_node feeds it (replay_log): no exception,
     every estimate finite, and the estimates it publishes inside their sigmas (or it says it

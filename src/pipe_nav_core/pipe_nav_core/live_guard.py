@@ -15,6 +15,10 @@ segments). Live, each IMU sample is checked as it comes, in its own stamp order:
   input, its estimates after the loss are withheld, and the diagnostics say since when and
   why (``lost_since``, ``lost_reason``).
 
+An **odometer reading** jumping over ``ODO_SPIKE_M`` from the last one at a speed no pig
+reaches (``MAX_ODO_SPEED``, three times its own speed field) is dropped
+(``odometer_fault_spike``).
+
 A **marker** whose survey lies beyond ``MARKER_BOUND`` (chi-square, 3 dof) of the latest
 estimate carried to its passage (the live filter cannot leave one out afterwards as the
 smoother does) is dropped and named (``marker_outliers``, ``marker_fault_outlier``).
@@ -43,6 +47,8 @@ GRAVITY = 9.81  # m/s^2, the reference of the shock test
 QUIET_TURN = 1e-3  # rad: a hole is filled only if the rates either side differ by less ...
 QUIET_PUSH = 0.05  # m/s: ... and the forces too (else the solution is lost)
 MARKER_BOUND = chi2_threshold(1.0 - 1e-6, 3)  # a marker this far off the estimate is dropped
+MAX_ODO_SPEED = 10.0  # m/s: an odometer reading implying more since the last is a spike ...
+ODO_SPIKE_M = 0.5  # m: ... when it jumps by more than this
 
 
 class GuardedNavigator(Navigator):
@@ -56,6 +62,7 @@ class GuardedNavigator(Navigator):
         self.lost_since: float | None = None
         self.lost_reason = ""
         self._latest: NavEstimate | None = None
+        self._last_odo: tuple[float, float] | None = None
         self.marker_outliers: list[str] = []
 
     def push_imu(self, t: float, gyro: Sequence[float], accel: Sequence[float]) -> None:
@@ -95,8 +102,19 @@ class GuardedNavigator(Navigator):
         super().push_imu(t, g, a)
 
     def push_odometer(self, t: float, distance: float, speed: float) -> None:
-        if self.lost_since is None:
-            super().push_odometer(t, distance, speed)
+        if self.lost_since is not None:
+            return
+        last = self._last_odo
+        if last is not None and t > last[0] and math.isfinite(distance):
+            implied = abs(distance - last[1]) / (t - last[0])
+            if implied > max(MAX_ODO_SPEED, 3.0 * abs(speed) + 1.0) and abs(
+                distance - last[1]
+            ) > ODO_SPIKE_M:
+                self._counts["odometer_fault_spike"] += 1
+                return
+        if math.isfinite(t) and math.isfinite(distance):
+            self._last_odo = (t, distance)
+        super().push_odometer(t, distance, speed)
 
     def push_mag(self, t: float, field_t: Sequence[float]) -> None:
         if self.lost_since is None:
@@ -118,6 +136,8 @@ class GuardedNavigator(Navigator):
         e = self._latest
         if e is None or not 0.0 <= marker.t - e.t <= 2.0:
             return 0.0
+        if self.datum is None or not self._anchored or len(self._markers_seen) < 2:
+            return 0.0  # the datum and the heading come from the first markers: not tested
         vel = np.asarray(e.vel_n, dtype=np.float64)
         pos = geodetic_to_enu(e.lat, e.lon, e.h, marker.lat, marker.lon, marker.alt).reshape(3)
         r = pos + vel * (marker.t - e.t)
