@@ -385,26 +385,14 @@ def test_a_clock_step_loses_the_live_solution_honestly(tmp_path):
     """A clock that steps an hour ahead halfway (which made the live filter write NaN): the
     replay, as ekf_node, says the solution was lost there and writes the odometry up to it,
     finite throughout (``smooth`` undoes the step: test_gaps)."""
-    import dataclasses
 
     from pipe_nav_core.io import write_sensor_bag
     from pipe_nav_core.pipeline import load_log
+    from pipe_nav_core.sim.faults import clock_step
 
     log, _ = load_log(SAMPLE)
-    t_step = log.imu.t[0] + 100.0
-
-    def shifted(t):
-        return np.where(t > t_step, t + 3600.0, t)
-
-    stepped = dataclasses.replace(
-        log,
-        imu=dataclasses.replace(log.imu, t=shifted(log.imu.t)),
-        odometer=dataclasses.replace(log.odometer, t=shifted(log.odometer.t)),
-        mag=dataclasses.replace(log.mag, t=shifted(log.mag.t)),
-        markers=[dataclasses.replace(m, t=float(shifted(np.array(m.t)))) for m in log.markers],
-    )
     bag = tmp_path / "step.mcap"
-    write_sensor_bag(bag, stepped)
+    write_sensor_bag(bag, clock_step(log, 100.0, 3600.0))
     out = tmp_path / "r.mcap"
     r = _run_cli("replay", str(bag), "--out", str(out))
     assert r.returncode == 0 and "live solution was lost" in r.stderr, r.stderr

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +10,7 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.gaps import find_holes, remove_clock_steps
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
 from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+from pipe_nav_core.sim.faults import clock_step, data_gap
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 
@@ -20,34 +20,9 @@ def log():
     return load_log(SAMPLE)[0]
 
 
-def _retimed(log, f):
-    return dataclasses.replace(
-        log,
-        imu=dataclasses.replace(log.imu, t=f(log.imu.t)),
-        odometer=dataclasses.replace(log.odometer, t=f(log.odometer.t)),
-        mag=dataclasses.replace(log.mag, t=f(log.mag.t)),
-        markers=[dataclasses.replace(m, t=float(f(np.array(m.t)))) for m in log.markers],
-    )
-
-
-def _cut(log, t0, t1):
-    def keep(t):
-        return (t < t0) | (t > t1)
-
-    o, m = log.odometer, log.mag
-    return dataclasses.replace(
-        log,
-        imu=log.imu.slice(keep(log.imu.t)),
-        odometer=dataclasses.replace(o, t=o.t[keep(o.t)], distance=o.distance[keep(o.t)],
-                                     speed=o.speed[keep(o.t)]),  # fmt: skip
-        mag=dataclasses.replace(m, t=m.t[keep(m.t)], field=m.field[keep(m.t)]),
-    )
-
-
 @pytest.mark.parametrize("step", [3600.0, 2.5, 0.0])
 def test_a_clock_step_is_found_and_undone(log, step):
-    t_step = log.imu.t[0] + 100.0
-    stepped = _retimed(log, lambda t: np.where(t > t_step, t + step, t))
+    stepped = clock_step(log, 100.0, step)
     holes = find_holes(stepped)
     if step == 0.0:
         assert holes == []
@@ -60,9 +35,8 @@ def test_a_clock_step_is_found_and_undone(log, step):
 
 
 def test_a_smoothed_run_with_a_clock_step_equals_the_clean_run(log, tmp_path: Path):
-    t_step = log.imu.t[0] + 100.0
     bag = tmp_path / "step.mcap"
-    write_sensor_bag(bag, _retimed(log, lambda t: np.where(t > t_step, t + 3600.0, t)))
+    write_sensor_bag(bag, clock_step(log, 100.0, 3600.0))
     csv, clean_csv = tmp_path / "step.csv", tmp_path / "clean.csv"
     result, report = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
     clean, _ = smooth_bag(SAMPLE, Outputs(csv=str(clean_csv)), config=NavConfig())
@@ -84,7 +58,7 @@ def test_across_a_data_gap_the_run_is_smoothed_in_segments(log, tmp_path: Path):
     from pipe_nav_core.evaluation import score
 
     t0 = log.imu.t[0] + 80.0
-    damaged = _cut(log, t0, t0 + 30.0)
+    damaged = data_gap(log, 80.0, 30.0)
     (h,) = find_holes(damaged)
     assert h.kind == "data gap" and h.moved > 50.0
     bag = tmp_path / "gap.mcap"

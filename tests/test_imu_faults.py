@@ -3,7 +3,6 @@ or filled, named, and the centreline still right with sigmas that cover it."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ from pipe_nav_core.gaps import fill_short_holes
 from pipe_nav_core.imu_faults import find_imu_faults
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
 from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+from pipe_nav_core.sim.faults import imu_dropped, imu_pinned, imu_shock
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 
@@ -21,30 +21,6 @@ BAGS = Path(__file__).resolve().parents[1] / "bags"
 @pytest.fixture(scope="module")
 def log():
     return load_log(BAGS / "sample.mcap")[0]
-
-
-def _imu(log, at: float, dur: float, gyro=None, accel=None, drop: bool = False):
-    imu, t0 = log.imu, log.imu.t[0]
-    k = (imu.t > t0 + at) & (imu.t < t0 + at + dur)
-    if drop:
-        return dataclasses.replace(log, imu=imu.slice(~k))
-    g, a = imu.gyro.copy(), imu.accel.copy()
-    if gyro is not None:
-        g[k] = gyro(k.sum())
-    if accel is not None:
-        a[k] = accel(k.sum(), a[k])
-    return dataclasses.replace(log, imu=dataclasses.replace(imu, gyro=g, accel=a))
-
-
-rng = np.random.default_rng(1)
-SHOCK = {"gyro": lambda n: np.clip(rng.normal(0, 30, (n, 3)), -34.9, 34.9),
-         "accel": lambda n, a: np.clip(rng.normal(0, 120, (n, 3)), -156.9, 156.9)}  # fmt: skip
-
-
-def _pinned(n, a):
-    a = a.copy()
-    a[:, 0] = 78.4  # +8 g: the accelerometer's range limit
-    return a
 
 
 def test_a_clean_imu_has_no_fault(log):
@@ -55,10 +31,10 @@ def test_a_clean_imu_has_no_fault(log):
 @pytest.mark.parametrize(
     ("damage", "named", "max_h"),
     [
-        (lambda lg: _imu(lg, 100.0, 5.0, **SHOCK), "IMU shock for 4.98 s", 0.06),
-        (lambda lg: _imu(lg, 70.0, 0.2, accel=_pinned), "IMU saturated", 0.15),
-        (lambda lg: _imu(lg, 100.0, 0.3, drop=True), "filled by interpolation", 0.05),
-        (lambda lg: _imu(lg, 70.0, 0.95, drop=True), "data gap of 1.0 s", 0.15),
+        (lambda lg: imu_shock(lg, 100.0, 5.0), "IMU shock for 4.98 s", 0.06),
+        (lambda lg: imu_pinned(lg, 70.0, 0.2), "IMU saturated", 0.15),
+        (lambda lg: imu_dropped(lg, 100.0, 0.3), "filled by interpolation", 0.05),
+        (lambda lg: imu_dropped(lg, 70.0, 0.95), "data gap of 1.0 s", 0.15),
     ],
     ids=["5 s shock", "0.2 s pinned at 8 g", "0.3 s dropped, steady", "1 s dropped, rolling"],
 )

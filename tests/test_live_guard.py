@@ -4,7 +4,6 @@ solution lost, withheld and named, never a confident wrong answer."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.io import read_centreline_csv
 from pipe_nav_core.pipeline import estimates_to_trajectory, load_log, replay_log
+from pipe_nav_core.sim.faults import clock_step, imu_dropped, imu_pinned
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 
@@ -27,41 +27,15 @@ def truth():
     return read_centreline_csv(BAGS / "sample.truth.csv")
 
 
-def _drop(log, at, dur):
-    k = (log.imu.t > log.imu.t[0] + at) & (log.imu.t < log.imu.t[0] + at + dur)
-    return dataclasses.replace(log, imu=log.imu.slice(~k))
-
-
-def _step(log, at, step):
-    t_at = log.imu.t[0] + at
-
-    def f(t):
-        return np.where(t > t_at, t + step, t)
-
-    return dataclasses.replace(
-        log, imu=dataclasses.replace(log.imu, t=f(log.imu.t)),
-        odometer=dataclasses.replace(log.odometer, t=f(log.odometer.t)),
-        mag=dataclasses.replace(log.mag, t=f(log.mag.t)),
-        markers=[dataclasses.replace(m, t=float(f(np.array(m.t)))) for m in log.markers],
-    )  # fmt: skip
-
-
-def _pinned(log, at, dur):
-    imu = log.imu
-    a = imu.accel.copy()
-    a[(imu.t > imu.t[0] + at) & (imu.t < imu.t[0] + at + dur), 0] = 78.4
-    return dataclasses.replace(log, imu=dataclasses.replace(imu, accel=a))
-
-
 @pytest.mark.parametrize(
     ("damage", "fault", "lost"),
     [
         (lambda lg: lg, None, False),
-        (lambda lg: _drop(lg, 100.0, 0.3), "imu_fault_filled", False),
-        (lambda lg: _drop(lg, 70.0, 0.3), "imu_fault_data_gap", True),  # in a roll turn
-        (lambda lg: _pinned(lg, 70.0, 0.2), "imu_fault_saturated", True),
-        (lambda lg: _step(lg, 100.0, 3600.0), "imu_fault_data_gap", True),
-        (lambda lg: _drop(lg, 80.0, 30.0), "imu_fault_data_gap", True),
+        (lambda lg: imu_dropped(lg, 100.0, 0.3), "imu_fault_filled", False),
+        (lambda lg: imu_dropped(lg, 70.0, 0.3), "imu_fault_data_gap", True),  # in a roll turn
+        (lambda lg: imu_pinned(lg, 70.0, 0.2), "imu_fault_saturated", True),
+        (lambda lg: clock_step(lg, 100.0, 3600.0), "imu_fault_data_gap", True),
+        (lambda lg: imu_dropped(lg, 80.0, 30.0), "imu_fault_data_gap", True),
     ],
     ids=[
         "clean",
@@ -95,7 +69,7 @@ def test_ekf_node_reports_a_lost_solution_as_an_error(log):
     core = EkfCore(NavConfig(), types, map_frame="map", base_frame="base_link")
     handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
                 "markers": core.on_marker}  # fmt: skip
-    for _, role, msg in rosmsg.log_to_messages(types, _drop(log, 80.0, 30.0)):
+    for _, role, msg in rosmsg.log_to_messages(types, imu_dropped(log, 80.0, 30.0)):
         handlers[role](msg)
         core.poll()
     level, message, _ = core.health(0.0)

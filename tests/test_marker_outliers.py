@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.earth import enu_to_geodetic
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
 from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+from pipe_nav_core.sim.faults import marker_late, marker_moved
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 
@@ -32,22 +32,16 @@ def without(log, tmp_path_factory):
     return read_centreline_csv(d / "c.csv")[0]
 
 
-def _moved(m, east: float, north: float = 0.0):
-    lat, lon, _ = enu_to_geodetic(np.array([east, north, 0.0]), m.lat, m.lon, m.alt)
-    return dataclasses.replace(m, lat=float(lat), lon=float(lon))
-
-
 @pytest.mark.parametrize(
     ("damage", "off_m"),
-    [(lambda m: _moved(m, 20.0), 20.0), (lambda m: dataclasses.replace(m, t=m.t + 3.0), 5.8)],
+    [(lambda lg: marker_moved(lg, 2, 20.0), 20.0), (lambda lg: marker_late(lg, 2, 3.0), 5.8)],
     ids=["surveyed 20 m off", "stamped 3 s late"],
 )
 def test_a_wrong_marker_is_left_out_and_the_run_equals_the_run_without_it(
     log, without, tmp_path: Path, damage, off_m
 ):
-    bad = [damage(m) if m.name == "agm_02" else m for m in log.markers]
     bag = tmp_path / "bad.mcap"
-    write_sensor_bag(bag, dataclasses.replace(log, markers=bad))
+    write_sensor_bag(bag, damage(log))  # agm_02, the third marker
     csv = tmp_path / "c.csv"
     result, report = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
     s = result.summary
@@ -72,11 +66,10 @@ def test_a_clean_run_keeps_every_marker(log):
 
 
 def test_with_two_markers_a_wrong_one_is_warned_about(log, tmp_path: Path):
-    first, last = log.markers[0], log.markers[-1]
+    two = dataclasses.replace(log, markers=[log.markers[0], log.markers[-1]])
     az = np.radians(75.0)  # the pipe's azimuth at the receive trap: 25 m (8 %) further along it
     bag = tmp_path / "two.mcap"
-    moved = _moved(last, 25.0 * np.sin(az), 25.0 * np.cos(az))
-    write_sensor_bag(bag, dataclasses.replace(log, markers=[first, moved]))
+    write_sensor_bag(bag, marker_moved(two, 1, 25.0 * np.sin(az), 25.0 * np.cos(az)))
     result, report = smooth_bag(bag, Outputs(), config=NavConfig())
     assert any("odometer scale of" in w and "2 markers cannot tell" in w for w in report.warnings)
     assert result.summary["quality"]["status"] != "OK"

@@ -3,16 +3,15 @@ the centreline and its chainage as good as without them."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
-import numpy as np
 import pytest
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
 from pipe_nav_core.odometer_faults import find_odometer_faults, without_faults
 from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
+from pipe_nav_core.sim.faults import odometer_spike, odometer_stuck
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 
@@ -22,28 +21,6 @@ def log():
     return load_log(BAGS / "sample.mcap")[0]
 
 
-def stuck(log, a: float, b: float):
-    """The wheel stands still from a to b s after the start, then counts on from there."""
-    o, t0 = log.odometer, log.imu.t[0]
-    k = (o.t > t0 + a) & (o.t < t0 + b)
-    i0, i1 = np.flatnonzero(k)[[0, -1]]
-    d, v = o.distance.copy(), o.speed.copy()
-    d[k], v[k] = d[i0], 0.0
-    d[o.t >= t0 + b] -= o.distance[i1] - o.distance[i0]
-    return dataclasses.replace(log, odometer=dataclasses.replace(o, distance=d, speed=v))
-
-
-def spike(log, at: float, size: float, step: bool):
-    o = log.odometer
-    d = o.distance.copy()
-    j = int(np.searchsorted(o.t, log.imu.t[0] + at))
-    if step:
-        d[j:] += size
-    else:
-        d[j] += size
-    return dataclasses.replace(log, odometer=dataclasses.replace(o, distance=d))
-
-
 def test_a_clean_odometer_has_no_fault(log):
     assert find_odometer_faults(log) == []
 
@@ -51,9 +28,9 @@ def test_a_clean_odometer_has_no_fault(log):
 @pytest.mark.parametrize(
     ("damage", "kind", "named"),
     [
-        (lambda lg: stuck(lg, 90.0, 110.0), "stuck", "odometer stuck for 20.0 s"),
-        (lambda lg: spike(lg, 100.0, 5.0, step=False), "spike", "odometer spike of +5.00 m"),
-        (lambda lg: spike(lg, 100.0, -0.5, step=True), "step", "backward step of -0.50 m"),
+        (lambda lg: odometer_stuck(lg, 90.0, 20.0), "stuck", "odometer stuck for 20.0 s"),
+        (lambda lg: odometer_spike(lg, 100.0, 5.0), "spike", "odometer spike of +5.00 m"),
+        (lambda lg: odometer_spike(lg, 100.0, -0.5, step=True), "step", "backward step of -0.50 m"),
     ],
     ids=["stuck 20 s", "spike 5 m", "backward step 0.5 m"],
 )
@@ -81,7 +58,7 @@ def test_a_wheel_stuck_before_the_heading_is_anchored_fails_honestly(log, tmp_pa
     heading from the dead-reckoned path: the run cannot be trusted and says so (FAILED, the
     markers disagree with it), and its sigmas still cover its error."""
     bag = tmp_path / "bad.mcap"
-    write_sensor_bag(bag, stuck(log, 40.0, 60.0))
+    write_sensor_bag(bag, odometer_stuck(log, 40.0, 20.0))
     csv = tmp_path / "c.csv"
     result, _ = smooth_bag(bag, Outputs(csv=str(csv)), config=NavConfig())
     q = result.summary["quality"]

@@ -26,19 +26,10 @@ SETTINGS = settings(max_examples=25, deadline=None, derandomize=True, database=N
 @pytest.fixture(scope="module")
 def short_log():
     """The sample's first 120 s: three markers, a start at rest, the 45 deg bend."""
+    from pipe_nav_core.segments import cut
+
     log = load_log(BAGS / "sample.mcap")[0]
-    end = log.imu.t[0] + 120.0
-
-    def k(t):
-        return t <= end
-
-    o, m = log.odometer, log.mag
-    return dataclasses.replace(
-        log, imu=log.imu.slice(k(log.imu.t)),
-        odometer=dataclasses.replace(o, t=o.t[k(o.t)], distance=o.distance[k(o.t)],
-                                     speed=o.speed[k(o.t)]),
-        mag=dataclasses.replace(m, t=m.t[k(m.t)], field=m.field[k(m.t)]),
-        markers=[x for x in log.markers if x.t <= end])  # fmt: skip
+    return cut(log, -math.inf, log.imu.t[0] + 120.0)
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ All times in s of the bag's header-stamp clock.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -98,12 +99,17 @@ def remove_clock_steps(log: SensorLog, holes: list[TimeHole]) -> SensorLog:
             out = np.where(np.asarray(t) >= h.t_after, out - h.step, out)
         return out
 
+    return retimed(log, fixed)
+
+
+def retimed(log: SensorLog, f: Callable[[np.ndarray], np.ndarray]) -> SensorLog:
+    """The log with every stamp (samples and markers, s) mapped through ``f``."""
     return replace(
         log,
-        imu=replace(log.imu, t=fixed(log.imu.t)),
-        odometer=replace(log.odometer, t=fixed(log.odometer.t)),
-        mag=replace(log.mag, t=fixed(log.mag.t)),
-        markers=[replace(m, t=float(fixed(np.array([m.t]))[0])) for m in log.markers],
+        imu=replace(log.imu, t=f(log.imu.t)),
+        odometer=replace(log.odometer, t=f(log.odometer.t)),
+        mag=replace(log.mag, t=f(log.mag.t)),
+        markers=[replace(m, t=float(f(np.array([m.t]))[0])) for m in log.markers],
     )
 
 

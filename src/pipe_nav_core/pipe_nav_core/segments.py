@@ -46,14 +46,20 @@ def cut(log: SensorLog, t0: float, t1: float) -> SensorLog:
     def inside(t: np.ndarray) -> np.ndarray:
         return (t >= t0) & (t <= t1)
 
+    return replace(samples_where(log, inside), markers=[x for x in log.markers
+                                                        if t0 <= x.t <= t1])  # fmt: skip
+
+
+def samples_where(log: SensorLog, keep: Callable[[np.ndarray], np.ndarray]) -> SensorLog:
+    """The log with only the IMU, odometer and magnetometer samples whose stamps (s) ``keep``
+    maps to True; the markers as they are."""
     o, m = log.odometer, log.mag
-    ko, km = inside(o.t), inside(m.t)
+    ko, km = keep(o.t), keep(m.t)
     return replace(
         log,
-        imu=log.imu.slice(inside(log.imu.t)),
+        imu=log.imu.slice(keep(log.imu.t)),
         odometer=replace(o, t=o.t[ko], distance=o.distance[ko], speed=o.speed[ko]),
         mag=replace(m, t=m.t[km], field=m.field[km]),
-        markers=[x for x in log.markers if t0 <= x.t <= t1],
     )
 
 

@@ -13,22 +13,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..earth import enu_to_geodetic
+from ..gaps import retimed
+from ..segments import samples_where
 from ..types import SensorLog
 
 
 def _t0(log: SensorLog) -> float:
     return float(log.imu.t[0])
-
-
-def retimed(log: SensorLog, f: Callable[[np.ndarray], np.ndarray]) -> SensorLog:
-    """Every stamp (samples and markers) mapped through ``f``."""
-    return replace(
-        log,
-        imu=replace(log.imu, t=f(log.imu.t)),
-        odometer=replace(log.odometer, t=f(log.odometer.t)),
-        mag=replace(log.mag, t=f(log.mag.t)),
-        markers=[replace(m, t=float(f(np.array([m.t]))[0])) for m in log.markers],
-    )
 
 
 def clock_step(log: SensorLog, at: float, step: float) -> SensorLog:
@@ -40,18 +31,7 @@ def clock_step(log: SensorLog, at: float, step: float) -> SensorLog:
 def data_gap(log: SensorLog, at: float, dur: float) -> SensorLog:
     """Nothing recorded on any topic from ``at`` for ``dur`` s (markers kept)."""
     a, b = _t0(log) + at, _t0(log) + at + dur
-
-    def keep(t: np.ndarray) -> np.ndarray:
-        return (t < a) | (t > b)
-
-    o, m = log.odometer, log.mag
-    ko, km = keep(o.t), keep(m.t)
-    return replace(
-        log,
-        imu=log.imu.slice(keep(log.imu.t)),
-        odometer=replace(o, t=o.t[ko], distance=o.distance[ko], speed=o.speed[ko]),
-        mag=replace(m, t=m.t[km], field=m.field[km]),
-    )
+    return samples_where(log, lambda t: (t < a) | (t > b))
 
 
 def imu_dropped(log: SensorLog, at: float, dur: float) -> SensorLog:
