@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..config import NavConfig
 from ..io.centreline import pieces_of
@@ -21,8 +22,8 @@ class IntegrityReport:
     the settings they were computed with (outer diameter m, window m, thresholds percent)."""
 
     profile: CurvatureProfile
-    strain_pct: object  # (N,) percent, per profile row
-    sigma_strain_pct: object  # (N,) percent
+    strain_pct: NDArray[np.float64]  # (N,) percent, per profile row
+    sigma_strain_pct: NDArray[np.float64]  # (N,) percent
     bends: list[PipeBend]
     features: list[StrainFeature]
     outer_diameter: float
@@ -32,7 +33,7 @@ class IntegrityReport:
 
     def summary(self) -> dict[str, object]:
         """Figures for people: counts, the largest bend and strain."""
-        peak = float(self.strain_pct.max()) if len(self.profile) else 0.0  # type: ignore[attr-defined]
+        peak = float(self.strain_pct.max()) if len(self.profile) else 0.0
         return {
             "bends": len(self.bends),
             "strain_features": len(self.features),
