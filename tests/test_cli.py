@@ -48,9 +48,16 @@ def test_smooth_writes_every_product(smoothed: Path):
         "sample_smoothed.mcap",
         "sample_strain.csv",
         "sample_strain_features.csv",
+        "sample_welds.csv",
     ]
     assert (smoothed / "sample_report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    welds = (smoothed / "sample_welds.csv").read_text().splitlines()
+    assert welds[0].startswith("weld,distance_m,latitude_deg,longitude_deg,altitude_m,"
+                               "joint_length_m,confidence,sigma_h_m,sigma_v_m")  # fmt: skip
     gj = json.loads((smoothed / "sample_centerline.geojson").read_text())
+    kinds = [f["properties"]["kind"] for f in gj["features"]]
+    assert kinds.count("weld") == len(welds) - 1 > 10  # girth welds every ~12 m of 300 m
+    assert (smoothed / "sample_centerline.kml").read_text().count("girth weld ") == len(welds) - 1
     line = next(f for f in gj["features"] if f["geometry"]["type"] == "LineString")
     lon, lat, _ = line["geometry"]["coordinates"][0]
     assert 116.3 < lon < 116.5 and 39.8 < lat < 40.0  # [lon, lat] order, degrees

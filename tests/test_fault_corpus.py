@@ -56,6 +56,6 @@ def test_the_command_line_on_a_damaged_run(size, tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == sorted(
         f"gap_{x}" for x in ("smoothed.mcap", "centerline.csv", "centerline.geojson",
                              "centerline.kml", "report.png", "strain.csv", "bends.csv",
-                             "strain_features.csv")
+                             "strain_features.csv", "welds.csv")
     )  # fmt: skip
     assert main(["smooth", str(bag), "--out", f"{tmp_path}/strict/", "--quiet", "--strict"]) == 3

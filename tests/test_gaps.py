@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.gaps import find_holes, remove_clock_steps
+from pipe_nav_core.evaluation import score
+from pipe_nav_core.gaps import fill_holes_at_rest, find_holes, remove_clock_steps
+from pipe_nav_core.imu_faults import without_imu_faults
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
-from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
-from pipe_nav_core.sim.faults import clock_step, data_gap
+from pipe_nav_core.pipeline import Outputs, load_log, replay_log, smooth_bag
+from pipe_nav_core.sim import simulate
+from pipe_nav_core.sim.faults import clock_step, data_gap, imu_dropped, imu_shock
+from pipe_nav_core.smoother import smooth_log
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 
@@ -55,8 +60,6 @@ def test_across_a_data_gap_the_run_is_smoothed_in_segments(log, tmp_path: Path):
     the segment before is smoothed forward; the one after, with two markers, too few to check
     a reversed-time smoothing, is left unmapped and named; no row is written across the gap
     or after it; the rows there are as accurate as a clean run's, sigmas covering the error."""
-    from pipe_nav_core.evaluation import score
-
     t0 = log.imu.t[0] + 80.0
     damaged = data_gap(log, 80.0, 30.0)
     (h,) = find_holes(damaged)
@@ -75,3 +78,53 @@ def test_across_a_data_gap_the_run_is_smoothed_in_segments(log, tmp_path: Path):
     truth, datum = read_centreline_csv(SAMPLE.with_name("sample.truth.csv"))
     s = score(est, truth, datum=datum)
     assert s.max_h < 0.06 and s.max_v < 0.08 and s.inside_3sigma >= 0.95, s
+
+
+@pytest.fixture(scope="module")
+def demo():
+    """The demo pipe's run and the middle of its stop (s from its first sample)."""
+    run = simulate("demo", 2)
+    odo = run.log.odometer
+    edges = np.flatnonzero(np.diff(np.r_[0, (np.abs(odo.speed) < 1e-6).astype(int), 0]))
+    spans = [
+        (odo.t[a], odo.t[b - 1])
+        for a, b in zip(edges[::2], edges[1::2], strict=True)
+        if a > 0 and b < len(odo.t)
+    ]  # not the rests at the start and the end
+    t0, t1 = max(spans, key=lambda s: s[1] - s[0])
+    assert t1 - t0 > 8.0
+    return run, float(0.5 * (t0 + t1) - run.log.imu.t[0])
+
+
+def test_a_shock_while_the_pig_stands_still_is_filled_and_named(demo):
+    run, mid = demo
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    shocked = imu_shock(run.log, mid - 2.5, 5.0)
+    left, faults = without_imu_faults(shocked)
+    assert [f.kind for f in faults] == ["shock"]
+    filled, holes = fill_holes_at_rest(left)
+    assert [h.kind for h in holes] == ["rest"] and "stood still" in holes[0].describe()
+    assert not find_holes(filled)  # nothing left for segments
+    clean = smooth_log(run.log, cfg)
+    fixed = smooth_log(filled, cfg)
+    a, b = score(clean.centreline, run.truth), score(fixed.centreline, run.truth)
+    assert b.max_h < a.max_h + 0.01 and b.inside_3sigma > 0.99, (a.max_h, b.max_h)
+    live = replay_log(shocked, cfg)  # as ekf_node sees it
+    assert live.diagnostics.get("state") != "lost"
+    assert live.diagnostics["imu_fault_filled_at_rest"] == 1
+
+
+def test_a_hole_while_the_pig_moves_or_rolls_is_not_filled_at_rest(demo):
+    run, mid = demo
+    moving = imu_dropped(run.log, mid - 40.0, 5.0)  # 40 s before the stop: under way
+    assert fill_holes_at_rest(moving)[1] == []
+    still = imu_dropped(run.log, mid - 2.5, 5.0)
+    imu = still.imu
+    t_end = run.log.imu.t[0] + mid + 2.5
+    accel = imu.accel.copy()
+    c, s_ = np.cos(0.05), np.sin(0.05)  # rolled 3 deg about x in the hole
+    after = imu.t > t_end
+    accel[after] = accel[after] @ np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]]).T
+    rolled = replace(still, imu=replace(imu, accel=accel))
+    assert len(fill_holes_at_rest(still)[1]) == 1
+    assert fill_holes_at_rest(rolled)[1] == []

@@ -74,3 +74,34 @@ def test_plot_report_failure_keeps_old_file(tmp_path):
         plot_report(p, traj, DATUM, _markers(traj, [0.5]), marker_residuals=np.zeros((2, 2)))
     assert p.read_bytes() == b"old"
     assert [x.name for x in tmp_path.iterdir()] == ["r.png"]
+
+
+def test_the_plot_process_draws_what_plot_report_draws(tmp_path):
+    from pipe_nav_core.plot_process import PlotProcess
+
+    traj = make_traj(n=2001, seconds=200.0)
+    mk = _markers(traj, [10.0, 150.0], offset_m=0.02)
+    inline, child = tmp_path / "inline.png", tmp_path / "child.png"
+    plot_report(inline, traj, DATUM, mk, title="r")
+    with PlotProcess.start() as plotter:
+        assert plotter._process is not None and plotter._process.is_alive()  # forked
+        plotter.submit(child, traj, DATUM, mk, title="r")
+        plotter.wait()
+        process = plotter._process
+    assert not process.is_alive()  # ended with the context
+    assert child.read_bytes() == inline.read_bytes()
+
+
+def test_a_failing_plot_in_the_plot_process_is_raised_and_writes_nothing(tmp_path):
+    from pipe_nav_core.plot_process import PlotProcess
+
+    p = tmp_path / "r.png"
+    traj = make_traj(n=11)
+    with PlotProcess.start() as plotter:
+        plotter.submit(p, traj, DATUM, _markers(traj, [0.5]), marker_residuals=np.zeros((2, 2)))
+        with pytest.raises(RuntimeError, match="the report plot failed: ValueError"):
+            plotter.wait()
+        plotter.submit(p, traj, DATUM)  # the child serves the next request
+        plotter.wait()
+    assert _png_size(p.read_bytes())[0] > 0
+    assert [x.name for x in tmp_path.iterdir()] == ["r.png"]

@@ -4,12 +4,15 @@ experiments, beside the figures the papers published (shared/seeds/README.md).
 Each scenario is simulated for several seeds (reproducible), smoothed with each method, and
 scored against the simulator's truth. Results go to a Markdown table (BENCHMARKS.md, with the
 command that made it) and to JSON. ``--products`` adds the bend/curvature/strain table per IMU
-grade (:mod:`.bench_products`), ``--speed`` the speed table.
+grade (:mod:`.bench_products`), ``--welds`` the girth weld and tally table
+(:mod:`.bench_welds`), ``--runs`` the movement and multi-run fusion table (:mod:`.bench_runs`),
+``--speed`` the speed table; ``--X-only`` that table alone.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import platform
@@ -333,11 +336,16 @@ def markdown(
     return "\n".join(lines) + "\n"
 
 
+# the tables beside the accuracy table: option name -> module (run(quick) and markdown(rows,
+# command) each)
+TABLES = {"products": "bench_products", "welds": "bench_welds", "runs": "bench_runs"}
+
+
 def main(args: argparse.Namespace) -> int:
     """Entry of ``pipe-nav bench``."""
     command = ("pipe-nav bench " + " ".join(sys.argv[2:])).strip()
-    products = getattr(args, "products", False) or getattr(args, "products_only", False)
-    if getattr(args, "speed_only", False) or getattr(args, "products_only", False):
+    extras = [n for n in TABLES if getattr(args, n, False) or getattr(args, f"{n}_only", False)]
+    if any(getattr(args, f"{n}_only", False) for n in (*TABLES, "speed")):
         names: list[str] = []
     else:
         names = args.scenarios or (list(QUICK) if args.quick else [c.scenario for c in CASES])
@@ -360,12 +368,12 @@ def main(args: argparse.Namespace) -> int:
         "cases": [asdict(c) for c in CASES if c.scenario in results],
         "results": results,
     }
-    if products:
-        from . import bench_products
-
-        rows_p = bench_products.run(quick=args.quick)
-        md += "\n" + bench_products.markdown(rows_p, command)
-        payload["products"] = rows_p
+    for name in extras:
+        table = importlib.import_module(f"{__package__}.{TABLES[name]}")
+        print(f"pipe-nav bench: {name}", file=sys.stderr, flush=True)
+        rows = table.run(quick=args.quick)
+        md += "\n" + table.markdown(rows, command)
+        payload[name] = rows
     if getattr(args, "speed", False) or getattr(args, "speed_only", False):
         from . import speed
 

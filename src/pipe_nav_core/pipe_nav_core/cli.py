@@ -5,6 +5,9 @@
     pipe-nav simulate --scenario NAME --seed N --out RUN.mcap
     pipe-nav info IN [--json]
     pipe-nav config [--template]
+    pipe-nav locate TALLY.csv --run SMOOTHED.mcap --out FEATURES.csv [--geojson F]
+    pipe-nav compare A_SMOOTHED.mcap B_SMOOTHED.mcap --out MOVEMENT.csv [--dask-scheduler ADDR]
+    pipe-nav fuse RUN_SMOOTHED.mcap... --out FUSED.csv [--dask-scheduler ADDR]
     pipe-nav evaluate CENTERLINE.csv --truth TRUTH.csv
     pipe-nav bench [--quick]
 
@@ -27,6 +30,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 from .config import ConfigError, NavConfig
 
 if TYPE_CHECKING:
+    from .plot_process import PlotProcess
     from .products import IntegrityReport
 
 EXIT_ERROR = 2
@@ -177,13 +181,27 @@ def _warm_kernels() -> None:
 
 
 def cmd_smooth(args: argparse.Namespace) -> int:
+    from .plot_process import PlotProcess
+
+    # forked first, before the numeric imports: it loads matplotlib while this one smooths
+    wants_plot = bool(args.plot) or _out_is_dir(args.out)
+    with PlotProcess.start() if wants_plot else PlotProcess(None, None) as plotter:
+        return _smooth(args, plotter)
+
+
+def _out_is_dir(out: str) -> bool:
+    """--out names a directory (the products are written into it, named like the bag)."""
+    return out.endswith(("/", "\\")) or Path(out).is_dir()
+
+
+def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
     from .pipeline import Outputs, smooth_bag
     from .smoother import report_fraction, reset_fraction
 
     cfg = _load_config(args)
     out = Path(args.out)
     stem = Path(str(args.input).rstrip("/")).stem
-    if args.out.endswith(("/", "\\")) or out.is_dir():
+    if _out_is_dir(args.out):
         out.mkdir(parents=True, exist_ok=True)
         outputs = Outputs(
             bag=str(out / f"{stem}_smoothed.mcap"),
@@ -212,6 +230,7 @@ def cmd_smooth(args: argparse.Namespace) -> int:
             topics=_topics(args),
             progress=bar.stage if bar else None,
             bends_reference=args.bends_reference,
+            plotter=plotter,
         )
     finally:
         reset_fraction(token)
@@ -404,9 +423,13 @@ def format_bends(report: IntegrityReport) -> str:
                  f"{len(report.features)}")  # fmt: skip
     lines += [
         f"  {x.number:>3} {x.start_m:.1f}-{x.end_m:.1f} m peak {x.peak_pct:.4f} % "
-        f"(over {x.threshold_pct:g} %)" + (f", bend {x.bend}" if x.bend else ", no bend")
-        + ("" if x.construction is None else
-           (", as-built" if x.construction else ", not construction-related"))
+        f"(over {x.threshold_pct:g} %)"
+        + (f", bend {x.bend}" if x.bend else ", no bend")
+        + (
+            ""
+            if x.construction is None
+            else (", as-built" if x.construction else ", not construction-related")
+        )
         for x in report.features
     ]
     return "\n".join(lines)
@@ -435,6 +458,98 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_locate(args: argparse.Namespace) -> int:
+    from .io.atomic import check_not_input, check_output
+    from .io.smoothed_bag import CENTRELINE_ATTACHMENT, read_smoothed_run
+    from .io.tally_csv import read_tally_csv, write_located
+    from .io.welds_csv import read_welds_csv
+    from .products.tally import locate_tally
+
+    inputs = [args.tally, args.run] + ([args.welds] if args.welds else [])
+    for path, option in ((args.out, "--out"), (args.geojson, "--geojson")):
+        if path:
+            check_output(path, option)
+            check_not_input(path, inputs)
+    if args.out and args.geojson and Path(args.out).resolve() == Path(args.geojson).resolve():
+        raise CliError(f"--out and --geojson name the same file {args.out}")
+    if not (0.0 < args.scale_tolerance < 0.2):
+        raise CliError(f"--scale-tolerance must be between 0 and 0.2, not {args.scale_tolerance}")
+    tally = read_tally_csv(args.tally)
+    run = read_smoothed_run(args.run)
+    welds = read_welds_csv(args.welds) if args.welds else run.welds
+    if not welds:
+        raise CliError(f"{args.run}: no girth welds in it (smoothed without a magnetometer?): "
+                       "give them with --welds RUN_welds.csv")  # fmt: skip
+    if CENTRELINE_ATTACHMENT not in run.attachments:
+        print(f"pipe-nav: note: {args.run}: no centreline.csv in it: chainage is the arc length "
+              "of its path and the sigmas are unknown", file=sys.stderr)  # fmt: skip
+    loc = locate_tally(tally, welds, run.trajectory, scale_tolerance=args.scale_tolerance)
+    write_located(args.out, args.geojson, tally, loc.rows)
+    for note in loc.notes:
+        print(f"pipe-nav: note: {note}", file=sys.stderr)
+    if not args.quiet:
+        feats = [r for r in loc.rows if not r.row.weld]
+        alone = sum(r.matched_weld is None for r in loc.rows)
+        print(f"{len(loc.rows)} tally rows located ({len(feats)} features), "
+              f"{alone} without a matched weld")  # fmt: skip
+        print("outputs:")
+        for p in (args.out, args.geojson):
+            if p:
+                print(f"  {p}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .runs import compare_files
+
+    cfg = _load_config(args)
+    report, paths = compare_files(args.run_a, args.run_b, args.out, cfg,
+                                  threshold=args.threshold, n_sigma=args.n_sigma,
+                                  workers=args.workers,
+                                  dask_scheduler=args.dask_scheduler)  # fmt: skip
+    for note in report.notes:
+        print(f"pipe-nav: note: {note}", file=sys.stderr)
+    if not args.quiet:
+        s = report.summary()
+        print(f"{s['points']} points compared ({s['weld_pairs']} welds, {s['bend_pairs']} "
+              f"bends), largest displacement {s['max_displacement_m']:.3f} m; "
+              f"{s['intervals']} movement interval(s) over {report.n_sigma:g} sigma and "
+              f"{report.threshold:g} m")  # fmt: skip
+        for iv in report.intervals:
+            print(f"  {iv.number:>3} {iv.start_m:.1f}-{iv.end_m:.1f} m peak "
+                  f"{iv.peak_magnitude:.3f} m at {iv.peak_m:.1f} m ({iv.points} points)")
+        print("outputs:")
+        for p in paths:
+            print(f"  {p}")
+    return 0
+
+
+def cmd_fuse(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .runs import fuse_files
+
+    settings = {k: v for k, v in (("spacing", args.spacing), ("error_spacing", args.error_spacing),
+                                  ("correlation_length", args.correlation_length),
+                                  ("white_sigma", args.white_sigma)) if v is not None}  # fmt: skip
+    result = fuse_files(args.runs, args.out, workers=args.workers,
+                        dask_scheduler=args.dask_scheduler, **settings)  # fmt: skip
+    for note in result.notes:
+        print(f"pipe-nav: note: {note}", file=sys.stderr)
+    if not args.quiet:
+        line = result.centreline
+        span = float(line.distance[-1] - line.distance[0])
+        sig_h = float(np.mean(np.hypot(line.sigma_enu[:, 0], line.sigma_enu[:, 1])))
+        print(f"{len(args.runs)} runs fused over {span:.1f} m; mean fused sigma_h {sig_h:.3f} m")
+        print(f"{'run':>4} {'welds':>6} {'rms_h_m':>8} {'max_h_m':>8} {'rms_v_m':>8} "
+              f"{'max_v_m':>8}  file")  # fmt: skip
+        for r, path in zip(result.residuals, args.runs, strict=True):
+            print(f"{r.index:>4} {r.welds_matched:>6} {r.rms_h:>8.3f} {r.max_h:>8.3f} "
+                  f"{r.rms_v:>8.3f} {r.max_v:>8.3f}  {path}")  # fmt: skip
+        print(f"output:\n  {args.out}")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import main as bench_main
 
@@ -448,6 +563,14 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
+
+
+def _add_runs_options(p: argparse.ArgumentParser) -> None:
+    """Where the per-run work of a command over several runs is done (pipe_nav_core.runs)."""
+    p.add_argument("--workers", type=int, help="local processes (default: one per run, "
+                   "at most the CPUs)")  # fmt: skip
+    p.add_argument("--dask-scheduler", metavar="ADDRESS",
+                   help="run on this Dask distributed cluster (tcp://host:8786) instead")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -523,12 +646,52 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no table")
     p.set_defaults(func=cmd_bends)
 
+    p = sub.add_parser("locate", help="give a vendor tally's welds and features coordinates")
+    p.add_argument("tally", help="the ILI vendor's pipe tally CSV (README: accepted columns)")
+    p.add_argument("--run", required=True, help="the smoothed .mcap (pipe-nav smooth --out)")
+    p.add_argument("--out", required=True, help="FEATURES.csv: the tally's columns + positions")
+    p.add_argument("--geojson", help="also the located rows as GeoJSON points")
+    p.add_argument("--welds", help="RUN_welds.csv to use instead of the bag's welds")
+    p.add_argument("--scale-tolerance", type=float, default=0.01,
+                   help="vendor odometer scale error to allow (default 0.01 = 1 %%)")  # fmt: skip
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_locate)
+
     p = sub.add_parser("evaluate", help="score a centreline CSV against a truth CSV")
     p.add_argument("centreline")
     p.add_argument("--truth", required=True, help="truth in the centreline CSV format")
     p.add_argument("--markers", help="marker CSV (for the between-markers figures)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("compare", help="movement of the pipe between two smoothed runs")
+    p.add_argument("run_a", help="the earlier run: a smoothed .mcap (pipe-nav smooth --out)")
+    p.add_argument("run_b", help="the later run, through the same pipe")
+    p.add_argument("--out", required=True, metavar="MOVEMENT.csv",
+                   help="the movement CSV (its .geojson and .png are written beside it)")
+    p.add_argument("--threshold", type=float, metavar="M",
+                   help="smallest displacement reported as movement, m (default 0.05)")
+    p.add_argument("--n-sigma", type=float, help="and over this many sigma (default 3)")
+    _add_runs_options(p)
+    p.add_argument("--config", help="YAML/JSON file of settings (curvature and bends)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting")
+    p.add_argument("--imu-grade", choices=["auto", "consumer", "industrial", "tactical"],
+                   help="IMU noise model of the curvature sigmas (default: the bag's)")
+    p.add_argument("--quiet", action="store_true", help="no summary")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("fuse", help="one centreline from several runs through one pipe")
+    p.add_argument("runs", nargs="+", metavar="RUN",
+                   help="smoothed .mcap bags; the first gives the chainage and the map frame")
+    p.add_argument("--out", required=True, metavar="FUSED.csv", help="fused centreline CSV")
+    p.add_argument("--spacing", type=float, help="row spacing, m of chainage (default 0.5)")
+    p.add_argument("--error-spacing", type=float, help="nodes of each run's error, m (10)")
+    p.add_argument("--correlation-length", type=float,
+                   help="of each run's error along the pipe, m (default 50)")
+    p.add_argument("--white-sigma", type=float, help="position noise beyond it, m (0.005)")
+    _add_runs_options(p)
+    p.add_argument("--quiet", action="store_true", help="no residual table")
+    p.set_defaults(func=cmd_fuse)
 
     p = sub.add_parser("bench", help="accuracy (and speed) benchmark on simulated runs")
     p.add_argument("--quick", action="store_true", help="fewer scenarios and seeds")
@@ -538,6 +701,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--products", action="store_true", help="also the bend/strain table per IMU grade"
     )
     p.add_argument("--products-only", action="store_true", help="only the bend/strain table")
+    p.add_argument("--welds", action="store_true", help="also the girth weld and tally table")
+    p.add_argument("--welds-only", action="store_true", help="only the weld table")
+    p.add_argument("--runs", action="store_true", help="also the movement and fusion table")
+    p.add_argument("--runs-only", action="store_true", help="only the movement/fusion table")
     p.add_argument("--length-km", type=float, default=10.0, help="field run length for --speed")
     p.add_argument("--out", default="BENCHMARKS.md", help="Markdown table")
     p.add_argument("--json", default="bench_out/benchmarks.json", help="JSON results")

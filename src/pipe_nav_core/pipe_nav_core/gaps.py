@@ -32,8 +32,9 @@ MIN_GAP_S = 1.0  # s: a silence shorter than this (and than 50 IMU periods) is n
 class TimeHole:
     """A silence of the IMU from ``t_before`` to ``t_after`` (s, the samples either side).
 
-    kind: ``clock step`` or ``data gap``; step: s, how far the stamps after it were moved back
-    (0 for a data gap); moved: m, odometer distance across it.
+    kind: ``clock step``, ``data gap`` or ``rest`` (filled: fill_holes_at_rest); step: s, how
+    far the stamps after it were moved back (0 for a data gap); moved: m, odometer distance
+    across it.
     """
 
     t_before: float
@@ -44,6 +45,12 @@ class TimeHole:
 
     def describe(self) -> str:
         """One line for people."""
+        if self.kind == "rest":
+            return (
+                f"IMU silent for {self.t_after - self.t_before:.1f} s after t = "
+                f"{self.t_before:.3f} s while the pig stood still: filled with what it read "
+                "either side"
+            )
         if self.kind == "clock step":
             return (
                 f"clock step of {self.step:+.3f} s after t = {self.t_before:.3f} s (all topics "
@@ -149,5 +156,69 @@ def fill_short_holes(log: SensorLog, max_moved: float = 0.5) -> tuple[SensorLog,
         return np.stack([np.interp(tt, t, x[:, c]) for c in range(x.shape[1])], axis=1)
 
     added = len(tt) - len(t)
-    return replace(log, imu=replace(imu, t=tt, gyro=fill(imu.gyro), accel=fill(imu.accel))), \
-        filled, added
+    return (
+        replace(log, imu=replace(imu, t=tt, gyro=fill(imu.gyro), accel=fill(imu.accel))),
+        filled,
+        added,
+    )
+
+
+REST_WINDOW_S = 0.5  # s of IMU samples either side of a hole at rest averaged for its filling
+REST_MOVED_M = 0.01  # m: the odometer moved less than this across a hole at rest ...
+REST_SPEED = 0.01  # m/s: ... and read less than this speed at either end
+REST_TILT = 2e-3  # rad: the gravity direction either side agrees to this (the pig did not roll)
+REST_RATE = 2e-3  # rad/s: and the mean rates to this
+
+
+def fill_holes_at_rest(log: SensorLog) -> tuple[SensorLog, list[TimeHole]]:
+    """The log with the IMU holes longer than fill_short_holes takes, but while the pig stood
+    still (a logger stall, a shock left out, at a stop), filled at the IMU's rate with the mean
+    of the REST_WINDOW_S either side, linearly from one to the other: standing still, the IMU
+    reads the same before and after, so the filled samples are what it would have read. At
+    rest means: the odometer moved under REST_MOVED_M across the hole, its speed either side
+    is under REST_SPEED, and the gravity direction and the mean rate either side agree
+    (REST_TILT, REST_RATE: the pig did not roll over in it). Returns the log and the holes
+    filled (kind ``rest``)."""
+    imu, odo = log.imu, log.odometer
+    t = imu.t
+    if len(t) < 3 or len(odo.t) < 2:
+        return log, []
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    limit = max(MIN_GAP_S, 50.0 * period)
+    filled: list[TimeHole] = []
+    parts_t, parts_g, parts_a = [t], [imu.gyro], [imu.accel]
+    for i in np.flatnonzero(dt > limit):
+        t0, t1 = float(t[i]), float(t[i + 1])
+        d0, d1 = np.interp([t0, t1], odo.t, odo.distance)
+        j0 = max(int(np.searchsorted(odo.t, t0, side="right")) - 1, 0)
+        j1 = min(int(np.searchsorted(odo.t, t1, side="left")), len(odo.t) - 1)
+        if (
+            abs(d1 - d0) >= REST_MOVED_M
+            or max(abs(odo.speed[j0]), abs(odo.speed[j1])) >= REST_SPEED
+        ):
+            continue
+        before = (t > t0 - REST_WINDOW_S) & (t <= t0)
+        after = (t >= t1) & (t < t1 + REST_WINDOW_S)
+        if before.sum() < 3 or after.sum() < 3:
+            continue
+        g0, g1 = imu.gyro[before].mean(axis=0), imu.gyro[after].mean(axis=0)
+        a0, a1 = imu.accel[before].mean(axis=0), imu.accel[after].mean(axis=0)
+        cos = float(a0 @ a1 / max(np.linalg.norm(a0) * np.linalg.norm(a1), 1e-12))
+        if math.acos(min(1.0, cos)) > REST_TILT or float(np.max(np.abs(g1 - g0))) > REST_RATE:
+            continue
+        n = int(round((t1 - t0) / period)) - 1
+        if n <= 0:
+            continue
+        f = (np.arange(1, n + 1) / (n + 1))[:, None]
+        parts_t.append(t0 + (t1 - t0) * f[:, 0])
+        parts_g.append(g0 + f * (g1 - g0))
+        parts_a.append(a0 + f * (a1 - a0))
+        filled.append(TimeHole(t0, t1, "rest", 0.0, float(d1 - d0)))
+    if not filled:
+        return log, []
+    tt = np.concatenate(parts_t)
+    order = np.argsort(tt, kind="stable")
+    imu = replace(imu, t=tt[order], gyro=np.concatenate(parts_g)[order],
+                  accel=np.concatenate(parts_a)[order])  # fmt: skip
+    return replace(log, imu=imu), filled

@@ -137,7 +137,10 @@ def _stuck(
         start, end = a - 1, min(b, len(t) - 1)  # the last reading before, the first that moved
         if start < n or t[end] - t[start] < MIN_STUCK_S or not np.isfinite(vb[start]):
             continue
-        before = abs(float(vb[start]))
+        # the median step over the window before (a one-reading jump into a stop is a step,
+        # not the speed the wheel stopped from)
+        inc = np.diff(d[start - n : start + 1])
+        before = abs(float(np.median(inc) / np.median(np.diff(t[start - n : start + 1]))))
         if before < MIN_MOVING or before / w < A_STOP:
             continue  # a gradual stop: the pig stopped
         if _jolt(log, t[start], t[start + 1]) > 0.3 * before / w:
@@ -182,3 +185,38 @@ def _spike_readings(t: np.ndarray, d: np.ndarray, f: OdometerFault) -> np.ndarra
     out = np.zeros(len(t), bool)
     out[k[off]] = True
     return out
+
+
+BRIDGE_MIN_S = 1.0  # s: odometer silences longer than this are bridged for dead reckoning
+
+
+def bridged_for_dead_reckoning(log: SensorLog) -> SensorLog:
+    """The log with each odometer silence over BRIDGE_MIN_S (the readings of a stuck wheel left
+    out) filled at the mean of the speeds either side, and the readings after it moved on by
+    what that speed covers, as if the wheel had kept turning. Only for the dead reckoning that
+    finds the initial heading (smoother.anchored_config), where the distance is the only
+    motion there is: an error of the assumed speed lengthens the path, it barely turns the
+    bearing the heading is anchored on. The filter itself keeps the IMU across the hole."""
+    odo = log.odometer
+    if len(odo.t) < 3:
+        return log
+    dt = np.diff(odo.t)
+    period = float(np.median(dt))
+    holes = np.flatnonzero(dt > max(BRIDGE_MIN_S, 5.0 * period))
+    if not len(holes):
+        return log
+    t, d, v = [odo.t], [odo.distance.copy()], [odo.speed]
+    shift = np.zeros(len(odo.t))
+    for i in holes:
+        t0, t1 = float(odo.t[i]), float(odo.t[i + 1])
+        speed = 0.5 * (float(odo.speed[i]) + float(odo.speed[i + 1]))
+        n = int(round((t1 - t0) / period)) - 1
+        tt = t0 + (t1 - t0) * np.arange(1, n + 1) / (n + 1)
+        t.append(tt)
+        d.append(odo.distance[i] + shift[i] + speed * (tt - t0))
+        v.append(np.full(n, speed))
+        shift[i + 1 :] += odo.distance[i] + speed * (t1 - t0) - odo.distance[i + 1]
+    d[0] = d[0] + shift  # (each hole's fill started from its reading already shifted)
+    tt, dd, vv = (np.concatenate(x) for x in (t, d, v))
+    order = np.argsort(tt, kind="stable")
+    return replace(log, odometer=replace(odo, t=tt[order], distance=dd[order], speed=vv[order]))

@@ -18,7 +18,7 @@ import numpy as np
 from . import imu_model, quality
 from .config import AUTO_GRADE, NavConfig
 from .engine import NavEstimate
-from .gaps import fill_short_holes, find_holes, remove_clock_steps
+from .gaps import fill_holes_at_rest, fill_short_holes, find_holes, remove_clock_steps
 from .imu_faults import without_imu_faults
 from .io import (
     BagReport,
@@ -33,14 +33,16 @@ from .io import (
     write_output_bag,
 )
 from .io.atomic import all_or_none, check_not_input, check_output
-from .io.bagread import declared_imu_noise
 from .io.centreline import concat, pieces_of, read_centreline_csv
 from .io.products_csv import write_bends_csv, write_strain_csv, write_strain_features_csv
-from .io.smoothed_bag import read_smoothed_bag
+from .io.smoothed_bag import read_smoothed_bag, smoothed_attachments
+from .io.welds_csv import write_welds_csv
 from .live_guard import GuardedNavigator
 from .marker_outliers import smooth_without_outliers
 from .odometer_faults import find_odometer_faults, without_faults
+from .plot_process import PlotProcess
 from .products import IntegrityReport, integrity_report, read_bends_reference
+from .products.welds import Weld, detect_welds
 from .segments import smooth_segments
 from .sensors import GRADES
 from .smoother import SmoothResult, smooth_log
@@ -63,19 +65,21 @@ class Outputs:
     strain: str | None = None  # the integrity products (products/), named like the centreline
     bends: str | None = None
     strain_features: str | None = None
+    welds: str | None = None  # RUN_welds.csv, written when the run has a magnetometer
 
     # the command-line option that names each output, for messages
     OPTIONS = {"bag": "--out", "csv": "--csv", "geojson": "--geojson", "kml": "--kml",
                "plot": "--plot", "strain": "--csv/--out", "bends": "--csv/--out",
-               "strain_features": "--csv/--out"}  # fmt: skip
+               "strain_features": "--csv/--out", "welds": "--csv/--out"}  # fmt: skip
 
     def paths(self) -> list[str]:
         return [p for p in (getattr(self, name) for name in self.OPTIONS) if p]
 
     def with_products(self) -> Outputs:
         """These outputs plus the integrity products beside the centreline CSV (else beside
-        the bag): ``RUN_strain.csv``, ``RUN_bends.csv``, ``RUN_strain_features.csv`` where RUN
-        is the CSV's (or bag's) name without ``_centerline`` (``_smoothed``) and suffix."""
+        the bag): ``RUN_strain.csv``, ``RUN_bends.csv``, ``RUN_strain_features.csv``,
+        ``RUN_welds.csv`` where RUN is the CSV's (or bag's) name without ``_centerline``
+        (``_smoothed``) and suffix."""
         base = self.csv or self.bag
         if not base:
             return self
@@ -85,7 +89,8 @@ class Outputs:
                 stem = stem[: -len(tail)]
                 break
         return replace(self, strain=f"{stem}_strain.csv", bends=f"{stem}_bends.csv",
-                       strain_features=f"{stem}_strain_features.csv")  # fmt: skip
+                       strain_features=f"{stem}_strain_features.csv",
+                       welds=f"{stem}_welds.csv")  # fmt: skip
 
     def check(self, inputs: Sequence[str | os.PathLike[str]], spacing: float) -> None:
         """Before any work: every output writable, none an input, no two the same file, and
@@ -139,6 +144,8 @@ def load_log(
         report.warnings.append(
             f"IMU: {added} missing samples in {filled} short hole(s) filled by interpolation"
         )
+    log, at_rest = fill_holes_at_rest(log)
+    report.warnings += [h.describe() for h in at_rest]
     holes = find_holes(log, short=True)  # what is left: short clock glitches and data gaps
     log = remove_clock_steps(log, holes)
     report.warnings += [h.describe() for h in steps + holes]
@@ -195,9 +202,11 @@ def smooth_bag(
     topics: TopicNames = DEFAULT_TOPICS,
     progress: Progress | None = None,
     bends_reference: str | os.PathLike[str] | None = None,
+    plotter: PlotProcess | None = None,
 ) -> tuple[SmoothResult, BagReport]:
     """Smooth a recorded run, compute its integrity products (bends_reference: a CSV of the
-    as-built bends' chainage intervals) and write the requested outputs."""
+    as-built bends' chainage intervals) and write the requested outputs (the plot in
+    ``plotter``'s child process where one is given)."""
     inputs = [bag] + [p for p in (markers_csv, bends_reference) if p]
     outputs.check(inputs, spacing)
     reference = read_bends_reference(bends_reference) if bends_reference else None
@@ -214,8 +223,10 @@ def smooth_bag(
         )
 
     def smooth(part: SensorLog) -> SmoothResult:
-        return smooth_with_imu_model(part, config, bag=bag, topics=topics, method=method,
-                                     iterations=iterations, progress=say)  # fmt: skip
+        return smooth_with_imu_model(
+            part, config, declared=report.imu_noise_declared, method=method,
+            iterations=iterations, progress=say,
+        )  # fmt: skip
 
     gaps = [h for h in find_holes(log, short=True)
             if h.kind == "data gap" and not h.moved <= MAX_BRIDGED_M]  # fmt: skip
@@ -244,7 +255,11 @@ def smooth_bag(
         result.centreline, result.config or config, spacing=spacing, reference=reference
     )
     result.summary["integrity"] = result.products.summary()
-    write_products(result, outputs, spacing=spacing, progress=say)
+    if len(log.mag.t):
+        say("girth welds")
+        result.welds = run_welds(log, result, result.config or config)
+        result.summary["welds"] = weld_summary(result.welds)
+    write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter)
     return result, report
 
 
@@ -252,19 +267,19 @@ def smooth_with_imu_model(
     log: SensorLog,
     config: NavConfig,
     *,
-    bag: str | os.PathLike[str] | None = None,
-    topics: TopicNames = DEFAULT_TOPICS,
+    declared: dict[str, list[float]] | None = None,
     method: str = "rts",
     iterations: int = 2,
     progress: Progress | None = None,
 ) -> SmoothResult:
     """smooth_log with ``imu_grade: auto`` resolved from the run (imu_model.choose: the static
-    spans, else the Imu messages of ``bag``) and, while the smoothed run still shows that the
-    model does not fit (Navigator.model_warnings), refitted with the next noisier grade. The
+    spans, else ``declared``, the variances the Imu messages declare: BagReport's
+    imu_noise_declared) and, while the smoothed run still shows that the model does not fit
+    (Navigator.model_warnings), refitted with the next noisier grade. The
     summary's ``imu_model`` says which model was used and why; a named grade is used as given
     (its misfit warnings stay)."""
     say = progress or (lambda _m: None)
-    choice = imu_model.choose(log, config, _declared(bag, config, topics))
+    choice = imu_model.choose(log, config, declared if config.imu_grade == AUTO_GRADE else None)
     auto = config.imu_grade == AUTO_GRADE
     if auto:
         say(f"IMU model: {choice.grade} ({choice.reason})")
@@ -322,13 +337,20 @@ def _require_imu(
         raise ValueError(f"{bag}: no IMU samples on {topics.imu}{carries}")
 
 
-def _declared(
-    bag: str | os.PathLike[str] | None, config: NavConfig, topics: TopicNames
-) -> dict[str, list[float]] | None:
-    """The IMU variances the bag's Imu messages declare, read only for imu_grade auto."""
-    if config.imu_grade != AUTO_GRADE or bag is None:
-        return None
-    return declared_imu_noise(bag, topics.imu)
+def run_welds(log: SensorLog, result: SmoothResult, config: NavConfig) -> list[Weld]:
+    """The girth welds of a smoothed run (products.welds.detect_welds) with the pig's pipe
+    diameter and IMU mount."""
+    from .engine import mount_rotation
+
+    return detect_welds(log, result.centreline, result.datum, pipe_diameter=config.pipe_diameter,
+                        r_base_imu=mount_rotation(config.imu_mount_rpy))  # fmt: skip
+
+
+def weld_summary(welds: Sequence[Weld]) -> dict[str, object]:
+    """What the summary says of the welds: how many, how many filled in, the typical joint."""
+    joints = [w.joint_length for w in welds if math.isfinite(w.joint_length)]
+    return {"count": len(welds), "filled": sum(w.confidence == 0.0 for w in welds),
+            "median_joint_m": float(np.median(joints)) if joints else None}  # fmt: skip
 
 
 def write_products(
@@ -337,13 +359,15 @@ def write_products(
     *,
     spacing: float = 0.5,
     progress: Progress | None = None,
+    plotter: PlotProcess | None = None,
 ) -> Trajectory:
     """Write the bag, CSV, GeoJSON, KML and plot of a smoothing result: all of them or, if
-    one fails (or the run is interrupted), none (io.atomic.all_or_none)."""
+    one fails (or the run is interrupted), none (io.atomic.all_or_none). ``plotter``: a
+    child process that draws the plot meanwhile (else it is drawn here)."""
     say = progress or (lambda _m: None)
     rows = centreline_rows(result, spacing)
     with all_or_none(outputs.paths()) as staged:
-        _write_staged(result, outputs, rows, staged, say)
+        _write_staged(result, outputs, rows, staged, say, plotter)
     return rows
 
 
@@ -368,45 +392,51 @@ def _write_staged(
     rows: Trajectory,
     staged: dict[str, Path],
     say: Progress,
+    plotter: PlotProcess | None,
 ) -> None:
     products = result.products
     bends = products.bends if products else []
+    if outputs.plot:  # first: a child process draws it while the others are written
+        say("plotting")
+        _submit_plot(result, rows, staged[outputs.plot], Path(outputs.plot).stem, plotter)
     features = products.features if products else []
     if outputs.bag:
         say("writing bag")
         write_output_bag(staged[outputs.bag], path=rows, datum=result.datum,
                          odometry=result.forward, file_name=Path(outputs.bag).name,
-                         run_metadata=run_metadata(result.summary), bends=bends)  # fmt: skip
+                         run_metadata=run_metadata(result.summary), bends=bends,
+                         attachments=smoothed_attachments(rows, result.datum,
+                                                          result.welds))  # fmt: skip
     if outputs.csv:
         write_centreline_csv(staged[outputs.csv], rows, result.datum)
+    welds = result.welds or []
     if outputs.geojson:
         write_geojson(staged[outputs.geojson], rows, result.markers, bends=bends,
-                      strain_features=features)  # fmt: skip
+                      strain_features=features, welds=welds)  # fmt: skip
     if outputs.kml:
         write_kml(staged[outputs.kml], rows, result.markers, bends=bends,
-                  strain_features=features)  # fmt: skip
+                  strain_features=features, welds=welds)  # fmt: skip
     if result.products is not None:
         _write_products_csv(result.products, outputs, staged)
-    if outputs.plot:
-        say("plotting")
-        from .plots import plot_report
+    if outputs.welds and result.welds is not None:
+        write_welds_csv(staged[outputs.welds], result.welds)
+    if plotter is not None:
+        plotter.wait()
 
-        res = np.array(
-            [
-                result.marker_residuals[m.name]
-                for m in result.markers
-                if m.name in result.marker_residuals
-            ]
-        )
-        plot_report(
-            staged[outputs.plot],
-            rows,
-            result.datum,
-            [m for m in result.markers if m.name in result.marker_residuals],
-            res.reshape(-1, 3) if len(res) else None,
-            title=Path(outputs.plot).stem,
-            integrity=products,
-        )
+
+def _submit_plot(
+    result: SmoothResult, rows: Trajectory, path: Path, title: str, plotter: PlotProcess | None
+) -> None:
+    from .plots import plot_report
+
+    markers = [m for m in result.markers if m.name in result.marker_residuals]
+    res = np.array([result.marker_residuals[m.name] for m in markers]).reshape(-1, 3)
+    args = (path, rows, result.datum, markers, res if len(res) else None)
+    kwargs = {"title": title, "integrity": result.products}
+    if plotter is None:
+        plot_report(*args, **kwargs)
+    else:
+        plotter.submit(*args, **kwargs)
 
 
 def _write_products_csv(report: IntegrityReport, outputs: Outputs, staged: dict[str, Path]) -> None:
@@ -479,7 +509,8 @@ def replay_bag(
     check_not_input(out, [bag] + ([markers_csv] if markers_csv else []))
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv, repair=False)
     _require_imu(log, report, bag, topics)
-    result = replay_log(log, config, _declared(bag, config, topics))
+    auto = config.imu_grade == AUTO_GRADE
+    result = replay_log(log, config, report.imu_noise_declared if auto else None)
     if not result.estimates:
         raise ValueError(
             f"{bag}: the estimator produced no estimate (no static start or no marker)"

@@ -340,4 +340,4 @@ def plot_report(
     ax.grid(True, alpha=0.3)
 
     with atomic_write(png_path, "wb") as f:
-        fig.savefig(f, format="png")
+        fig.savefig(f, format="png", pil_kwargs={"compress_level": 1})  # 3x faster, 1.5x larger

@@ -37,6 +37,7 @@ from . import attitude as att
 from . import earth
 from .config import NOISE_EPOCH_S, NavConfig
 from .engine import FreeHeading, Navigator
+from .odometer_faults import bridged_for_dead_reckoning
 from .recording import Recording
 from .smoothing import rts_packed
 from .state import (
@@ -68,6 +69,7 @@ from .types import (
 
 if TYPE_CHECKING:
     from .products import IntegrityReport
+    from .products.welds import Weld
 
 Array = NDArray[np.float64]
 METHODS = ("forward", "rts", "two-filter")
@@ -95,7 +97,8 @@ class SmoothResult:
     marker_residuals: name -> (3,) ENU m, smoothed position minus survey at the passage;
     summary: figures for people (see :func:`summarize`); config: the settings the run was
     smoothed with (the IMU model chosen for it); products: its integrity products, when the
-    pipeline computed them (products.integrity_report).
+    pipeline computed them (products.integrity_report); welds: its girth welds
+    (products.welds.detect_welds), None when the pipeline did not look (no magnetometer).
     """
 
     centreline: Trajectory
@@ -106,6 +109,7 @@ class SmoothResult:
     summary: dict[str, object] = field(default_factory=dict)
     config: NavConfig | None = None
     products: IntegrityReport | None = None
+    welds: list[Weld] | None = None
 
 
 def reverse_log(log: SensorLog) -> SensorLog:
@@ -334,7 +338,7 @@ def anchored_config(
     az = live.initial_azimuth
     markers = markers_sorted(log.markers)
     if len(markers) >= 2 and live.reanchor_rad != 0.0:
-        head = _truncate(log, markers[1].t + 1.0)
+        head = bridged_for_dead_reckoning(_truncate(log, markers[1].t + 1.0))
         dr = replace(config, mode="dr")
         # secant iteration on f(azimuth) = the rotation the re-anchoring asks for
         az_prev, f_prev = az, run_forward(head, dr, initial_azimuth=az, record=False).reanchor_rad

@@ -361,6 +361,8 @@ def _decode_role(
     sizes = batch.size[sel]
     vals, ok = cdr.decode_batch(_LAYOUT[role], batch.buf, starts, sizes, _FIELDS[role])
     good = np.flatnonzero(ok)
+    if role == "imu" and len(good) and not report.imu_noise_declared:
+        report.imu_noise_declared = _declared_noise(batch.buf, starts[good[:1]], sizes[good[:1]])
     ns_parts: list[NDArray[np.int64]] = []
     pos_parts: list[NDArray[np.int64]] = []
     val_parts: list[dict[str, NDArray]] = []
@@ -949,25 +951,32 @@ def bag_time_range(
     return min(starts), max(ends)
 
 
+_COVARIANCES = ("angular_velocity_covariance", "linear_acceleration_covariance")
+
+
+def _declared_noise(
+    buf: NDArray[np.uint8], starts: NDArray[np.int64], sizes: NDArray[np.int64]
+) -> dict[str, list[float]]:
+    """The variance diagonals of the first Imu message of (starts, sizes) in buf, or {}."""
+    values, ok = cdr.decode_batch(cdr.IMU, buf, starts[:1], sizes[:1], _COVARIANCES)
+    if not ok.all():
+        return {}
+    gv, av = (np.asarray(values[n], dtype=float)[0, [0, 4, 8]] for n in _COVARIANCES)
+    return {"gyro_variance": gv.tolist(), "accel_variance": av.tolist()}
+
+
 def declared_imu_noise(path: str | os.PathLike[str], topic: str) -> dict[str, Any]:
     """The per-sample variances (diagonals, (rad/s)^2 and (m/s^2)^2) the bag's first Imu
     message on ``topic`` declares, or {} (no message, or one that does not decode): what the
     IMU model of imu_grade auto falls back on (imu_model.choose)."""
     from mcap.reader import make_reader
 
-    names = ["angular_velocity_covariance", "linear_acceleration_covariance"]
     for f in bag_files(path):
         try:
             with open(f, "rb") as fh:
                 for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
                     buf = np.frombuffer(message.data, dtype=np.uint8)
-                    values, ok = cdr.decode_batch(
-                        cdr.IMU, buf, np.array([0]), np.array([len(buf)]), names
-                    )
-                    if not ok.all():
-                        return {}
-                    gv, av = (np.asarray(values[n], dtype=float)[0, [0, 4, 8]] for n in names)
-                    return {"gyro_variance": gv.tolist(), "accel_variance": av.tolist()}
+                    return _declared_noise(buf, np.array([0]), np.array([len(buf)]))
         except Exception:  # an unreadable first message says nothing about the noise
             return {}
     return {}

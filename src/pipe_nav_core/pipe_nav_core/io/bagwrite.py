@@ -251,6 +251,7 @@ class _BagBuilder:
         self.topics: list[tuple[str, str, dict, str]] = []  # name, type, QoS, hash per channel
         self.streams: list[Stream] = []
         self.metadata: dict[str, dict[str, str]] = {}  # more Metadata records, by name
+        self.attachments: list[tuple[str, str, bytes]] = []  # (name, media type, data)
 
     def channel(self, topic: str, typename: str, qos: dict) -> int:
         """A channel offered with the QoS profile ``qos`` (see :data:`TOPIC_QOS`)."""
@@ -290,6 +291,8 @@ class _BagBuilder:
         w.add_metadata(ROSBAG2_METADATA_NAME, {"serialized_metadata": yaml_text(meta)})
         for name, values in self.metadata.items():
             w.add_metadata(name, values)
+        for name, media_type, data in self.attachments:
+            w.add_attachment(name, media_type, data, w.end_time or 0, w.end_time or 0)
         w.finish()
 
 
@@ -486,6 +489,7 @@ def write_output_bag(
     file_name: str | None = None,
     run_metadata: Mapping[str, str] | None = None,
     bends: Sequence[PipeBend] = (),
+    attachments: Sequence[tuple[str, str, bytes]] = (),
 ) -> None:
     """Write the estimator's results as a ROS 2 MCAP bag (INTERFACES.md, output topics).
 
@@ -504,7 +508,9 @@ def write_output_bag(
     attitude-differenced body rate). ``inputs``: paths this must not overwrite (the input bag).
     ``file_name``: the bag's name in its rosbag2 metadata when it is written under another
     (staged) name. ``run_metadata``: what the run records of itself (quality verdict, IMU
-    model...), written as an MCAP Metadata record named ``pipe_nav``. The first argument is
+    model...), written as an MCAP Metadata record named ``pipe_nav``. ``attachments``: (name,
+    media type, data) of files stored in the bag as MCAP Attachment records (the smoothed run's
+    ``welds.csv`` and ``centreline.csv``, io/smoothed_bag.py). The first argument is
     positional-only because ``path`` names the trajectory.
     """
     for traj, what in ((path, "path"), (odometry, "odometry")):
@@ -584,6 +590,7 @@ def write_output_bag(
         )
     if run_metadata:
         b.metadata[RUN_METADATA_NAME] = dict(run_metadata)
+    b.attachments = [(str(n), str(m), bytes(d)) for n, m, d in attachments]
     _write(b, bag_path, compression, chunk_size, inputs, file_name)
 
 

@@ -168,12 +168,24 @@ def resample_by_chainage(
     return interpolate_trajectory(traj, np.unique(times))
 
 
-HOLE_S = 1.0  # s without a sample: a trajectory is in pieces (segments across data gaps)
+HOLE_S = 1.0  # s without a sample ...
+HOLE_M = 1.0  # ... across which the position jumps more than this: a trajectory is in pieces
 
 
 def pieces_of(traj: Trajectory) -> list[Trajectory]:
-    """A trajectory cut where it has no sample for over HOLE_S (segments across gaps)."""
-    cuts = np.flatnonzero(np.diff(np.asarray(traj.t)) > HOLE_S) + 1
+    """A trajectory cut where it has no sample for over HOLE_S and moves over HOLE_M across
+    (segments smoothed apart across data gaps; not a stop of a centreline sampled by chainage,
+    which has no sample for as long as the pig stood still)."""
+    t = np.asarray(traj.t, dtype=np.float64)
+    cuts = np.flatnonzero(np.diff(t) > HOLE_S)
+    if len(cuts):
+        lat, lon, h = (np.asarray(x, dtype=np.float64) for x in (traj.lat, traj.lon, traj.h))
+        r = 6.371e6  # m: metres per radian, plenty for a metre-scale test
+        step = np.sqrt(((lat[cuts + 1] - lat[cuts]) * r) ** 2
+                       + ((lon[cuts + 1] - lon[cuts]) * r * np.cos(lat[cuts])) ** 2
+                       + (h[cuts + 1] - h[cuts]) ** 2)  # fmt: skip
+        cuts = cuts[step > HOLE_M]
+    cuts = cuts + 1
     if not len(cuts):
         return [traj]
     edges = [0, *cuts.tolist(), len(traj.t)]

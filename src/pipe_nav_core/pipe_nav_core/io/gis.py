@@ -26,6 +26,7 @@ from .centreline import require_finite
 if TYPE_CHECKING:
     from ..products.bends import PipeBend
     from ..products.strain import StrainFeature
+    from ..products.welds import Weld
 
 
 def _coords(traj: Trajectory) -> list[list[float]]:
@@ -104,13 +105,14 @@ def to_geojson(
     *,
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
+    welds: Sequence[Weld] = (),
 ) -> dict[str, object]:
     """GeoJSON FeatureCollection: a LineString of the centreline ([lon, lat, h] degrees and
     ellipsoidal metres) with properties name, start/end time (s) and length (chainage, m),
     one Point per marker with properties name, time_s, sigma_east/north/up_m, one Point per
     bend at its apex (kind ``bend``, :func:`bend_properties`) and one per strain feature at its
-    peak (kind ``strain_feature``, :func:`strain_feature_properties`). Non-finite property
-    values are null."""
+    peak (kind ``strain_feature``, :func:`strain_feature_properties`) and one per girth weld
+    (kind ``weld``, :func:`weld_properties`). Non-finite property values are null."""
     coords = _coords(traj)
     d = np.asarray(traj.distance, dtype=np.float64)
     t = np.asarray(traj.t, dtype=np.float64)
@@ -162,6 +164,7 @@ def to_geojson(
         features.append(
             _point_feature(_point_coords(f.lat, f.lon, f.alt), strain_feature_properties(f))
         )
+    features += weld_features(welds)
     return {"type": "FeatureCollection", "features": features}
 
 
@@ -172,12 +175,55 @@ def write_geojson(
     *,
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
+    welds: Sequence[Weld] = (),
 ) -> None:
     """Write :func:`to_geojson` to ``path`` (RFC 7946 GeoJSON, UTF-8); refuses non-finite
     samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_geojson(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
-                     bends=bends, strain_features=strain_features)  # fmt: skip
+                     bends=bends, strain_features=strain_features, welds=welds)  # fmt: skip
+    with atomic_write(path, "w") as f:
+        json.dump(doc, f, separators=(",", ":"), allow_nan=False)
+        f.write("\n")
+
+
+def weld_properties(w: Weld) -> dict[str, object]:
+    """GeoJSON properties of a girth weld point (metres, 0..1)."""
+    return {
+        "name": f"weld {w.number}",
+        "kind": "weld",
+        "number": int(w.number),
+        "distance_m": _num(w.distance, 4),
+        "joint_length_m": _num(w.joint_length, 4),
+        "confidence": _num(w.confidence, 3),
+        "sigma_h_m": _num(w.sigma_h, 4),
+        "sigma_v_m": _num(w.sigma_v, 4),
+        "time_s": _num(w.t, 6),
+    }
+
+
+def weld_features(welds: Sequence[Weld]) -> list[dict[str, object]]:
+    """GeoJSON Point features of girth welds (:func:`weld_properties`)."""
+    return [_point_feature(_point_coords(w.lat, w.lon, w.alt), weld_properties(w)) for w in welds]
+
+
+def write_points_geojson(
+    path: str | os.PathLike[str],
+    points: Sequence[tuple[float, float, float, dict[str, object]]],
+    name: str | None = None,
+) -> None:
+    """A GeoJSON FeatureCollection of Points: (lat rad, lon rad, ellipsoidal alt m,
+    properties) each (``pipe-nav locate``'s features); non-finite property values become
+    null. Atomic."""
+    feats = [
+        _point_feature(_point_coords(lat, lon, alt),
+                       {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                        for k, v in props.items()})  # fmt: skip
+        for lat, lon, alt, props in points
+    ]
+    doc = {"type": "FeatureCollection",
+           "name": name or os.path.splitext(os.path.basename(path))[0],
+           "features": feats}  # fmt: skip
     with atomic_write(path, "w") as f:
         json.dump(doc, f, separators=(",", ":"), allow_nan=False)
         f.write("\n")
@@ -237,6 +283,14 @@ def _kml_strain(f: StrainFeature) -> list[str]:
     return _kml_point(str(p["name"]), "strain_feature", text, p, f.lat, f.lon, f.alt)
 
 
+def _kml_weld(w: Weld) -> list[str]:
+    p = weld_properties(w)
+    joint = f", joint {w.joint_length:.2f} m" if math.isfinite(w.joint_length) else ""
+    text = (f"girth weld {w.number} at chainage {w.distance:.2f} m{joint}, confidence "
+            f"{w.confidence:.2f}, sigma h/v {w.sigma_h:.3f}/{w.sigma_v:.3f} m")  # fmt: skip
+    return _kml_point(str(p["name"]), "weld", text, p, w.lat, w.lon, w.alt)
+
+
 def to_kml(
     traj: Trajectory,
     markers: Sequence[Marker] = (),
@@ -244,11 +298,12 @@ def to_kml(
     *,
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
+    welds: Sequence[Weld] = (),
 ) -> str:
     """KML 2.2 document: a LineString Placemark of the centreline, a Point Placemark per
-    marker, and one per bend apex and strain feature peak (their GeoJSON properties as
-    ExtendedData), altitudeMode absolute with WGS84 ellipsoidal heights (see the module
-    docstring)."""
+    marker, and one per bend apex, strain feature peak and girth weld (their GeoJSON
+    properties as ExtendedData), altitudeMode absolute with WGS84 ellipsoidal heights (see the
+    module docstring)."""
     line = " ".join(f"{x:.9f},{y:.9f},{z:.4f}" for x, y, z in _coords(traj))
     parts = [
         '<?xml version="1.0" encoding="UTF-8"?>',
@@ -266,6 +321,8 @@ def to_kml(
         parts.append(
             '<Style id="strain_feature"><IconStyle><color>ffff00ff</color></IconStyle></Style>'
         )
+    if welds:
+        parts.append('<Style id="weld"><IconStyle><color>ff808080</color></IconStyle></Style>')
     parts += [
         "<Placemark>",
         f"<name>{escape(name)}</name>",
@@ -294,6 +351,8 @@ def to_kml(
         parts += _kml_bend(b)
     for f in strain_features:
         parts += _kml_strain(f)
+    for w in welds:
+        parts += _kml_weld(w)
     parts += ["</Document>", "</kml>", ""]
     return "\n".join(parts)
 
@@ -305,10 +364,11 @@ def write_kml(
     *,
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
+    welds: Sequence[Weld] = (),
 ) -> None:
     """Write :func:`to_kml` to ``path`` (UTF-8); refuses non-finite samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_kml(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
-                 bends=bends, strain_features=strain_features)  # fmt: skip
+                 bends=bends, strain_features=strain_features, welds=welds)  # fmt: skip
     with atomic_write(path, "w") as f:
         f.write(doc)

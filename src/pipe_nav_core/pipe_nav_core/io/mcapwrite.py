@@ -24,6 +24,8 @@ from numpy.typing import NDArray
 from .mcapread import (
     MAGIC,
     MESSAGE_HEADER_SIZE,
+    OP_ATTACHMENT,
+    OP_ATTACHMENT_INDEX,
     OP_CHANNEL,
     OP_CHUNK,
     OP_CHUNK_INDEX,
@@ -147,9 +149,9 @@ class McapWriter:
     """Writes one MCAP file to an open binary file object (see the module docstring).
 
     Call :meth:`add_schema`, :meth:`add_channel`, then :meth:`write_streams` (once), then
-    :meth:`add_metadata` (any number), then :meth:`finish`. ``message_count``,
-    ``channel_counts`` (channel id -> messages), ``start_time`` and ``end_time`` (log times, ns)
-    describe what was written so far.
+    :meth:`add_metadata` and :meth:`add_attachment` (any number), then :meth:`finish`.
+    ``message_count``, ``channel_counts`` (channel id -> messages), ``start_time`` and
+    ``end_time`` (log times, ns) describe what was written so far.
     """
 
     def __init__(
@@ -171,6 +173,7 @@ class McapWriter:
         self.channels: list[bytes] = []
         self.chunk_indexes: list[bytes] = []
         self.metadata_indexes: list[bytes] = []
+        self.attachment_indexes: list[bytes] = []
         self.channel_counts: dict[int, int] = {}
         self.start_time: int | None = None
         self.end_time: int | None = None
@@ -212,6 +215,23 @@ class McapWriter:
         self._write(rec)
         self.metadata_indexes.append(
             _record(OP_METADATA_INDEX, struct.pack("<QQ", offset, len(rec)) + _s(name))
+        )
+
+    def add_attachment(
+        self, name: str, media_type: str, data: bytes, log_time: int = 0, create_time: int = 0
+    ) -> None:
+        """Write an Attachment record (a named file, e.g. ``welds.csv`` of media type
+        ``text/csv``; times ns) into the data section, with its CRC, and index it in the
+        summary."""
+        body = (struct.pack("<QQ", log_time, create_time) + _s(name) + _s(media_type)
+                + struct.pack("<Q", len(data)) + data)  # fmt: skip
+        rec = _record(OP_ATTACHMENT, body + struct.pack("<I", zlib.crc32(body)))
+        offset = self.pos
+        self._write(rec)
+        self.attachment_indexes.append(
+            _record(OP_ATTACHMENT_INDEX,
+                    struct.pack("<QQQQQ", offset, len(rec), log_time, create_time, len(data))
+                    + _s(name) + _s(media_type))  # fmt: skip
         )
 
     def write_streams(self, streams: Sequence[Stream]) -> None:
@@ -343,7 +363,7 @@ class McapWriter:
                 self.message_count,
                 len(self.schemas),
                 len(self.channels),
-                0,
+                len(self.attachment_indexes),
                 len(self.metadata_indexes),
                 len(self.chunk_indexes),
                 self.start_time or 0,
@@ -353,6 +373,7 @@ class McapWriter:
         )
         put(OP_STATISTICS, [stats])
         put(OP_CHUNK_INDEX, self.chunk_indexes)
+        put(OP_ATTACHMENT_INDEX, self.attachment_indexes)
         put(OP_METADATA_INDEX, self.metadata_indexes)
         summary_offset_start = self.pos
         offs = [_record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, s, n)) for op, s, n in groups]

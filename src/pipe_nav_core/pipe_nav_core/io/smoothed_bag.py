@@ -4,11 +4,19 @@
 A cold path (one Path message), so it uses the declared dependencies' own readers: ``mcap``
 for the records and rosbags' Jazzy type store for CDR. The Path carries no odometer chainage:
 the trajectory's ``distance`` is the arc length of its poses from the first, in m.
+
+:func:`read_smoothed_run` also reads the bag's MCAP attachments that ``pipe-nav smooth`` writes
+(:func:`smoothed_attachments`): ``centreline.csv`` (the centreline CSV of INTERFACES.md, with
+distance_m and the sigmas, which then replaces the Path) and ``welds.csv`` (RUN_welds.csv).
 """
 
 from __future__ import annotations
 
 import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,7 +24,76 @@ from ..earth import enu_to_geodetic
 from ..types import Datum, Trajectory
 from .topics import OUTPUT_PATH_TOPIC
 
+if TYPE_CHECKING:
+    from ..products.welds import Weld
+
 DATUM_TOPIC = "/pipe_nav/datum"
+WELDS_ATTACHMENT = "welds.csv"
+CENTRELINE_ATTACHMENT = "centreline.csv"
+CSV_MEDIA_TYPE = "text/csv"
+
+
+@dataclass
+class SmoothedRun:
+    """A smoothed run read back: trajectory (from ``centreline.csv`` with distance_m and
+    sigma_enu when the bag has it, else the Path with arc-length distance), datum, the
+    ``pipe_nav`` metadata, the welds (``welds.csv``; [] when none) and ``attachments``: the
+    names of the attachments found."""
+
+    trajectory: Trajectory
+    datum: Datum
+    metadata: dict[str, str]
+    welds: list[Weld] = field(default_factory=list)
+    attachments: list[str] = field(default_factory=list)
+
+
+def smoothed_attachments(
+    centreline: Trajectory, datum: Datum, welds: Sequence[Weld] | None
+) -> list[tuple[str, str, bytes]]:
+    """The attachments of a smoothed bag: ``centreline.csv`` (the centreline CSV text) and,
+    when ``welds`` is not None, ``welds.csv`` (the RUN_welds.csv text)."""
+    from .centreline import CENTRELINE_HEADER, centreline_text
+    from .welds_csv import welds_text
+
+    out = [(CENTRELINE_ATTACHMENT, CSV_MEDIA_TYPE,
+            (CENTRELINE_HEADER + "\n" + centreline_text(centreline, datum)).encode())]  # fmt: skip
+    if welds is not None:
+        out.append((WELDS_ATTACHMENT, CSV_MEDIA_TYPE, welds_text(welds).encode()))
+    return out
+
+
+def read_smoothed_run(path: str | os.PathLike[str]) -> SmoothedRun:
+    """The smoothed bag with its attachments (module doc); ValueError naming the file (and the
+    attachment) when it is not a smoothed bag or an attachment is malformed."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    from .centreline import read_centreline_csv
+    from .welds_csv import parse_welds_text
+
+    p = os.fspath(path)
+    traj, datum, metadata = read_smoothed_bag(p)
+    found: dict[str, bytes] = {}
+    try:
+        with open(p, "rb") as f:
+            for att in make_reader(f).iter_attachments():
+                found[att.name] = bytes(att.data)
+    except (McapError, ValueError, KeyError, EOFError) as exc:
+        raise ValueError(f"{p}: unreadable attachments ({exc})") from None
+    welds = []
+    if WELDS_ATTACHMENT in found:
+        welds = parse_welds_text(found[WELDS_ATTACHMENT].decode("utf-8"),
+                                 f"{p}:{WELDS_ATTACHMENT}")  # fmt: skip
+    if CENTRELINE_ATTACHMENT in found:
+        with tempfile.TemporaryDirectory() as tmp:
+            name = os.path.join(tmp, CENTRELINE_ATTACHMENT)
+            with open(name, "wb") as f:
+                f.write(found[CENTRELINE_ATTACHMENT])
+            try:
+                traj, _ = read_centreline_csv(name)
+            except ValueError as exc:
+                raise ValueError(f"{p}: {str(exc).replace(name, CENTRELINE_ATTACHMENT)}") from None
+    return SmoothedRun(traj, datum, metadata, welds, sorted(found))
 
 
 def read_smoothed_bag(path: str | os.PathLike[str]) -> tuple[Trajectory, Datum, dict[str, str]]:

@@ -83,6 +83,8 @@ class BagReport:
     be read was used.
     warnings: one-line human-readable messages.
     files: the MCAP files read, in order.
+    imu_noise_declared: the per-sample variance diagonals ((rad/s)^2, (m/s^2)^2) the first
+    Imu message declares ({"gyro_variance": [3], "accel_variance": [3]}), or {}.
     """
 
     path: str = ""
@@ -93,6 +95,7 @@ class BagReport:
     truncated: bool = False
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
+    imu_noise_declared: dict[str, list[float]] = field(default_factory=dict)
 
     def add_skipped(self, topic: str, reason: str, n: int = 1) -> None:
         """Count n messages of ``topic`` dropped for ``reason``."""

@@ -26,6 +26,7 @@ from .markers import make_markers
 from .motion import PigMotion, build_roll_profiles, build_speed_profile
 from .odometer import SlipEpisode, draw_slips, odometer_reading
 from .scenarios import Scenario, get_scenario
+from .weld_bump import weld_bump_accel, weld_passage_times
 
 FloatArray = NDArray[np.float64]
 
@@ -47,7 +48,8 @@ class SimRun:
     accel_bias (total bias, turn-on plus Gauss-Markov, in imu_link, about 1 Hz), t_move and
     t_arrive (s, when the pig leaves the launch trap and reaches the receive trap), geometry and
     motion (the exact functions behind everything), r_base_imu (imu_link -> base_link),
-    imu_rate_hz (Hz).
+    imu_rate_hz (Hz); welds: the girth welds' true chainages (m, increasing; the pipe's, drawn
+    whether or not the run has a magnetometer) and weld_field (their magnetic anomalies).
     """
 
     scenario: Scenario
@@ -70,6 +72,8 @@ class SimRun:
     motion: PigMotion | None = None
     r_base_imu: FloatArray = field(default_factory=lambda: np.eye(3))
     imu_rate_hz: float = 0.0
+    welds: FloatArray = field(default_factory=lambda: np.empty(0))
+    weld_field: WeldField | None = None
 
     def imu_noise_variance(self) -> tuple[float, float]:
         """Per-sample white-noise variance of (gyro (rad/s)^2, accel (m/s^2)^2) as the data sheet
@@ -217,6 +221,11 @@ def simulate(
         tr_q[j0:j1] = quat_from_angles(st.roll[e], st.pitch[e], st.azimuth[e])
         del st, w_ib, f_b, w_eb, wall_speed, tn
 
+    weld_field = _weld_field(scn)
+    if scn.weld_bump_height > 0.0 and len(weld_field.welds):
+        t_w = weld_passage_times(weld_field.welds, tr_t, tr_s, float(lever[0]))
+        bump = weld_bump_accel(t_imu, t_w, scn.weld_bump_height, scn.weld_bump_duration)
+        accel += bump[:, None] * r_bi[2][None, :]  # base_link z in imu_link: row 2 of R_bi
     imu = ImuSamples(t_imu, gyro, accel)
     truth = Trajectory(tr_t, tr_lat, tr_lon, tr_h, tr_v, tr_q, tr_s)
 
@@ -244,13 +253,7 @@ def simulate(
     if scn.mag_enabled:
         n_mag = int(math.floor((motion.t_end - motion.t_begin) * scn.mag_rate_hz + 1e-9)) + 1
         t_mag = motion.t_begin + np.arange(n_mag) / scn.mag_rate_hz
-        welds = WeldField.draw(
-            np.random.default_rng([scn.pipe_seed, 7002]),
-            scn.total_length,
-            scn.weld_spacing,
-            scn.weld_anomaly,
-            scn.weld_width if scn.weld_width is not None else scn.pipe_diameter,
-        )
+        welds = weld_field
         b_field = earth_field_enu(scn.mag_declination, scn.mag_inclination, scn.mag_field)
         parts = []
         for k0 in range(0, n_mag, chunk):
@@ -307,6 +310,19 @@ def simulate(
         motion=motion,
         r_base_imu=r_bi,
         imu_rate_hz=rate,
+        welds=weld_field.welds.copy(),
+        weld_field=weld_field,
+    )
+
+
+def _weld_field(scn: Scenario) -> WeldField:
+    """The pipe's girth welds and their anomalies (depend on the pipe only, not the seed)."""
+    return WeldField.draw(
+        np.random.default_rng([scn.pipe_seed, 7002]),
+        scn.total_length,
+        scn.weld_spacing,
+        scn.weld_anomaly,
+        scn.weld_width if scn.weld_width is not None else scn.pipe_diameter,
     )
 
 

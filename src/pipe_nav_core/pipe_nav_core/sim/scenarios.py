@@ -63,7 +63,9 @@ class Scenario:
     positive), ``mag_inclination`` (rad, down positive), ``mag_field`` (T); ``mag_attenuation``
     (in-pipe factor mu); ``mag_hard_iron`` (T, imu_link); girth welds every ``weld_spacing`` m
     with anomalies of about ``weld_anomaly`` T over ``weld_width`` m (None = D); ``mag_noise``
-    (T per axis).
+    (T per axis). The wheel crossing a weld's bead lifts the pig by ``weld_bump_height`` m over
+    ``weld_bump_duration`` s (one sigma), a jolt on the accelerometers (sim/weld_bump.py; 0 =
+    off, the default).
 
     Markers: ``marker_chainages`` (m) or ``marker_spacing`` (m; 0 and the end are always
     markers); ``marker_time_sigma`` (s); ``survey_sigma_h``/``survey_sigma_v`` (m).
@@ -118,6 +120,8 @@ class Scenario:
     weld_spacing: float = 12.0
     weld_anomaly: float = 5.0 * UT
     weld_width: float | None = None
+    weld_bump_height: float = 0.0
+    weld_bump_duration: float = 0.01
     mag_noise: float = 0.2 * UT
     marker_chainages: tuple[float, ...] | None = None
     marker_spacing: float | None = None
@@ -144,6 +148,7 @@ class Scenario:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be positive, not {v!r}")
         for k in ("static_start", "static_end", "odo_tick", "odo_scale_sigma", "mag_noise",
+                  "weld_bump_height", "weld_bump_duration",
                   "marker_time_sigma", "survey_sigma_h", "survey_sigma_v", "speed_fluctuation",
                   "pipe_outer_diameter"):
             v = getattr(self, k)

@@ -1,0 +1,235 @@
+"""Girth welds (products/welds.py): detection from the magnetometer on a simulated run, the
+joint-length sequence filling a missed weld and dropping a false one, the wheel's jolt on the
+bead (sim/weld_bump.py), sequence alignment with missed/extra welds and a scale error, and the
+RUN_welds.csv file and the smoothed bag's attachments."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.io.bagwrite import write_output_bag
+from pipe_nav_core.io.smoothed_bag import (
+    read_smoothed_bag,
+    read_smoothed_run,
+    smoothed_attachments,
+)
+from pipe_nav_core.io.welds_csv import WELD_COLUMNS, read_welds_csv, write_welds_csv
+from pipe_nav_core.products.welds import align_sequences, detect_welds, jolt_chainages
+from pipe_nav_core.sim import get_scenario, simulate
+from pipe_nav_core.sim.kinematics import evaluate
+from pipe_nav_core.sim.magnetometer import WeldField
+from pipe_nav_core.smoother import smooth_log
+from pipe_nav_core.types import MagSamples, SensorLog
+
+UT = 1e-6
+
+
+@pytest.fixture(scope="module")
+def demo():
+    scn = get_scenario("demo")
+    run = simulate(scn, seed=1)
+    res = smooth_log(run.log, NavConfig.from_dict(scn.estimator_settings()))
+    return run, res
+
+
+def _true_chainage(run, welds):
+    return run.motion.chainage(np.array([w.t for w in welds]))[0]
+
+
+def _match(run, welds, tol=0.3):
+    """(true weld index or -1) per detected weld, by true chainage at its passage time."""
+    s = _true_chainage(run, welds)
+    out = []
+    for x in s:
+        k = int(np.argmin(np.abs(run.welds - x)))
+        out.append(k if abs(run.welds[k] - x) <= tol else -1)
+    return out, s
+
+
+def test_the_simulated_run_knows_its_welds(demo):
+    run, _ = demo
+    assert len(run.welds) == 24 and np.all(np.diff(run.welds) > 11.0)
+    assert run.weld_field is not None and np.array_equal(run.weld_field.welds, run.welds)
+    # the pipe's welds, not the seed's
+    assert np.array_equal(simulate(get_scenario("demo").with_length(60.0), seed=7).welds,
+                          run.welds[run.welds < 60.0])  # fmt: skip
+
+
+def test_every_weld_found_at_its_chainage_none_false(demo):
+    run, res = demo
+    welds = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)
+    idx, s = _match(run, welds)
+    assert sorted(idx) == list(range(len(run.welds)))  # each once, no false one
+    err = s - run.welds[idx]
+    # the worst is weld 5, 0.12 m into the 45 deg bend of 3 D (0.6 m radius) at 60 m, where the
+    # smoothed attitude turns fastest
+    assert np.sqrt(np.mean(err**2)) < 0.05 and np.max(np.abs(err)) < 0.2
+    assert np.sort(np.abs(err))[-2] < 0.05
+    assert [w.number for w in welds] == list(range(1, len(welds) + 1))
+    assert all(w.confidence > 0.5 for w in welds)
+    joints = [w.joint_length for w in welds]
+    assert math.isnan(joints[-1]) and np.allclose(joints[:-1], np.diff([w.distance for w in welds]))
+    for w in welds:
+        assert 0.0 < w.sigma_distance < 0.2 and 0.0 < w.sigma_h < 0.5 and 0.0 < w.sigma_v < 0.5
+    # positions: the true pipe at the true weld chainage, within a few sigma
+    for w, k in zip(welds, idx, strict=True):
+        lat, lon, h = run.geometry.position(run.welds[k])
+        dn = (w.lat - float(lat)) * 6.371e6
+        de = (w.lon - float(lon)) * 6.371e6 * math.cos(w.lat)
+        assert math.hypot(de, dn) < 0.25 and abs(w.alt - float(h)) < 0.25
+
+
+def _without_weld(run, k, extra_at=None, extra_ut=0.0):
+    """The run's log with weld k's anomaly removed (and a weak false one added at extra_at)."""
+    t = run.log.mag.t
+    st = evaluate(run.geometry, run.motion, t)
+    wf = run.weld_field
+    fields = [(WeldField(wf.welds[k : k + 1], -wf.vectors[k : k + 1], wf.width))]
+    if extra_at is not None:
+        fields.append(WeldField(np.array([extra_at]), np.array([[extra_ut * UT, 0.0, 0.0]]),
+                                wf.width))  # fmt: skip
+    b = run.log.mag.field.copy()
+    for f in fields:
+        b += np.einsum("mij,mi->mj", st.c_nb, f.field_enu(st.s)) @ run.r_base_imu
+    log = SensorLog(run.log.imu, run.log.odometer, MagSamples(t, b), run.log.markers)
+    return log
+
+
+def test_a_missed_weld_is_filled_in_and_a_false_one_dropped(demo):
+    run, res = demo
+    k = 10
+    mid = 0.5 * (run.welds[15] + run.welds[16])
+    log = _without_weld(run, k, extra_at=mid, extra_ut=1.2)
+    raw = detect_welds(log, res.centreline, res.datum, pipe_diameter=0.2, clean=False)
+    raw_s = _true_chainage(run, raw)
+    assert np.min(np.abs(raw_s - run.welds[k])) > 1.0  # the magnetometer alone misses it
+    assert np.min(np.abs(raw_s - mid)) < 0.2  # and sees the false one
+    welds = detect_welds(log, res.centreline, res.datum, pipe_diameter=0.2)
+    s = _true_chainage(run, welds)
+    assert len(welds) == len(run.welds)
+    j = int(np.argmin(np.abs(s - run.welds[k])))
+    assert abs(s[j] - run.welds[k]) < 0.8 and welds[j].confidence == 0.0
+    assert welds[j].sigma_distance > 0.5  # filled in: where in the joint is not known
+    assert np.min(np.abs(s - mid)) > 3.0
+    assert sum(w.confidence == 0.0 for w in welds) == 1
+
+
+def test_no_magnetometer_no_welds(demo):
+    run, res = demo
+    log = SensorLog(run.log.imu, run.log.odometer, markers=run.log.markers)
+    assert detect_welds(log, res.centreline, res.datum) == []
+
+
+def test_weld_bump_is_off_by_default_and_seen_when_on():
+    scn = get_scenario("demo").with_length(80.0)
+    assert scn.weld_bump_height == 0.0
+    plain = simulate(scn, seed=2)
+    bumped = simulate(replace(scn, weld_bump_height=5e-4, weld_bump_duration=0.01), seed=2)
+    d = bumped.log.imu.accel - plain.log.imu.accel
+    assert np.array_equal(bumped.log.imu.gyro, plain.log.imu.gyro)
+    assert np.allclose(d[:, :2], 0.0) and 2.0 < np.max(np.abs(d[:, 2])) < 8.0
+    changed = plain.log.imu.t[np.abs(d[:, 2]) > 1e-3]
+    t_w = plain.motion.chainage(changed)[0]
+    assert np.min(np.abs(t_w[:, None] - plain.welds[None, :]), axis=1).max() < 0.3
+    # the detector finds the jolts at the welds (on the true trajectory here)
+    found = jolt_chainages(bumped.log, bumped.truth)
+    near = np.min(np.abs(found[:, None] - plain.welds[None, :]), axis=0)
+    assert np.all(near < 0.15)  # every weld's jolt
+    # what else it finds is the motion's (curvature steps at bend ends), there without bumps,
+    # and a jolt alone never makes a weld (a weak magnetic peak must confirm it)
+    other = found[np.min(np.abs(found[:, None] - plain.welds[None, :]), axis=1) > 0.3]
+    motion = jolt_chainages(plain.log, plain.truth)
+    assert len(other) <= 3 and all(np.min(np.abs(motion - x)) < 0.3 for x in other)
+
+
+def _sequences(rng, n=300, scale=1.007, miss=0.05, extra=10):
+    joints = 12.0 + rng.uniform(-0.4, 0.4, n)
+    truth = np.cumsum(np.r_[12.0, joints])
+    a_keep = np.flatnonzero(rng.random(len(truth)) > miss)
+    b_keep = np.flatnonzero(rng.random(len(truth)) > miss)
+    a = truth[a_keep] + rng.normal(0, 0.02, len(a_keep))
+    b = scale * truth[b_keep] + 3.0 + rng.normal(0, 0.03, len(b_keep))
+    at = rng.choice(len(truth) - 1, extra, replace=False)  # a false weld inside a joint
+    fake = scale * (truth[at] + rng.uniform(0.25, 0.75, extra) * joints[at]) + 3.0
+    b_all = np.r_[b, fake]
+    lab = np.r_[b_keep, -np.ones(extra, dtype=int)]
+    order = np.argsort(b_all)
+    return a, a_keep, b_all[order], lab[order]
+
+
+@pytest.mark.parametrize("scale", [0.99, 0.999, 1.0, 1.004, 1.01])
+def test_alignment_with_missed_and_extra_welds_and_a_scale_error(scale):
+    rng = np.random.default_rng(int(scale * 1e4))
+    a, a_lab, b, b_lab = _sequences(rng, scale=scale)
+    pairs = align_sequences(a, b, scale_tolerance=0.01)
+    possible = len(set(a_lab) & set(b_lab[b_lab >= 0]))
+    right = sum(a_lab[i] == b_lab[j] for i, j in pairs)
+    assert right == len(pairs)  # no wrong match
+    assert right >= 0.97 * possible
+    ii, jj = np.array(pairs).T
+    assert np.all(np.diff(ii) > 0) and np.all(np.diff(jj) > 0)
+
+
+def test_alignment_of_a_stretch_inside_a_longer_list():
+    rng = np.random.default_rng(11)
+    a, a_lab, b, b_lab = _sequences(rng, n=200, miss=0.0, extra=0, scale=1.0)
+    inner = slice(50, 120)
+    pairs = align_sequences(a[inner] - 500.0, b)
+    assert len(pairs) >= 65
+    assert all(a_lab[inner][i] == b_lab[j] for i, j in pairs)
+
+
+def test_alignment_of_too_short_lists_is_empty():
+    assert align_sequences([], [1.0, 2.0]) == []
+    assert align_sequences([5.0], [1.0, 13.0]) == []
+
+
+def test_welds_csv_round_trip_and_layout(demo, tmp_path):
+    run, res = demo
+    welds = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)
+    p = tmp_path / "RUN_welds.csv"
+    write_welds_csv(p, welds)
+    lines = p.read_text().splitlines()
+    assert lines[0] == ("weld,distance_m,latitude_deg,longitude_deg,altitude_m,joint_length_m,"
+                        "confidence,sigma_h_m,sigma_v_m,time_s,sigma_distance_m")  # fmt: skip
+    assert lines[0].split(",") == WELD_COLUMNS
+    assert lines[-1].split(",")[5] == "" and "nan" not in p.read_text()
+    assert len(lines[1].split(",")[2].split(".")[1]) == 9
+    back = read_welds_csv(p)
+    assert [w.number for w in back] == [w.number for w in welds]
+    assert np.allclose([w.distance for w in back], [w.distance for w in welds], atol=1e-4)
+    assert np.allclose([w.lat for w in back], [w.lat for w in welds], atol=1e-10)
+    bad = replace(welds[0], sigma_h=float("nan"))
+    with pytest.raises(ValueError, match="weld 1: sigma_h_m not finite"):
+        write_welds_csv(tmp_path / "bad.csv", [bad, *welds[1:]])
+    (tmp_path / "broken.csv").write_text(lines[0] + "\n1,abc,0,0,0,1,1,0,0,0,0\n")
+    with pytest.raises(ValueError, match=r"broken.csv:2: distance_m 'abc' is not a number"):
+        read_welds_csv(tmp_path / "broken.csv")
+
+
+def test_smoothed_bag_carries_welds_and_centreline(demo, tmp_path):
+    run, res = demo
+    welds = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)
+    rows = res.centreline
+    sel = np.arange(0, len(rows.t), 50)
+    from pipe_nav_core.io.centreline import take
+
+    path = take(rows, sel)
+    bag = tmp_path / "run_smoothed.mcap"
+    write_output_bag(bag, path=path, datum=res.datum,
+                     attachments=smoothed_attachments(path, res.datum, welds))  # fmt: skip
+    r = read_smoothed_run(bag)
+    assert r.attachments == ["centreline.csv", "welds.csv"]
+    assert len(r.welds) == len(welds)
+    assert r.trajectory.sigma_enu is not None
+    assert np.allclose(r.trajectory.distance, path.distance, atol=1e-4)  # distance_m, not arc
+    traj, datum, _ = read_smoothed_bag(bag)  # the old reader still works
+    assert len(traj.t) == len(sel) and datum == pytest.approx(res.datum)
+    plain = tmp_path / "plain.mcap"
+    write_output_bag(plain, path=path, datum=res.datum)
+    r = read_smoothed_run(plain)
+    assert r.welds == [] and r.attachments == [] and r.trajectory.sigma_enu is None
