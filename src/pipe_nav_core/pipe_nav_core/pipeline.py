@@ -222,10 +222,10 @@ def smooth_bag(
             "nothing ties the run to the ground"
         )
 
-    def smooth(part: SensorLog) -> SmoothResult:
+    def smooth(part: SensorLog, reverse: bool = False) -> SmoothResult:
         return smooth_with_imu_model(
             part, config, declared=report.imu_noise_declared, method=method,
-            iterations=iterations, progress=say,
+            iterations=iterations, progress=say, reverse=reverse,
         )  # fmt: skip
 
     gaps = [h for h in find_holes(log, short=True)
@@ -271,12 +271,14 @@ def smooth_with_imu_model(
     method: str = "rts",
     iterations: int = 2,
     progress: Progress | None = None,
+    reverse: bool = False,
 ) -> SmoothResult:
-    """smooth_log with ``imu_grade: auto`` resolved from the run (imu_model.choose: the static
-    spans, else ``declared``, the variances the Imu messages declare: BagReport's
-    imu_noise_declared) and, while the smoothed run still shows that the model does not fit
-    (Navigator.model_warnings), refitted with the next noisier grade. The
-    summary's ``imu_model`` says which model was used and why; a named grade is used as given
+    """smooth_log (``reverse``: of a log in reversed time) with ``imu_grade: auto`` resolved
+    from the run (imu_model.choose: the static spans, else ``declared``, the variances the Imu
+    messages declare: BagReport's imu_noise_declared) and, while the smoothed run still shows
+    that the model does not fit (Navigator.model_warnings), refitted with the next noisier
+    grade. The summary's ``imu_model`` says which model was used and why; a named grade is used
+    as given
     (its misfit warnings stay)."""
     say = progress or (lambda _m: None)
     choice = imu_model.choose(log, config, declared if config.imu_grade == AUTO_GRADE else None)
@@ -288,7 +290,8 @@ def smooth_with_imu_model(
         result, outliers, warnings = smooth_without_outliers(
             log,
             cfg,
-            lambda lg: smooth_log(lg, cfg, method=method, iterations=iterations, progress=say),
+            lambda lg: smooth_log(lg, cfg, method=method, iterations=iterations, progress=say,
+                                  reverse=reverse),  # fmt: skip
             say,
         )
         s = result.summary

@@ -3,11 +3,10 @@
 Across a gap the pig moved with nothing recorded, so no filter can carry its attitude over:
 each segment between gaps is smoothed on its own, tied to the ground by its own markers. A
 segment that starts at rest (the launch trap) is smoothed forward; one that ends at rest (the
-receive trap) is smoothed in reversed time (smoother.reverse_log), aligning at its end, when
-it has three markers or more (the reversed smoother is the less proven: its markers must be
-able to catch it out, marker_outliers.screening); one
-with neither (between two gaps, the pig moving at both ends) cannot be aligned, and one whose
-markers disagree with its solution is not trusted: both are left unmapped, named. The
+receive trap) is smoothed in reversed time (smoother.reverse_log, the Earth turning backwards),
+aligning at its end; one with neither (between two gaps, the pig moving at both ends) cannot
+be aligned, and one whose markers disagree with its solution is not trusted: both are left
+unmapped, named. The
 centreline then has no rows across the gaps; its chainage goes on across each gap by the
 odometer distance in it.
 """
@@ -25,8 +24,6 @@ from .gaps import TimeHole
 from .io.centreline import concat
 from .smoother import SmoothResult, arc_chainage, reverse_log
 from .types import SensorLog, Trajectory
-
-MIN_REVERSED_MARKERS = 3  # a segment smoothed in reversed time must be checkable by its markers
 
 
 @dataclass(frozen=True)
@@ -90,10 +87,11 @@ def smooth_segments(
     log: SensorLog,
     config: NavConfig,
     gaps: list[TimeHole],
-    smooth: Callable[[SensorLog], SmoothResult],
+    smooth: Callable[..., SmoothResult],
 ) -> tuple[SmoothResult, list[Segment]]:
-    """Smooth each segment between ``gaps`` (see the module) and join them; ValueError when no
-    segment can be smoothed."""
+    """Smooth each segment between ``gaps`` (see the module) and join them with ``smooth(log,
+    reverse=False)`` (reverse: a log in reversed time); ValueError when no segment can be
+    smoothed."""
     bounds = [-math.inf] + [x for g in gaps for x in (g.t_before, g.t_after)] + [math.inf]
     pieces: list[tuple[Segment, SmoothResult]] = []
     segments: list[Segment] = []
@@ -106,12 +104,7 @@ def smooth_segments(
         if at_rest(part, config, end=False):
             res, how = smooth(part), "forward"
         elif at_rest(part, config, end=True):
-            if len(part.markers) < MIN_REVERSED_MARKERS:
-                segments.append(Segment(t0, t1, "unmapped", f"it would be smoothed in reversed "
-                                        f"time, which needs {MIN_REVERSED_MARKERS} markers to "
-                                        f"check it; it has {len(part.markers)}"))  # fmt: skip
-                continue
-            res, how = _reversed(smooth(reverse_log(part))), "reversed"
+            res, how = _reversed(smooth(reverse_log(part), reverse=True)), "reversed"
         else:
             segments.append(Segment(t0, t1, "unmapped", "the pig moves at both ends"))
             continue

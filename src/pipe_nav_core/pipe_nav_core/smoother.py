@@ -221,8 +221,11 @@ def smooth_log(
     method: str = "rts",
     iterations: int = 5,
     progress: Callable[[str], None] | None = None,
+    reverse: bool = False,
 ) -> SmoothResult:
     """Smooth a whole time-sorted log (IMU in imu_link as recorded) and return the centreline.
+    ``reverse``: the log is a run in reversed time (reverse_log: a segment that ends at rest,
+    aligned at its end); every pass then turns the Earth the other way (Navigator reverse).
 
     Passes (see the module docstring): with the heading from the markers, the live filter up
     to the second marker and the search for the dead-reckoned initial heading; a filter pass
@@ -233,6 +236,8 @@ def smooth_log(
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if reverse and method == "two-filter":
+        method = "rts"  # its backward filter would run forward in time: the same as rts here
     if len(log.imu) < 10:
         raise ValueError("the log has fewer than 10 IMU samples")
     say = progress or (lambda _msg: None)
@@ -242,10 +247,11 @@ def smooth_log(
     if method != "forward" and config.heading_source == "markers" and len(markers) >= 2:
         # the live filter up to the second marker is all the re-anchoring needs
         say("forward filter up to the second marker")
-        head = run_forward(_truncate(log, markers[1].t + 1.0), config, record=False)
-        cfg = anchored_config(log, config, head, say)
+        head = run_forward(_truncate(log, markers[1].t + 1.0), config, record=False,
+                           reverse=reverse)  # fmt: skip
+        cfg = anchored_config(log, config, head, say, reverse=reverse)
     say("forward filter" if cfg is config else "forward filter (re-anchored heading)")
-    nav = run_forward(log, cfg)
+    nav = run_forward(log, cfg, reverse=reverse)
     assert nav.recording is not None
     forward = _with_free_heading(_forward_trajectory(nav.recording), nav.free_heading)
     first = nav.recording.states[0]
@@ -273,7 +279,8 @@ def smooth_log(
     for it in range(n_pass):
         if it:
             say(f"forward filter about the smoothed trajectory (pass {it + 1})")
-            nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude)
+            nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude,
+                              reverse=reverse)  # fmt: skip
         rec = nav.recording
         assert rec is not None
         if method == "rts":
@@ -321,6 +328,8 @@ def anchored_config(
     config: NavConfig,
     live: Navigator,
     say: Callable[[str], None] = lambda _msg: None,
+    *,
+    reverse: bool = False,
 ) -> NavConfig:
     """The configuration of the smoothing passes. With the heading from the markers, the live
     filter starts on the bearing between the first two markers and re-anchors at the second
@@ -341,11 +350,15 @@ def anchored_config(
         head = bridged_for_dead_reckoning(_truncate(log, markers[1].t + 1.0))
         dr = replace(config, mode="dr")
         # secant iteration on f(azimuth) = the rotation the re-anchoring asks for
-        az_prev, f_prev = az, run_forward(head, dr, initial_azimuth=az, record=False).reanchor_rad
+        def rotation(azimuth: float) -> float:
+            nav = run_forward(head, dr, initial_azimuth=azimuth, record=False, reverse=reverse)
+            return nav.reanchor_rad
+
+        az_prev, f_prev = az, rotation(az)
         az = az + f_prev
         for i in range(ANCHOR_PASSES):
             say(f"re-anchoring the initial heading (pass {i + 1})")
-            f = run_forward(head, dr, initial_azimuth=az, record=False).reanchor_rad
+            f = rotation(az)
             if abs(f) < ANCHOR_RAD:
                 az += f
                 break
