@@ -336,7 +336,8 @@ def run(quick: bool = False, seed: int = 1, grades: tuple[str, ...] = GRADES,
     return rows
 
 
-def _f(x: float, fmt: str) -> str:
+def cell(x: float | None, fmt: str) -> str:
+    """A table cell: x formatted, blank for None or NaN."""
     return "" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
 
 
@@ -388,15 +389,16 @@ def markdown(rows: list[dict[str, Any]], command: str) -> str:
         lines.append(
             f"| {name} | {r['grade']} | {r['variant']} | {r['window_m']:.2f} "
             f"| {r['bends_found']}/{r['bends_true']} | {r['bends_false']} | {r['bends_extra']} "
-            f"| {_f(r['angle_err_max_deg'], '.3f')} / {_f(r['angle_err_rms_deg'], '.3f')} "
-            f"| {_f(r['radius_err_median_pct'], '.1f')} / {_f(r['radius_err_max_pct'], '.0f')} "
-            f"| {_f(r['apex_err_max_m'], '.3f')} / {_f(r['apex_err_rms_m'], '.3f')} "
-            f"| {_f(r['strain_rms_ue'], '.0f')} / {_f(r['strain_max_ue'], '.0f')} "
-            f"| {_f(r['strain_rms_off_bends_ue'], '.1f')} | {_f(r['smallest_found_deg'], '.2f')} "
+            f"| {cell(r['angle_err_max_deg'], '.3f')} / {cell(r['angle_err_rms_deg'], '.3f')} "
+            f"| {cell(r['radius_err_median_pct'], '.1f')} / {cell(r['radius_err_max_pct'], '.0f')} "
+            f"| {cell(r['apex_err_max_m'], '.3f')} / {cell(r['apex_err_rms_m'], '.3f')} "
+            f"| {cell(r['strain_rms_ue'], '.0f')} / {cell(r['strain_max_ue'], '.0f')} "
+            f"| {cell(r['strain_rms_off_bends_ue'], '.1f')} "
+            f"| {cell(r['smallest_found_deg'], '.2f')} "
             f"| {r['features_found']}/{r['features_true']} ({r['features_false']}) "
-            f"| {_f(r['feature_peak_err_max_pct'], '+.1f')} "
-            f"/ {_f(r['feature_peak_err_rows_max_pct'], '+.1f')} "
-            f"/ {_f(r['movement_peak_err_max_pct'], '+.1f')} | {_f(r['x_real_time'], '.0f')} "
+            f"| {cell(r['feature_peak_err_max_pct'], '+.1f')} "
+            f"/ {cell(r['feature_peak_err_rows_max_pct'], '+.1f')} "
+            f"/ {cell(r['movement_peak_err_max_pct'], '+.1f')} | {cell(r['x_real_time'], '.0f')} "
             f"| {r['verdict']} |"
         )
     lines += ["", "Scenarios:", ""]

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from .bench_products import cell
 from .config import NavConfig
 from .earth import geodetic_to_enu
 from .io.tally_csv import parse_tally
@@ -137,10 +138,6 @@ def run(quick: bool = False, seed: int = 1, grades: tuple[str, ...] = GRADES
     return rows
 
 
-def _f(x: Any, fmt: str) -> str:
-    return "" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
-
-
 def markdown(rows: list[dict[str, Any]], command: str) -> str:
     """The welds-and-tally table."""
     lines = [
@@ -176,12 +173,13 @@ def markdown(rows: list[dict[str, Any]], command: str) -> str:
         lines.append(
             f"| {name} | {r['grade']} | {r['welds_found']}/{r['welds_true']} "
             f"| {r['detection_rate'] * 100:.1f} % | {r['false']} ({r['false_per_km']:.1f}) "
-            f"| {r['filled']} | {_f(r['chainage_err_rms_m'], '.3f')} / "
-            f"{_f(r['chainage_err_max_m'], '.3f')} | {_f(r['distance_err_max_m'], '.2f')} "
-            f"| {_f(r['weld_pos_err_rms_m'], '.3f')} / {_f(r['weld_pos_err_max_m'], '.3f')} "
+            f"| {r['filled']} | {cell(r['chainage_err_rms_m'], '.3f')} / "
+            f"{cell(r['chainage_err_max_m'], '.3f')} | {cell(r['distance_err_max_m'], '.2f')} "
+            f"| {cell(r['weld_pos_err_rms_m'], '.3f')} / {cell(r['weld_pos_err_max_m'], '.3f')} "
             f"| {r.get('tally_welds_matched', '')} "
-            f"| {_f(r.get('feature_err_rms_m'), '.3f')} / {_f(r.get('feature_err_max_m'), '.3f')} "
-            f"| {_f(100 * r.get('feature_within_3sigma', math.nan), '.0f')} % |"
+            f"| {cell(r.get('feature_err_rms_m'), '.3f')} "
+            f"/ {cell(r.get('feature_err_max_m'), '.3f')} "
+            f"| {cell(100 * r.get('feature_within_3sigma', math.nan), '.0f')} % |"
         )
     lines += ["", "Scenarios:", ""]
     lines += [f"- `{s}`: {d}." for s, _, d in CASES if any(r["scenario"] == s for r in rows)]

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .atomic import all_or_none, atomic_write
+from .textfile import read_text
 
 if TYPE_CHECKING:
     from ..products.tally import LocatedRow
@@ -217,15 +218,7 @@ def _check_features(t: Tally) -> None:
 
 def read_tally_csv(path: str | os.PathLike[str]) -> Tally:
     """Read a vendor tally CSV (module doc)."""
-    p = os.fspath(path)
-    try:
-        with open(p, newline="", encoding="utf-8-sig") as f:
-            text = f.read()
-    except OSError as exc:
-        raise ValueError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"{p}: not a UTF-8 text file") from None
-    return parse_tally(text, p)
+    return parse_tally(read_text(path), os.fspath(path))
 
 
 def write_features_csv(

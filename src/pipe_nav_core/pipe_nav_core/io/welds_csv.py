@@ -20,6 +20,7 @@ from collections.abc import Sequence
 
 from ..products.welds import Weld
 from .atomic import atomic_write
+from .textfile import read_text
 
 WELD_COLUMNS = [
     "weld",
@@ -111,13 +112,7 @@ def parse_welds_text(text: str, name: str = "welds.csv") -> list[Weld]:
 
 def read_welds_csv(path: str | os.PathLike[str]) -> list[Weld]:
     """Read RUN_welds.csv (see :func:`parse_welds_text`)."""
-    p = os.fspath(path)
-    try:
-        with open(p, newline="", encoding="utf-8-sig") as f:
-            text = f.read()
-    except OSError as exc:
-        raise ValueError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    return parse_welds_text(text, p)
+    return parse_welds_text(read_text(path), os.fspath(path))
 
 
 __all__ = ["WELD_COLUMNS", "parse_welds_text", "read_welds_csv", "weld_row", "welds_text",
