@@ -33,9 +33,10 @@ undo (the Earth rate compensated about the wrong axes: on a 3 km tactical line 7
 the heading then drifted 15 mrad in 100 s, and the next markers looked like outliers). So at
 the re-anchoring the guard finds the initial heading as the smoother does
 (smoother.anchored_config: dead reckoning to the second marker, secant) and **runs the filter
-again** from the alignment over the inputs it kept, with that heading; the estimates already
-published stay, the later ones come from the new run (``heading_rerun``). The inputs are kept
-only until then.
+again** from the alignment over the inputs it kept, with that heading, leaving out the
+readings of a stuck or spiking wheel found in them as offline (``odometer_fault_<kind>``); the
+estimates already published stay, the later ones come from the new run (``heading_rerun``).
+The inputs are kept only until then.
 
 Each IMU fault is counted in the diagnostics as ``imu_fault_<kind>``. Times s, rates rad/s,
 forces m/s^2.
@@ -53,6 +54,7 @@ from .engine import NavEstimate, Navigator
 from .gaps import MIN_GAP_S, REST_MOVED_M, REST_RATE, REST_SPEED, REST_TILT
 from .imu_faults import MARGIN_S, MAX_ACCEL, MAX_RATE, MIN_FLAT
 from .kalman import chi2_threshold
+from .odometer_faults import find_odometer_faults, without_faults
 from .types import ImuSamples, MagSamples, Marker, OdometerSamples, SensorLog
 
 SATURATED_ACCEL = 19.6  # m/s^2 (2 g): an axis pinned at this or more is saturated
@@ -256,15 +258,22 @@ class GuardedNavigator(Navigator):
         kept, self._kept = self._kept or [], None
         if self.reanchor_rad == 0.0 or len(self._markers_seen) < 2:
             return out
-        cfg = anchored_config(_log_of(kept), self.cfg, self)
+        # the wheel's faults so far, found as offline (odometer_faults) and left out of both
+        log = _log_of(kept)
+        log, faults = without_faults(log, find_odometer_faults(log))
+        cfg = anchored_config(log, self.cfg, self)
         if cfg is self.cfg:
             return out
         counts, declared = dict(self._counts), self.declared_imu_noise
         self.cfg = cfg
         self.reset()
         self.declared_imu_noise = declared
+        good = set(log.odometer.t.tolist())
         for t, kind, payload in kept:
-            Navigator._push(self, t, kind, payload)
+            if kind != "odometer" or t in good:
+                Navigator._push(self, t, kind, payload)
+        for f in faults:
+            counts[f"odometer_fault_{f.kind}"] = counts.get(f"odometer_fault_{f.kind}", 0) + 1
         for k, v in counts.items():  # the guard's counts and the first run's re-anchoring
             self._counts.setdefault(k, v)
         self._counts["heading_rerun"] += 1
