@@ -3,11 +3,15 @@
 The scanner walks the data section record by record in file order (which is the recording
 order for rosbag2 and for our writer), decompresses each chunk and locates its Message records
 -- from the chunk's MessageIndex records when present (fully vectorized), otherwise by a tight
-scan of the record headers. A batch is one chunk's worth of messages as numpy arrays (record
-offsets, channel ids, log times) into the decompressed chunk buffer, so that payloads can be
-decoded in bulk. It copes with files cut anywhere (the readable prefix is used, even the part
-of a chunk that a streaming decompressor recovers), with corrupt chunks (skipped, counted) and
-with files without a summary section. The summary reader gives cheap counts and time ranges.
+scan of the record headers. With ``workers`` the chunks are decompressed, checked and located
+by a thread pool a few chunks ahead (zstandard, lz4 and zlib's CRC release the GIL), while
+what the chunks tell the scanner (channels, schemas, warnings, corrupt counts) is still taken
+in by the consumer's thread in file order: the same batches and warnings as without. A batch
+is one chunk's worth of messages as numpy arrays (record offsets, channel ids, log times) into
+the decompressed chunk buffer, so that payloads can be decoded in bulk. It copes with files
+cut anywhere (the readable prefix is used, even the part of a chunk that a streaming
+decompressor recovers), with corrupt chunks (skipped, counted) and with files without a
+summary section. The summary reader gives cheap counts and time ranges.
 
 MCAP format: https://mcap.dev/spec (little-endian; records are opcode u8, length u64, content).
 """
@@ -18,8 +22,11 @@ import io
 import os
 import struct
 import zlib
-from collections.abc import Callable, Iterator
+from collections import deque
+from collections.abc import Callable, Container, Iterator, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,6 +57,7 @@ _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
 _LOOSE_BATCH_BYTES = 4 << 20
+AHEAD_BYTES = 64 << 20  # compressed chunk bytes a pooled scanner reads ahead of its consumer
 
 
 class McapFormatError(Exception):
@@ -105,7 +113,8 @@ class MessageBatch:
 
     buf: the decompressed bytes; rec: offset of each Message record (at its opcode) in buf;
     channel: channel id per message; log_time: ns per message. Payload i is
-    ``buf[rec[i] + 31 : rec[i] + 31 + size[i]]``.
+    ``buf[rec[i] + 31 : rec[i] + 31 + size[i]]``. prepared: what the scanner's ``prepare``
+    hook made of the batch in a worker thread (None without one).
     """
 
     buf: NDArray[np.uint8]
@@ -113,6 +122,7 @@ class MessageBatch:
     channel: NDArray[np.int64]
     log_time: NDArray[np.int64]
     size: NDArray[np.int64]
+    prepared: object = None
 
     @property
     def payload_start(self) -> NDArray[np.int64]:
@@ -273,7 +283,12 @@ def scan_message_records(
 
 
 def _gather_u(buf: NDArray[np.uint8], pos: NDArray[np.int64], nbytes: int, dt: str) -> NDArray:
-    return buf[pos[:, None] + np.arange(nbytes, dtype=np.int64)].view(dt).reshape(len(pos))
+    """The ``nbytes``-byte little-endian integers at the byte offsets ``pos`` of buf (as the
+    rows of a strided view of buf: one index per value; IndexError past the end)."""
+    rows = np.lib.stride_tricks.as_strided(
+        buf, shape=(max(len(buf) - nbytes + 1, 0), nbytes), strides=(1, 1), writeable=False
+    )
+    return rows[pos].view(dt).reshape(len(pos))
 
 
 def make_batch(buf: NDArray[np.uint8], rec: NDArray[np.int64]) -> MessageBatch:
@@ -289,9 +304,10 @@ def make_batch(buf: NDArray[np.uint8], rec: NDArray[np.int64]) -> MessageBatch:
 
 
 def _batch_from_indexes(
-    buf: NDArray[np.uint8], indexes: list[bytes], known: dict[int, ChannelRecord]
+    buf: NDArray[np.uint8], indexes: list[bytes], known: Container[int]
 ) -> MessageBatch | None:
-    """Vectorized location of messages from MessageIndex records; None if they don't check."""
+    """Vectorized location of messages from MessageIndex records; None if they don't check
+    (or name a channel id not in ``known``)."""
     chans: list[NDArray[np.int64]] = []
     offs: list[NDArray[np.int64]] = []
     for content in indexes:
@@ -326,6 +342,10 @@ def _batch_from_indexes(
 
 # ----------------------------------------------------------------------------- scanner
 
+# The hook a pooled scanner runs in its worker threads on each chunk's batch, with the channels
+# and schemas read so far: (batch, channels, schemas) -> anything (the batch's ``prepared``).
+Prepare = Callable[[MessageBatch, Mapping[int, ChannelRecord], Mapping[int, SchemaRecord]], object]
+
 
 class McapScanner:
     """Linear, tolerant reader of one MCAP file.
@@ -347,6 +367,7 @@ class McapScanner:
         self.corrupt_messages: dict[int, int] = {}
         self.summary: Summary | None = None
         self.size = os.path.getsize(self.path)
+        self._ended = False
         with open(self.path, "rb") as f:
             magic = f.read(8)
         if len(magic) < 8 or magic != MAGIC:
@@ -378,41 +399,35 @@ class McapScanner:
         if not counted:
             self.corrupt_messages[-1] = self.corrupt_messages.get(-1, 0) + 1
 
-    def _chunk(self, content: bytes, indexes: list[bytes], offset: int) -> MessageBatch | None:
-        """Decode a complete Chunk record."""
-        try:
-            c = _Cursor(content)
-            c.u64()
-            c.u64()
-            usize = c.u64()
-            crc = c.u32()
-            comp = c.string()
-            rlen = c.u64()
-            if c.pos + rlen > len(content):
-                raise ValueError("records run past the chunk record")
-            data = content[c.pos : c.pos + rlen]
-            raw = _decompressor(comp)(data, usize)
-            if len(raw) != usize:
-                raise ValueError(f"size {len(raw)} != {usize}")
-            if crc and zlib.crc32(raw) != crc:
-                raise ValueError("CRC mismatch")
-        except Exception as exc:  # corrupt chunk: skip it, keep going
+    def _finish_chunk(self, u: _Unpacked, indexes: list[bytes], offset: int) -> MessageBatch | None:
+        """The batch of a complete Chunk record from what :func:`_unpack` made of it: counts a
+        corrupt chunk, takes the indexed batch when the channels its indexes name are known by
+        now, else the record scan (whose Schema and Channel records are taken in here)."""
+        if u.error is not None:  # corrupt chunk: skip it, keep going
             self.truncated = True
-            self.warn(f"chunk at byte {offset} is unreadable ({exc}); its messages were skipped")
+            self.warn(
+                f"chunk at byte {offset} is unreadable ({u.error}); its messages were skipped"
+            )
             self._count_corrupt(indexes)
             return None
-        buf = np.frombuffer(raw, dtype=np.uint8)
-        if indexes and all(
-            len(ix) >= 2 and _U16.unpack_from(ix, 0)[0] in self.channels for ix in indexes
+        if u.indexed is not None and all(
+            _U16.unpack_from(ix, 0)[0] in self.channels for ix in indexes
         ):
-            batch = _batch_from_indexes(buf, indexes, self.channels)
-            if batch is not None:
-                return batch
-        offs, complete = scan_message_records(raw, self._on_schema, self._on_channel)
+            return u.indexed
+        if u.scanned is None:  # indexes that named channels still unknown here
+            offs, complete = scan_message_records(u.raw, self._on_schema, self._on_channel)
+            batch = _checked_batch(u.buf, offs)
+        else:
+            for r in u.records:
+                if isinstance(r, SchemaRecord):
+                    self._on_schema(r)
+                else:
+                    self._on_channel(r)
+            batch, complete = u.scanned, u.complete
         if not complete:
             self.truncated = True
             self.warn(f"chunk at byte {offset} has a damaged record; the rest of it was skipped")
-        return _checked_batch(buf, offs)
+        return batch
 
     def _partial_chunk(self, content: bytes, offset: int) -> MessageBatch | None:
         """Recover what can be read from a Chunk record cut off by the end of the file."""
@@ -433,8 +448,115 @@ class McapScanner:
         self.warn(f"recovered {len(offs)} messages from the chunk cut off at byte {offset}")
         return _checked_batch(np.frombuffer(raw, dtype=np.uint8), offs)
 
-    def batches(self) -> Iterator[MessageBatch]:
-        """Message batches in file order."""
+    def batches(self, workers: int = 0, prepare: Prepare | None = None) -> Iterator[MessageBatch]:
+        """Message batches in file order.
+
+        ``workers`` > 0: that many threads decompress, CRC-check and locate the messages of
+        the chunks (zstandard, lz4 and zlib release the GIL), at most ``2 * workers`` chunks
+        (and :data:`AHEAD_BYTES` of compressed data) ahead of the consumer. Everything that
+        touches the scanner (schemas, channels, warnings, counts of corrupt chunks) still
+        happens in this thread, record by record in file order, so the batches, warnings and
+        counts are exactly those of ``workers=0``. ``prepare`` (``workers`` > 0 only) runs in
+        the worker on each chunk's batch, with the channels and schemas read up to that chunk
+        (the ones of chunks not yet taken in may be missing); its result is the batch's
+        ``prepared`` (None when it raised).
+        """
+        self._ended = False
+        if workers <= 0:
+            for item in self._items():
+                batch = self._settle(item, None)
+                if batch is not None and len(batch):
+                    yield batch
+        else:
+            yield from self._pipelined(workers, prepare)
+        if not self._ended:
+            self.truncated = True
+            self.warn(
+                f"file ends at byte {self.size} before the end of its data section "
+                "(truncated recording?); everything before that point was read"
+            )
+
+    def _settle(self, item: _Item, u: _Unpacked | None) -> MessageBatch | None:
+        """Take one record (or run of records) of the data section in: its batch, if any."""
+        kind = item[0]
+        if kind == "chunk":
+            _, content, indexes, offset = item
+            if u is None:
+                u = _unpack(content, indexes, self.channels, None, {}, {})
+            return self._finish_chunk(u, indexes, offset)
+        if kind == "batch":
+            return item[1]
+        if kind == "partial":
+            return self._partial_chunk(item[1], item[2])
+        if kind == "schema":
+            self._on_schema(parse_schema(item[1]))
+        else:
+            self._on_channel(parse_channel(item[1]))
+        return None
+
+    def _pipelined(self, workers: int, prepare: Prepare | None) -> Iterator[MessageBatch]:
+        """:meth:`batches` with the chunks unpacked by a pool of ``workers`` threads."""
+        items = self._items()
+        queue: deque[tuple[_Item, Future[_Unpacked] | None]] = deque()
+        ahead_schemas: dict[int, SchemaRecord] = {}
+        ahead_channels: dict[int, ChannelRecord] = {}
+        in_flight = 0
+        in_flight_bytes = 0
+        failure: Exception | None = None
+        pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mcap-chunk")
+        try:
+            while True:
+                try:
+                    item = next(items)
+                except StopIteration:
+                    break
+                except Exception as exc:  # raised after the batches before it, as serially
+                    failure = exc
+                    break
+                fut: Future[_Unpacked] | None = None
+                if item[0] == "chunk":
+                    fut = pool.submit(
+                        _unpack,
+                        item[1],
+                        item[2],
+                        None,
+                        prepare,
+                        {**self.channels, **ahead_channels},
+                        {**self.schemas, **ahead_schemas},
+                    )
+                    in_flight += 1
+                    in_flight_bytes += len(item[1])
+                elif item[0] in ("schema", "channel"):
+                    _read_ahead(item, ahead_schemas, ahead_channels)
+                queue.append((item, fut))
+                while queue and (in_flight > 2 * workers or in_flight_bytes > AHEAD_BYTES):
+                    head, fut = queue.popleft()
+                    if fut is not None:
+                        in_flight -= 1
+                        in_flight_bytes -= len(head[1])
+                    batch = self._settle(head, None if fut is None else fut.result())
+                    if batch is not None and len(batch):
+                        yield batch
+            while queue:
+                head, fut = queue.popleft()
+                batch = self._settle(head, None if fut is None else fut.result())
+                if batch is not None and len(batch):
+                    yield batch
+            if failure is not None:
+                raise failure
+        finally:
+            items.close()
+            for _, fut in queue:
+                if fut is not None:
+                    fut.cancel()
+            pool.shutdown(wait=True)
+
+    def _items(self) -> Iterator[_Item]:
+        """The data section as items in file order: ("chunk", content, message indexes,
+        offset) for a complete Chunk record, ("batch", MessageBatch) for a run of un-chunked
+        Message records, ("partial", content, offset) for a Chunk record cut off by the end of
+        the file, ("schema" | "channel", content) for those records outside chunks. Sets
+        ``_ended`` when the data section ends properly."""
         with open(self.path, "rb", buffering=0) as raw_f:
             f = io.BufferedReader(raw_f, buffer_size=1 << 20)
             f.seek(8)
@@ -444,7 +566,6 @@ class McapScanner:
             indexes: list[bytes] = []
             loose = bytearray()
             loose_offs: list[int] = []
-            ended = False
             while True:
                 hdr = f.read(9)
                 if len(hdr) < 9:
@@ -455,22 +576,18 @@ class McapScanner:
                     pos += 9 + length
                     continue
                 if pending is not None:
-                    batch = self._chunk(pending[0], indexes, pending[1])
+                    yield ("chunk", pending[0], indexes, pending[1])
                     pending, indexes = None, []
-                    if batch is not None and len(batch):
-                        yield batch
                 if op in (OP_DATA_END, OP_FOOTER):
-                    ended = True
+                    self._ended = True
                     break
                 if op == 0 or pos + 9 + length > size:
                     # cut off (or garbage where a record should start)
                     if op == OP_CHUNK and length > 0:
                         if loose_offs:
-                            yield _checked_batch(np.frombuffer(bytes(loose), np.uint8), loose_offs)
+                            yield ("batch", _loose_batch(loose, loose_offs))
                             loose, loose_offs = bytearray(), []
-                        batch = self._partial_chunk(f.read(size - pos - 9), pos)
-                        if batch is not None and len(batch):
-                            yield batch
+                        yield ("partial", f.read(size - pos - 9), pos)
                     break
                 if op in (OP_CHUNK, OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
                     content = f.read(length)
@@ -478,7 +595,7 @@ class McapScanner:
                         break
                     if op == OP_CHUNK:
                         if loose_offs:
-                            yield _checked_batch(np.frombuffer(bytes(loose), np.uint8), loose_offs)
+                            yield ("batch", _loose_batch(loose, loose_offs))
                             loose, loose_offs = bytearray(), []
                         pending = (content, pos)
                     elif op == OP_MESSAGE:
@@ -486,27 +603,125 @@ class McapScanner:
                         loose += hdr
                         loose += content
                         if len(loose) > _LOOSE_BATCH_BYTES:
-                            yield _checked_batch(np.frombuffer(bytes(loose), np.uint8), loose_offs)
+                            yield ("batch", _loose_batch(loose, loose_offs))
                             loose, loose_offs = bytearray(), []
-                    elif op == OP_SCHEMA:
-                        self._on_schema(parse_schema(content))
                     else:
-                        self._on_channel(parse_channel(content))
+                        yield ("schema" if op == OP_SCHEMA else "channel", content)
                 else:
                     f.seek(length, io.SEEK_CUR)
                 pos += 9 + length
             if pending is not None:
-                batch = self._chunk(pending[0], indexes, pending[1])
-                if batch is not None and len(batch):
-                    yield batch
+                yield ("chunk", pending[0], indexes, pending[1])
             if loose_offs:
-                yield _checked_batch(np.frombuffer(bytes(loose), np.uint8), loose_offs)
-            if not ended:
-                self.truncated = True
-                self.warn(
-                    f"file ends at byte {size} before the end of its data section "
-                    "(truncated recording?); everything before that point was read"
-                )
+                yield ("batch", _loose_batch(loose, loose_offs))
+
+
+# One item of the data section (see McapScanner._items).
+_Item = tuple[Any, ...]
+
+
+@dataclass
+class _Unpacked:
+    """What :func:`_unpack` made of one complete Chunk record, without touching a scanner.
+
+    error: why the chunk is unreadable (nothing else is set then); raw, buf: its
+    decompressed records (bytes and a uint8 view); indexed: the batch located from its
+    MessageIndex records (None when they do not check or were not tried); scanned: the batch
+    of a record scan with the Schema and Channel records it met (``records``, in order) and
+    whether its last record was complete -- made only when ``indexed`` is None.
+    """
+
+    error: Exception | None = None
+    raw: bytes = b""
+    buf: NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, dtype=np.uint8))
+    indexed: MessageBatch | None = None
+    scanned: MessageBatch | None = None
+    records: list[SchemaRecord | ChannelRecord] = field(default_factory=list)
+    complete: bool = True
+
+
+def unpack_chunk(content: bytes) -> bytes:
+    """The decompressed records of a complete Chunk record's content. Raises (ValueError, or
+    the decompressor's error) for a corrupt chunk: bad header, unknown compression, a frame
+    that does not decompress, a size or CRC mismatch."""
+    c = _Cursor(content)
+    c.u64()
+    c.u64()
+    usize = c.u64()
+    crc = c.u32()
+    comp = c.string()
+    rlen = c.u64()
+    if c.pos + rlen > len(content):
+        raise ValueError("records run past the chunk record")
+    raw = _decompressor(comp)(content[c.pos : c.pos + rlen], usize)
+    if len(raw) != usize:
+        raise ValueError(f"size {len(raw)} != {usize}")
+    if crc and zlib.crc32(raw) != crc:
+        raise ValueError("CRC mismatch")
+    return raw
+
+
+def _unpack(
+    content: bytes,
+    indexes: list[bytes],
+    known: Container[int] | None,
+    prepare: Prepare | None,
+    channels: Mapping[int, ChannelRecord],
+    schemas: Mapping[int, SchemaRecord],
+) -> _Unpacked:
+    """Decompress and check one Chunk record and locate its messages (safe in any thread: it
+    reads nothing but its arguments). The indexes are tried when every channel they name is
+    in ``known`` (None: whatever they name; the caller then checks the names); the records
+    are scanned when the indexes give nothing. ``prepare(batch, channels, schemas)`` (with
+    the chunk's own Schema and Channel records added) is stored on the batch as ``prepared``.
+    """
+    try:
+        raw = unpack_chunk(content)
+    except Exception as exc:
+        return _Unpacked(error=exc)
+    out = _Unpacked(raw=raw, buf=np.frombuffer(raw, dtype=np.uint8))
+    if indexes and all(len(ix) >= 2 for ix in indexes):
+        named = {_U16.unpack_from(ix, 0)[0] for ix in indexes}
+        if known is None or all(cid in known for cid in named):
+            out.indexed = _batch_from_indexes(out.buf, indexes, named)
+    if out.indexed is None:
+        offs, out.complete = scan_message_records(raw, out.records.append, out.records.append)
+        out.scanned = _checked_batch(out.buf, offs)
+    batch = out.indexed if out.indexed is not None else out.scanned
+    if prepare is not None and batch is not None and len(batch):
+        if out.records:
+            channels = dict(channels)
+            schemas = dict(schemas)
+            for r in out.records:
+                if isinstance(r, SchemaRecord):
+                    schemas[r.id] = r
+                else:
+                    channels[r.id] = r
+        try:
+            batch.prepared = prepare(batch, channels, schemas)
+        except Exception:  # the consumer then does the work itself (and meets the error)
+            batch.prepared = None
+    return out
+
+
+def _read_ahead(
+    item: _Item, schemas: dict[int, SchemaRecord], channels: dict[int, ChannelRecord]
+) -> None:
+    """Note a Schema or Channel record read ahead of the consumer (for ``prepare`` only; one
+    that does not parse is left to the consumer, which raises where the serial reader does)."""
+    try:
+        if item[0] == "schema":
+            s = parse_schema(item[1])
+            schemas[s.id] = s
+        else:
+            ch = parse_channel(item[1])
+            channels[ch.id] = ch
+    except Exception:
+        pass
+
+
+def _loose_batch(loose: bytearray, offs: list[int]) -> MessageBatch:
+    return _checked_batch(np.frombuffer(bytes(loose), np.uint8), offs)
 
 
 def _checked_batch(buf: NDArray[np.uint8], offs: list[int]) -> MessageBatch:
