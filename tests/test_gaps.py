@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pipe_nav_core.config import NavConfig
+from pipe_nav_core.earth import geodetic_to_enu
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.gaps import fill_holes_at_rest, find_holes, remove_clock_steps
 from pipe_nav_core.imu_faults import without_imu_faults
@@ -79,6 +80,18 @@ def test_across_a_data_gap_the_run_is_smoothed_in_segments(log, tmp_path: Path):
     truth, datum = read_centreline_csv(SAMPLE.with_name("sample.truth.csv"))
     s = score(est, truth, datum=datum)
     assert s.max_h < 0.06 and s.max_v < 0.08 and s.inside_3sigma >= 0.95, s
+    # across the gap: the odometer's bound, and the true pipe inside it
+    (b,) = result.summary["bridges"]
+    assert b["length"] == pytest.approx(h.moved, rel=0.01)
+    assert any("within" in r and "not mapped" in r for r in q["reasons"])
+    a = np.array(geodetic_to_enu(b["lat0"], b["lon0"], b["alt0"], *datum_tuple(datum)))
+    z = np.array(geodetic_to_enu(b["lat1"], b["lon1"], b["alt1"], *datum_tuple(datum)))
+    k = (truth.t > b["t0"]) & (truth.t < b["t1"])
+    pts = np.asarray(geodetic_to_enu(truth.lat[k], truth.lon[k], truth.h[k],
+                                     *datum_tuple(datum))).reshape(-1, 3)  # fmt: skip
+    u = (z - a) / np.linalg.norm(z - a)
+    off = np.linalg.norm((pts - a) - np.outer((pts - a) @ u, u), axis=1)
+    assert off.max() <= b["within"] < 0.2 * b["length"], (off.max(), b)
 
 
 @pytest.fixture(scope="module")
@@ -141,3 +154,7 @@ def test_a_run_smoothed_in_reversed_time_is_as_good_as_forward(log):
     rev = score(_reversed(res).centreline, truth, datum=datum)
     assert rev.max_h < fwd.max_h + 0.02 and rev.max_v < fwd.max_v + 0.02, (fwd, rev)
     assert rev.inside_3sigma >= 0.95
+
+
+def datum_tuple(d):
+    return (d.lat, d.lon, d.alt)

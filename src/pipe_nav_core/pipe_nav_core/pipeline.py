@@ -413,12 +413,13 @@ def _write_staged(
     if outputs.csv:
         write_centreline_csv(staged[outputs.csv], rows, result.datum)
     welds = result.welds or []
+    bridges = result.summary.get("bridges") or []  # across data gaps (segments.Bridge)
     if outputs.geojson:
         write_geojson(staged[outputs.geojson], rows, result.markers, bends=bends,
-                      strain_features=features, welds=welds)  # fmt: skip
+                      strain_features=features, welds=welds, bridges=bridges)  # fmt: skip
     if outputs.kml:
         write_kml(staged[outputs.kml], rows, result.markers, bends=bends,
-                  strain_features=features, welds=welds)  # fmt: skip
+                  strain_features=features, welds=welds, bridges=bridges)  # fmt: skip
     if result.products is not None:
         _write_products_csv(result.products, outputs, staged)
     if outputs.welds and result.welds is not None:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .config import NavConfig
+from .earth import geodetic_to_enu
 from .gaps import TimeHole
 from .io.centreline import concat
 from .smoother import SmoothResult, arc_chainage, reverse_log
@@ -118,7 +119,7 @@ def smooth_segments(
     if not pieces:
         raise ValueError("no segment between the data gaps can be smoothed (each needs a marker "
                          "and a start or end at rest)")  # fmt: skip
-    return _joined(log, [p[1] for p in pieces]), segments
+    return _joined(log, config, [p[1] for p in pieces]), segments
 
 
 def _reversed(res: SmoothResult) -> SmoothResult:
@@ -129,12 +130,57 @@ def _reversed(res: SmoothResult) -> SmoothResult:
     return replace(res, centreline=c, forward=unreversed(res.forward), markers=markers)
 
 
-def _joined(log: SensorLog, parts: list[SmoothResult]) -> SmoothResult:
+@dataclass(frozen=True)
+class Bridge:
+    """What the odometer says of the pipe between two mapped segments: it runs from the last
+    row before (lat0, lon0 rad, alt0 m, t0 s) to the first row after (lat1, lon1, alt1, t1),
+    ``length`` m long by the odometer (scale-calibrated), ``chord`` m apart in a straight line.
+    A curve of length L between two points c apart lies in the ellipsoid they focus, within
+    sqrt(L^2 - c^2) / 2 of the line; ``within`` (m) is that with L at 3 sigma of the odometer
+    scale prior above (a wheel slipping in the gap is not known) and c at 3 sigma of the two
+    ends' position below."""
+
+    t0: float
+    t1: float
+    lat0: float
+    lon0: float
+    alt0: float
+    lat1: float
+    lon1: float
+    alt1: float
+    length: float
+    chord: float
+    within: float
+
+    def describe(self) -> str:
+        return (
+            f"the pipe between t = {self.t0:.3f} and {self.t1:.3f} s is not mapped: "
+            f"{self.length:.2f} m of it by the odometer, {self.chord:.2f} m end to end, so "
+            f"within {self.within:.2f} m of the straight line between them"
+        )
+
+
+def _bridge(prev: Trajectory, nxt: Trajectory, length: float, scale_sigma: float) -> Bridge:
+    a = (float(prev.lat[-1]), float(prev.lon[-1]), float(prev.h[-1]))
+    b = (float(nxt.lat[0]), float(nxt.lon[0]), float(nxt.h[0]))
+    chord = float(np.linalg.norm(geodetic_to_enu(*b, *a)))
+    ends = sum(float(np.linalg.norm(x.sigma_enu[i])) for x, i in ((prev, -1), (nxt, 0))
+               if x.sigma_enu is not None)  # fmt: skip
+    longest = length * (1.0 + 3.0 * scale_sigma)
+    shortest = max(chord - 3.0 * ends, 0.0)
+    return Bridge(float(prev.t[-1]), float(nxt.t[0]), *a, *b, length, chord,
+                  0.5 * math.sqrt(max(longest**2 - shortest**2, 0.0)))  # fmt: skip
+
+
+def _joined(log: SensorLog, config: NavConfig, parts: list[SmoothResult]) -> SmoothResult:
     """One result from the segments' (in time order): centreline and forward estimates one
-    after the other, the chainage going on across each gap by the odometer distance in it."""
+    after the other, the chainage going on across each gap by the odometer distance in it
+    (scaled by the segment before's calibration); the summary's ``bridges`` say what the
+    odometer bounds of the pipe across (:class:`Bridge`)."""
     odo = log.odometer
     centre: list[Trajectory] = []
     forward: list[Trajectory] = []
+    bridges: list[Bridge] = []
     offset = 0.0
     for k, p in enumerate(parts):
         c = p.centreline
@@ -142,7 +188,9 @@ def _joined(log: SensorLog, parts: list[SmoothResult]) -> SmoothResult:
             prev = centre[-1]
             across = float(np.interp(c.t[0], odo.t, odo.distance)
                            - np.interp(prev.t[-1], odo.t, odo.distance))  # fmt: skip
-            offset = float(prev.distance[-1]) + max(across, 0.0) - float(c.distance[0])
+            across = max(across, 0.0) * float(parts[k - 1].summary.get("odometer_scale", 1.0))
+            bridges.append(_bridge(prev, c, across, config.odometer_scale_sigma))
+            offset = float(prev.distance[-1]) + across - float(c.distance[0])
         centre.append(replace(c, distance=c.distance + offset))
         forward.append(p.forward)
     first = parts[0]
@@ -159,6 +207,8 @@ def _joined(log: SensorLog, parts: list[SmoothResult]) -> SmoothResult:
             rejected[name] = rejected.get(name, 0) + int(n)
     summary["rejected_updates"] = rejected
     joined = concat(centre)
+    summary["bridges"] = [vars(x) for x in bridges]
+    summary["warnings"] = summary["warnings"] + [x.describe() for x in bridges]  # type: ignore[operator]
     summary["distance_m"] = float(joined.distance[-1])
     summary["duration_s"] = float(joined.t[-1] - joined.t[0])
     residuals = {name: r for p in parts for name, r in p.marker_residuals.items()}

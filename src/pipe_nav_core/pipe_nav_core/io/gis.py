@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 from xml.sax.saxutils import escape
 
@@ -106,6 +106,7 @@ def to_geojson(
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
+    bridges: Sequence[Mapping[str, float]] = (),
 ) -> dict[str, object]:
     """GeoJSON FeatureCollection: a LineString of the centreline ([lon, lat, h] degrees and
     ellipsoidal metres) with properties name, start/end time (s) and length (chainage, m),
@@ -165,7 +166,23 @@ def to_geojson(
             _point_feature(_point_coords(f.lat, f.lon, f.alt), strain_feature_properties(f))
         )
     features += weld_features(welds)
+    features += [bridge_feature(b) for b in bridges]
     return {"type": "FeatureCollection", "features": features}
+
+
+def bridge_feature(b: Mapping[str, float]) -> dict[str, object]:
+    """A LineString (kind ``unmapped``) across a stretch of pipe between two mapped segments
+    (segments.Bridge as a dict): the straight line between its ends, with the odometer's
+    bound on how far the pipe can be from it."""
+    return {
+        "type": "Feature",
+        "geometry": {"type": "LineString", "coordinates": [
+            _point_coords(b["lat0"], b["lon0"], b["alt0"]),
+            _point_coords(b["lat1"], b["lon1"], b["alt1"])]},
+        "properties": {"name": "unmapped", "kind": "unmapped", "start_time_s": b["t0"],
+                       "end_time_s": b["t1"], "length_m": _num(b["length"], 3),
+                       "chord_m": _num(b["chord"], 3), "within_m": _num(b["within"], 3)},
+    }  # fmt: skip
 
 
 def write_geojson(
@@ -176,12 +193,14 @@ def write_geojson(
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
+    bridges: Sequence[Mapping[str, float]] = (),
 ) -> None:
     """Write :func:`to_geojson` to ``path`` (RFC 7946 GeoJSON, UTF-8); refuses non-finite
     samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_geojson(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
-                     bends=bends, strain_features=strain_features, welds=welds)  # fmt: skip
+                     bends=bends, strain_features=strain_features, welds=welds,
+                     bridges=bridges)  # fmt: skip
     with atomic_write(path, "w") as f:
         json.dump(doc, f, separators=(",", ":"), allow_nan=False)
         f.write("\n")
@@ -299,6 +318,7 @@ def to_kml(
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
+    bridges: Sequence[Mapping[str, float]] = (),
 ) -> str:
     """KML 2.2 document: a LineString Placemark of the centreline, a Point Placemark per
     marker, and one per bend apex, strain feature peak and girth weld (their GeoJSON
@@ -353,6 +373,19 @@ def to_kml(
         parts += _kml_strain(f)
     for w in welds:
         parts += _kml_weld(w)
+    for x in bridges:
+        ends = " ".join(f"{math.degrees(x[f'lon{i}']):.9f},{math.degrees(x[f'lat{i}']):.9f},"
+                        f"{x[f'alt{i}']:.4f}" for i in (0, 1))  # fmt: skip
+        parts += [
+            "<Placemark>",
+            "<name>unmapped</name>",
+            f"<description>not mapped: {x['length']:.2f} m of pipe by the odometer, within "
+            f"{x['within']:.2f} m of this line</description>",
+            "<LineString><altitudeMode>absolute</altitudeMode>",
+            f"<coordinates>{ends}</coordinates>",
+            "</LineString>",
+            "</Placemark>",
+        ]
     parts += ["</Document>", "</kml>", ""]
     return "\n".join(parts)
 
@@ -365,10 +398,12 @@ def write_kml(
     bends: Sequence[PipeBend] = (),
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
+    bridges: Sequence[Mapping[str, float]] = (),
 ) -> None:
     """Write :func:`to_kml` to ``path`` (UTF-8); refuses non-finite samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_kml(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
-                 bends=bends, strain_features=strain_features, welds=welds)  # fmt: skip
+                 bends=bends, strain_features=strain_features, welds=welds,
+                 bridges=bridges)  # fmt: skip
     with atomic_write(path, "w") as f:
         f.write(doc)
