@@ -484,3 +484,25 @@ def test_bends_refuses_what_is_not_a_smoothed_run(tmp_path: Path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a smoothed bag" in err[0] and str(SAMPLE) in err[0]
     assert not list(tmp_path.iterdir())
+
+
+def test_a_bug_is_an_internal_error_and_debug_shows_its_traceback(tmp_path, monkeypatch, capsys):
+    from pipe_nav_core import errors, pipeline
+
+    def broken(*_a, **_k):
+        raise TypeError("unsupported operand")
+
+    monkeypatch.setattr(pipeline, "smooth_bag", broken)
+    assert main(["smooth", str(SAMPLE), "--out", f"{tmp_path}/", "--quiet"]) == 70
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "internal error: TypeError: unsupported operand" in err[0], err
+    with pytest.raises(TypeError):  # --debug: the exception itself, its traceback shown
+        main(["--debug", "smooth", str(SAMPLE), "--out", f"{tmp_path}/", "--quiet"])
+    # an input error stays one line, and every one of them is a PipeNavError
+    r = _run_cli("smooth", str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "o.mcap"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "missing.mcap" in r.stderr
+    from pipe_nav_core.io import BagError
+    from pipe_nav_core.io.markers_csv import MarkerCsvError
+
+    assert issubclass(BagError, errors.PipeNavError)
+    assert issubclass(MarkerCsvError, errors.InputError) and issubclass(MarkerCsvError, ValueError)

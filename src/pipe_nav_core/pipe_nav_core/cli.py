@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from .config import ConfigError, NavConfig
+from .errors import PipeNavError
 
 if TYPE_CHECKING:
     from .plot_process import PlotProcess
@@ -35,10 +36,11 @@ if TYPE_CHECKING:
 
 EXIT_ERROR = 2
 EXIT_NOT_OK = 3  # smooth --strict: the run's quality verdict is not OK
+EXIT_INTERNAL = 70  # an internal error (EX_SOFTWARE): a bug, not the input
 SIM_EPOCH = 1780272000.0  # 2026-06-01T00:00:00Z: simulated bags carry realistic stamps
 
 
-class CliError(Exception):
+class CliError(PipeNavError):
     """A user error with a one-line message."""
 
 
@@ -575,6 +577,8 @@ def _add_runs_options(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="pipe-nav", description="Pipeline pig navigation (ROS-free core).")
+    ap.add_argument("--debug", action="store_true",
+                    help="on an error, the Python traceback instead of one line")  # fmt: skip
     sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("smooth", help="smooth a recorded bag into a centreline")
@@ -731,13 +735,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("pipe-nav: interrupted", file=sys.stderr)
         return 130
-    except (CliError, ConfigError, ValueError, OSError, KeyError) as exc:
+    except (PipeNavError, ConfigError, ValueError, OSError, KeyError) as exc:
+        if args.debug:
+            raise
         print(f"pipe-nav: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_ERROR
-    except Exception as exc:  # BagError and anything unexpected: one line, never a traceback
-        kind = "" if type(exc).__name__ == "BagError" else f"{type(exc).__name__}: "
-        print(f"pipe-nav: error: {kind}{_one_line(exc)}", file=sys.stderr)
-        return EXIT_ERROR
+    except Exception as exc:  # a bug: one line (the traceback with --debug)
+        if args.debug:
+            raise
+        print(f"pipe-nav: internal error: {type(exc).__name__}: {_one_line(exc)} (a bug; "
+              "`pipe-nav --debug ...` shows where)", file=sys.stderr)  # fmt: skip
+        return EXIT_INTERNAL
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous or signal.SIG_DFL)

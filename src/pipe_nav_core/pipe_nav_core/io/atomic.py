@@ -18,8 +18,10 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
+from ..errors import InputError
 
-class OutputIsInputError(ValueError):
+
+class OutputIsInputError(InputError):
     """The requested output path would overwrite an input."""
 
 

@@ -33,6 +33,7 @@ from ..attitude import (
     rotvec_from_quat,
 )
 from ..earth import ecef_to_geodetic, geodetic_to_ecef, geodetic_to_enu
+from ..errors import InputError
 from ..types import Datum, Trajectory
 from .atomic import atomic_write
 
@@ -64,7 +65,7 @@ _FORMATS = {
 }
 
 
-class CentrelineCsvError(ValueError):
+class CentrelineCsvError(InputError):
     """A centreline CSV file is malformed; the message names the file and the line."""
 
 

@@ -16,6 +16,7 @@ import math
 import os
 from collections.abc import Iterable, Sequence
 
+from ..errors import InputError
 from ..types import Marker, markers_sorted
 from .atomic import atomic_write
 from .rosmsg import DEFAULT_MARKER_SIGMA_M
@@ -32,7 +33,7 @@ MARKER_COLUMNS = [
 _REQUIRED = MARKER_COLUMNS[:5]
 
 
-class MarkerCsvError(ValueError):
+class MarkerCsvError(InputError):
     """A marker CSV file is malformed; the message names the file and the line."""
 
 

@@ -1,0 +1,18 @@
+"""The errors pipe_nav_core raises about what it is given (a bag, a CSV, a setting, a path).
+
+Every one derives from :class:`PipeNavError`, so a caller catches them all in one clause and
+tells them from a bug; the command line prints each as one line naming the input and exits 2,
+and prints anything else as an internal error (``pipe-nav --debug`` shows its traceback).
+:class:`InputError` is also a ValueError: the content of a file or a value is wrong.
+"""
+
+from __future__ import annotations
+
+
+class PipeNavError(Exception):
+    """Something pipe_nav_core was given cannot be used; the message is one line for people,
+    naming the input (``bags/x.mcap: not an MCAP file (bad magic)``)."""
+
+
+class InputError(PipeNavError, ValueError):
+    """The content of a file, or a value, the user gave is wrong."""
