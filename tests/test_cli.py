@@ -506,3 +506,21 @@ def test_a_bug_is_an_internal_error_and_debug_shows_its_traceback(tmp_path, monk
 
     assert issubclass(BagError, errors.PipeNavError)
     assert issubclass(MarkerCsvError, errors.InputError) and issubclass(MarkerCsvError, ValueError)
+
+
+def test_a_simulated_run_with_a_magnetometer_has_a_vendor_tally_to_locate(tmp_path: Path):
+    """simulate writes RUN.tally.csv (the vendor's welds and features, scale error and missed
+    welds included); locate puts every row of it on the smoothed run."""
+    run = tmp_path / "run.mcap"
+    assert main(["simulate", "--scenario", "demo", "--seed", "3", "--out", str(run),
+                 "--quiet"]) == 0  # fmt: skip
+    tally = tmp_path / "run.tally.csv"
+    rows = list(csv.DictReader(tally.open()))
+    assert sum(r["type"] == "girth weld" for r in rows) > 15 and len(rows) > 30
+    assert main(["smooth", str(run), "--out", f"{tmp_path}/", "--quiet"]) == 0
+    feats = tmp_path / "features.csv"
+    assert main(["locate", str(tally), "--run", str(tmp_path / "run_smoothed.mcap"),
+                 "--out", str(feats), "--quiet"]) == 0  # fmt: skip
+    located = list(csv.DictReader(feats.open()))
+    assert len(located) == len(rows)
+    assert sum(bool(r["matched_weld"]) for r in located) >= 0.9 * len(rows)

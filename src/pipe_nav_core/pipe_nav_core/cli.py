@@ -307,9 +307,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     import dataclasses
 
+    import numpy as np
+
     from .io import write_centreline_csv, write_markers_csv, write_sensor_bag
     from .io.atomic import check_not_input
     from .sim import get_scenario, simulate
+    from .sim.tally import make_tally
     from .sim.truth_products import truth_product_paths, write_truth_products
 
     out = Path(args.out)
@@ -318,17 +321,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     truth_csv = out.with_name(out.stem + ".truth.csv")
     markers_csv = out.with_name(out.stem + ".markers.csv")
     config_yaml = out.with_name(out.stem + ".config.yaml")
-    for p in (out, truth_csv, markers_csv, config_yaml, *truth_product_paths(out)):
+    tally_csv = out.with_name(out.stem + ".tally.csv")
+    for p in (out, truth_csv, markers_csv, config_yaml, tally_csv, *truth_product_paths(out)):
         check_not_input(str(p), [])
     write_sensor_bag(str(out), run.log)
     write_centreline_csv(str(truth_csv), run.truth, run.datum)
     truth_strain, truth_bends = write_truth_products(out, run)
     write_markers_csv(str(markers_csv), run.log.markers)
     _write_settings(config_yaml, scenario.estimator_settings(), out.name)
+    if scenario.mag_enabled:  # a vendor's tally of the pipe's welds and features (locate)
+        make_tally(run.welds, np.random.default_rng([args.seed, 19])).write_csv(tally_csv)
     if not args.quiet:
         print(f"simulated {args.scenario} (seed {args.seed}): {len(run.log.imu)} IMU samples")
         print(f"  bag    {out}\n  truth  {truth_csv}\n  survey {markers_csv}")
         print(f"  truth of the products {truth_strain}, {truth_bends}")
+        if scenario.mag_enabled:
+            print(f"  vendor tally {tally_csv} (pipe-nav locate {tally_csv.name} --run ...)")
         print(f"  settings {config_yaml} (pipe-nav smooth {out.name} --config {config_yaml.name})")
     return 0
 
