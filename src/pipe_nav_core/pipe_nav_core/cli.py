@@ -310,7 +310,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .io import write_centreline_csv, write_markers_csv, write_sensor_bag
-    from .io.atomic import check_not_input
+    from .io.atomic import ensure_not_input
     from .sim import get_scenario, simulate
     from .sim.tally import make_tally
     from .sim.truth_products import truth_product_paths, write_truth_products
@@ -323,7 +323,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     config_yaml = out.with_name(out.stem + ".config.yaml")
     tally_csv = out.with_name(out.stem + ".tally.csv")
     for p in (out, truth_csv, markers_csv, config_yaml, tally_csv, *truth_product_paths(out)):
-        check_not_input(str(p), [])
+        ensure_not_input(str(p), [])
     write_sensor_bag(str(out), run.log)
     write_centreline_csv(str(truth_csv), run.truth, run.datum)
     truth_strain, truth_bends = write_truth_products(out, run)
@@ -469,7 +469,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_locate(args: argparse.Namespace) -> int:
-    from .io.atomic import check_not_input, check_output
+    from .io.atomic import check_output, ensure_not_input
     from .io.smoothed_bag import CENTRELINE_ATTACHMENT, read_smoothed_run
     from .io.tally_csv import read_tally_csv, write_located
     from .io.welds_csv import read_welds_csv
@@ -479,7 +479,7 @@ def cmd_locate(args: argparse.Namespace) -> int:
     for path, option in ((args.out, "--out"), (args.geojson, "--geojson")):
         if path:
             check_output(path, option)
-            check_not_input(path, inputs)
+            ensure_not_input(path, inputs)
     if args.out and args.geojson and Path(args.out).resolve() == Path(args.geojson).resolve():
         raise CliError(f"--out and --geojson name the same file {args.out}")
     if not (0.0 < args.scale_tolerance < 0.2):

@@ -32,7 +32,7 @@ from .io import (
     write_kml,
     write_output_bag,
 )
-from .io.atomic import all_or_none, check_not_input, check_output
+from .io.atomic import all_or_none, check_output, ensure_not_input
 from .io.centreline import concat, pieces_of, read_centreline_csv
 from .io.products_csv import write_bends_csv, write_strain_csv, write_strain_features_csv
 from .io.smoothed_bag import read_smoothed_bag, smoothed_attachments
@@ -103,7 +103,7 @@ class Outputs:
             if not path:
                 continue
             check_output(path, option)
-            check_not_input(path, inputs)
+            ensure_not_input(path, inputs)
             real = os.path.realpath(path)
             if real in seen:
                 raise ValueError(f"{seen[real]} and {option} name the same file {path}")
@@ -510,7 +510,7 @@ def replay_bag(
     topics: TopicNames = DEFAULT_TOPICS,
 ) -> tuple[ReplayResult, BagReport]:
     """`pipe-nav replay`: the online estimator over a bag; writes /pipe_nav/odometry."""
-    check_not_input(out, [bag] + ([markers_csv] if markers_csv else []))
+    ensure_not_input(out, [bag] + ([markers_csv] if markers_csv else []))
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv, repair=False)
     _require_imu(log, report, bag, topics)
     auto = config.imu_grade == AUTO_GRADE

@@ -13,7 +13,6 @@ from .atomic import (
     OutputIsInputError,
     atomic_path,
     atomic_write,
-    check_not_input,
     ensure_not_input,
 )
 from .bagread import (
@@ -46,9 +45,6 @@ from .markers_csv import (
 )
 from .topics import BagError, BagReport, TopicNames
 
-# Refuse-to-overwrite helper under the name used in the design notes.
-refuse_input_overwrite = ensure_not_input
-
 __all__ = [
     "CENTRELINE_COLUMNS",
     "CENTRELINE_HEADER",
@@ -66,7 +62,6 @@ __all__ = [
     "bag_files",
     "bag_info",
     "bag_time_range",
-    "check_not_input",
     "concat_logs",
     "ensure_not_input",
     "interpolate_trajectory",
@@ -75,7 +70,6 @@ __all__ = [
     "read_bag",
     "read_centreline_csv",
     "read_markers_csv",
-    "refuse_input_overwrite",
     "resample_by_chainage",
     "write_centreline_csv",
     "write_geojson",

@@ -53,7 +53,6 @@ def ensure_not_input(
             raise OutputIsInputError(f"{out}: refusing to overwrite the input file {p}")
 
 
-check_not_input = ensure_not_input  # alias used by the pipeline and the CLI
 
 
 def _tmp_name(target: Path) -> Path:
