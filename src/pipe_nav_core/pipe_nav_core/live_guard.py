@@ -261,7 +261,11 @@ class GuardedNavigator(Navigator):
         # the wheel's faults so far, found as offline (odometer_faults) and left out of both
         log = _log_of(kept)
         log, faults = without_faults(log, find_odometer_faults(log))
-        cfg = anchored_config(log, self.cfg, self)
+        try:
+            cfg = anchored_config(log, self.cfg, self)
+        except ValueError:  # the dead reckoning found no solution in what was kept: go on
+            self._counts["heading_rerun_failed"] += 1
+            return out
         if cfg is self.cfg:
             return out
         counts, declared = dict(self._counts), self.declared_imu_noise
