@@ -1,15 +1,19 @@
-"""The pooled bag reader (chunks decompressed, checked and decoded by worker threads) gives
-exactly what the serial reader gives: the same SensorLog and the same BagReport (counts, skip
-reasons, warnings in the same order), on clean, damaged and foreign-written bags."""
+"""The pooled bag reader (chunks decompressed, CRC-checked and located by worker threads ahead
+of the decoding) gives exactly what the serial reader gives: the same SensorLog and the same
+BagReport (counts, skip reasons, warnings in the same order), on clean, damaged and
+foreign-written bags. By default only zstd chunks go to the pool; every test also reads with
+every compression pooled, so that lz4 and stored chunks go through the same machinery."""
 
 from __future__ import annotations
 
+import os
 import threading
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
-from pipe_nav_core.io import BagReport, iter_bag, read_bag, write_sensor_bag
+from pipe_nav_core.io import BagReport, iter_bag, mcapread, read_bag, write_sensor_bag
 from pipe_nav_core.io import rosmsg as R
 from pipe_nav_core.io.bagread import READ_WORKERS_ENV, read_workers
 from pipe_nav_core.io.mcapread import McapScanner, read_summary
@@ -21,6 +25,7 @@ from test_io_support import log_messages, make_log, write_rosbags_dir
 
 SMALL_CHUNK = 16 * 1024  # dozens of chunks: more than the pool reads ahead
 POOLS = (1, 2, 3)
+EVERY_COMPRESSION = frozenset({"zstd", "lz4", ""})
 
 
 @pytest.fixture(scope="module")
@@ -45,12 +50,15 @@ def _assert_same(a: SensorLog, b: SensorLog) -> None:
 
 
 def _read_all_ways(path: Path) -> tuple[SensorLog, BagReport]:
-    """read_bag serially and with every pool size; asserts they agree; the serial result."""
+    """read_bag serially and with every pool size, with the default pooled compressions and
+    with all of them pooled; asserts they agree; the serial result."""
     ref_log, ref_rep = read_bag(path, workers=0)
-    for w in POOLS:
-        got_log, got_rep = read_bag(path, workers=w)
-        _assert_same(ref_log, got_log)
-        assert got_rep == ref_rep, w
+    for pooled in (mcapread.POOLED_COMPRESSIONS, EVERY_COMPRESSION):
+        with mock.patch.object(mcapread, "POOLED_COMPRESSIONS", pooled):
+            for w in POOLS:
+                got_log, got_rep = read_bag(path, workers=w)
+                _assert_same(ref_log, got_log)
+                assert got_rep == ref_rep, (w, pooled)
     return ref_log, ref_rep
 
 
@@ -69,7 +77,7 @@ def test_multi_chunk_bag_reads_the_same_with_a_pool(tmp_path, log, compression):
     assert len(got.imu) == len(log.imu) - 3
     assert rep.skipped_by_topic["/imu/data"] == {"nan": 3}
     assert rep.skipped_by_topic["/odom/wheel"] == {"nan": 1}
-    assert rep.imu_noise_declared  # taken from a worker's decoding on the pooled path
+    assert rep.imu_noise_declared
     assert not rep.truncated
 
 
@@ -225,34 +233,43 @@ def _pool_threads() -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t.name.startswith("mcap-chunk")]
 
 
-def test_the_pool_works_in_its_own_threads_and_goes_away(tmp_path, log):
+def test_the_pool_works_in_its_own_threads_and_goes_away(tmp_path, log, monkeypatch):
     p = tmp_path / "run.mcap"
     write_sensor_bag(p, log, chunk_size=SMALL_CHUNK)
-    seen: set[str] = set()
+    seen: list[str] = []
+    unpack = mcapread.unpack_chunk
 
-    def prepare(batch, channels, schemas):
-        seen.add(threading.current_thread().name)
-        return (len(batch), sorted(channels))
+    def spy(content: bytes) -> bytes:
+        seen.append(threading.current_thread().name)
+        return unpack(content)
 
-    sc = McapScanner(p, lambda _: None)
-    batches = list(sc.batches(2, prepare))
-    assert len(batches) == _chunks(p)
-    assert all(b.prepared == (len(b), sorted(sc.channels)) for b in batches)
-    assert seen and all(name.startswith("mcap-chunk") for name in seen)
+    monkeypatch.setattr(mcapread, "unpack_chunk", spy)
+    batches = list(McapScanner(p, lambda _: None).batches(2))
+    assert len(batches) == len(seen) == _chunks(p)
+    assert all(name.startswith("mcap-chunk") for name in seen)
     assert not _pool_threads()
+    here = {threading.current_thread().name}
+    seen.clear()
+    assert len(list(McapScanner(p, lambda _: None).batches(0))) == len(batches)
+    assert set(seen) == here  # serially: in this thread
+    # lz4 chunks are not worth a hand-off: unpacked in this thread even with a pool
+    q = tmp_path / "lz4.mcap"
+    write_sensor_bag(q, log, compression="lz4", chunk_size=SMALL_CHUNK)
+    seen.clear()
+    assert len(list(McapScanner(q, lambda _: None).batches(2))) == _chunks(q)
+    assert set(seen) == here
     # a consumer that stops early (an abandoned stream) leaves no worker behind either
     it = iter_bag(p, chunk_seconds=2.0, workers=2)
     next(it)
+    assert _pool_threads()
     it.close()
     assert not _pool_threads()
-    # the serial scanner never calls the hook
-    assert all(b.prepared is None for b in McapScanner(p, lambda _: None).batches(0, prepare))
 
 
 def test_read_workers_from_the_argument_or_the_environment(monkeypatch):
     monkeypatch.delenv(READ_WORKERS_ENV, raising=False)
     assert read_workers(0) == 0 and read_workers(3) == 3
-    assert 0 <= read_workers() <= 4
+    assert read_workers() == (1 if (os.cpu_count() or 1) >= 2 else 0)
     monkeypatch.setenv(READ_WORKERS_ENV, "0")
     assert read_workers() == 0
     assert read_workers(2) == 2  # the argument wins

@@ -4,9 +4,9 @@ peak resident memory of a whole ``pipe-nav smooth`` process, and the online engi
 IMU sample with a 1 kHz IMU. The same run written in the bag forms others write (:data:`FORMS`:
 zstd, lz4 and uncompressed 1 MiB chunks as rosbag2's MCAP storage writes them, with and
 without a magnetometer, and the rosbag2 directory form) gives one row each: reading and
-decoding it with our reader, serially and with its worker threads, and the whole
-``pipe-nav smooth`` process on it. Absolute times are noisy on shared machines; the ratios are
-what to compare.
+decoding it with our reader, serially and as by default (zstd chunks unpacked by a worker
+thread ahead of the decoding), and the whole ``pipe-nav smooth`` process on it. Absolute times
+are noisy on shared machines; the ratios are what to compare.
 """
 
 from __future__ import annotations
@@ -358,6 +358,7 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
     time over the pooled read's, and its peak memory."""
     r0 = rows[0]
     workers = int(r0["read_workers"])
+    plural = "" if workers == 1 else "s"
     chunk = f"{r0['chunk_size'] / 2**20:g} MiB"
     lines = [
         "### Bag forms",
@@ -365,14 +366,15 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
         f"The same run ({r0['duration_s'] / 3600:.2f} h; IMU 200 Hz, odometer 50 Hz, "
         f"magnetometer {FIELD_MAG_RATE_HZ:g} Hz unless without) written as others write it: "
         f"chunks of {chunk} of records, as rosbag2's MCAP storage writes them (zstd by "
-        "default). Read + decode: `read_bag` (every check included), in one thread and with "
-        f"{workers} worker thread(s) decompressing and decoding the chunks "
-        f"({os.cpu_count()} cores); smooth: the whole `pipe-nav smooth` process (imports and "
-        "outputs included).",
+        "default). Read + decode: `read_bag` (every check included), in one thread "
+        f"(`workers=0`) and as by default, with {workers} worker thread{plural} decompressing "
+        f"and CRC-checking the zstd chunks ahead ({os.cpu_count()} cores); smooth: the whole "
+        "`pipe-nav smooth` process (imports and outputs included); smooth / read: the "
+        "process's time over the default read's.",
         "",
         "| bag form | MB | messages | read + decode, 1 thread: x real time "
-        f"| read + decode, {workers} workers: x real time | whole `pipe-nav smooth`: x real time "
-        "| smooth / read | peak MB |",
+        f"| read + decode, {workers} worker{plural}: x real time "
+        "| whole `pipe-nav smooth`: x real time | smooth / read | peak MB |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 from typing import Any
@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import InputError
 from ..types import (
     ImuSamples,
     MagSamples,
@@ -46,11 +47,9 @@ from ..types import (
 )
 from . import cdr
 from .mcapread import (
-    ChannelRecord,
     McapFormatError,
     McapScanner,
     MessageBatch,
-    SchemaRecord,
     chunk_messages,
     read_summary,
 )
@@ -82,8 +81,7 @@ from .topics import (
 REORDER_WINDOW_S = 0.5  # s: stamps this much out of order are re-sorted, older ones dropped
 TIME_JUMP_S = 1.0  # s: an isolated stamp this far ahead of both neighbours is a glitch
 EMIT_LAG_S = 5.0  # s: streaming holds back this much data behind the newest stamp
-READ_WORKERS_ENV = "PIPE_NAV_READ_WORKERS"  # threads that unpack and decode chunks (0: none)
-MAX_READ_WORKERS = 4
+READ_WORKERS_ENV = "PIPE_NAV_READ_WORKERS"  # threads that unpack the chunks (0: none)
 
 _ROLES = ("imu", "odometer", "mag", "markers")
 _LAYOUT = {
@@ -357,35 +355,16 @@ class _TopicState:
 # ----------------------------------------------------------------------------- decoding
 
 
-@dataclass
-class _Decoded:
-    """One role's messages of a batch, decoded without touching the report: the finite
-    samples in order, the messages to count as undecodable (``bad_cdr``) and as NaN or
-    infinite (``nan``), and the noise the first Imu message declares (None: not looked at)."""
-
-    pieces: _Pieces
-    bad_cdr: int = 0
-    nan: int = 0
-    noise: dict[str, list[float]] | None = None
-
-
-def _decode_values(
-    role: str, batch: MessageBatch, sel: NDArray[np.int64], want_noise: bool, fallback: bool
-) -> _Decoded | None:
-    """Decode the messages ``sel`` of a batch for a role (reads nothing but its arguments, so
-    safe in a worker thread). ``want_noise``: also read the first Imu message's declared
-    noise. ``fallback``: messages the vectorized decoder refuses go to rosbags; without it
-    such a batch gives None (left to the caller's thread)."""
+def _decode_role(
+    role: str, batch: MessageBatch, sel: NDArray[np.int64], topic: str, report: BagReport
+) -> _Pieces:
+    """Decode the messages ``sel`` of a batch for a role; returns finite samples in order."""
     starts = batch.payload_start[sel]
     sizes = batch.size[sel]
     vals, ok = cdr.decode_batch(_LAYOUT[role], batch.buf, starts, sizes, _FIELDS[role])
     good = np.flatnonzero(ok)
-    bad = np.flatnonzero(~ok)
-    if len(bad) and not fallback:
-        return None
-    noise = None
-    if role == "imu" and len(good) and want_noise:
-        noise = _declared_noise(batch.buf, starts[good[:1]], sizes[good[:1]])
+    if role == "imu" and len(good) and not report.imu_noise_declared:
+        report.imu_noise_declared = _declared_noise(batch.buf, starts[good[:1]], sizes[good[:1]])
     ns_parts: list[NDArray[np.int64]] = []
     pos_parts: list[NDArray[np.int64]] = []
     val_parts: list[dict[str, NDArray]] = []
@@ -394,15 +373,17 @@ def _decode_values(
         ns_parts.append(ns)
         pos_parts.append(good)
         val_parts.append(_role_values(role, vals))
-    n_fail = 0
+    bad = np.flatnonzero(~ok)
     if len(bad):
         fb_ns, fb_pos, fb_vals, n_fail = _fallback(role, batch, starts, sizes, bad)
+        if n_fail:
+            report.add_skipped(topic, SKIP_BAD_CDR, n_fail)
         if len(fb_ns):
             ns_parts.append(fb_ns)
             pos_parts.append(fb_pos)
             val_parts.append(fb_vals)
     if not ns_parts:
-        return _Decoded(_empty_pieces(role), n_fail, 0, noise)
+        return _empty_pieces(role)
     keys = _VALUE_KEYS[role]
     p = _Pieces(
         np.concatenate(ns_parts),
@@ -411,46 +392,10 @@ def _decode_values(
     if len(ns_parts) > 1:
         p = p.take(np.argsort(np.concatenate(pos_parts), kind="stable"))
     finite = _finite(role, p)
-    n_nan = 0
     if not finite.all():
-        n_nan = int((~finite).sum())
+        report.add_skipped(topic, SKIP_NAN, int((~finite).sum()))
         p = p.take(np.flatnonzero(finite))
-    return _Decoded(p, n_fail, n_nan, noise)
-
-
-def _take_decoded(dec: _Decoded, topic: str, report: BagReport) -> _Pieces:
-    """Count what a decoding found in the report (in the serial reader's order); its samples."""
-    if dec.noise is not None and not report.imu_noise_declared:
-        report.imu_noise_declared = dec.noise
-    if dec.bad_cdr:
-        report.add_skipped(topic, SKIP_BAD_CDR, dec.bad_cdr)
-    if dec.nan:
-        report.add_skipped(topic, SKIP_NAN, dec.nan)
-    return dec.pieces
-
-
-def _decode_role(
-    role: str, batch: MessageBatch, sel: NDArray[np.int64], topic: str, report: BagReport
-) -> _Pieces:
-    """Decode the messages ``sel`` of a batch for a role; returns finite samples in order."""
-    dec = _decode_values(role, batch, sel, not report.imu_noise_declared, True)
-    assert dec is not None  # with the fallback there is always an answer
-    return _take_decoded(dec, topic, report)
-
-
-def _channel_role(
-    ch: ChannelRecord, schemas: Mapping[int, SchemaRecord], role_of: Mapping[str, str]
-) -> str | None:
-    """The role of a channel's messages: None (not ours), ``"!" + role`` (our topic with
-    another type or encoding: skipped) or the role."""
-    role = role_of.get(ch.topic)
-    if role is None:
-        return None
-    schema = schemas.get(ch.schema_id)
-    typename = normalize_type(schema.name) if schema is not None else ""
-    if typename != ROLE_TYPES[role] or ch.message_encoding != "cdr":
-        return "!" + role
-    return role
+    return p
 
 
 def _role_values(role: str, vals: dict[str, object]) -> dict[str, NDArray]:
@@ -564,21 +509,22 @@ def _finite(role: str, p: _Pieces) -> NDArray[np.bool_]:
 
 
 def read_workers(workers: int | None = None) -> int:
-    """Worker threads for reading: ``workers`` when given (0: read in the calling thread
-    alone), else the environment variable ``PIPE_NAV_READ_WORKERS``, else one per core up to
-    :data:`MAX_READ_WORKERS` (none on a single core). ValueError for a negative or
+    """Threads that unpack the zstd chunks (decompress, CRC check, locate the messages) ahead
+    of the decoding and the checks: ``workers`` when given (0: none, all in the calling
+    thread), else the environment variable ``PIPE_NAV_READ_WORKERS``, else one when there are
+    two cores or more (more do not pay: the decoding and the checks hold the GIL, and they are
+    what is left to the calling thread). InputError (a ValueError) for a negative or
     non-integer count."""
     if workers is None:
         env = os.environ.get(READ_WORKERS_ENV, "").strip()
         if not env:
-            cores = os.cpu_count() or 1
-            return 0 if cores < 2 else min(cores, MAX_READ_WORKERS)
+            return 1 if (os.cpu_count() or 1) >= 2 else 0
         try:
             workers = int(env)
         except ValueError:
-            raise ValueError(f"{READ_WORKERS_ENV}={env!r}: not a whole number of threads") from None
+            raise InputError(f"{READ_WORKERS_ENV}={env!r}: not a whole number of threads") from None
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-        raise ValueError(f"read workers must be a whole number >= 0, got {workers!r}")
+        raise InputError(f"read workers must be a whole number >= 0, got {workers!r}")
     return workers
 
 
@@ -633,8 +579,7 @@ class _BagReader:
                 continue
             usable += 1
             warned: set[int] = set()
-            prepare = self._prepare if self.workers else None
-            for batch in sc.batches(self.workers, prepare):
+            for batch in sc.batches(self.workers):
                 roles = self._channel_roles(sc, warned)
                 yield batch, roles
             if sc.truncated:
@@ -646,26 +591,6 @@ class _BagReader:
         if usable == 0:
             raise BagError(f"{self.path}: no readable MCAP file")
 
-    def _prepare(
-        self,
-        batch: MessageBatch,
-        channels: Mapping[int, ChannelRecord],
-        schemas: Mapping[int, SchemaRecord],
-    ) -> dict[tuple[int, str], _Decoded]:
-        """In a worker thread: the decoded messages of a batch per (channel id, role), for the
-        roles the channels known there give (the consumer takes an entry only when its own role
-        of the channel is the same; batches that need the rosbags fallback are left to it)."""
-        out: dict[tuple[int, str], _Decoded] = {}
-        for cid in np.unique(batch.channel).tolist():
-            ch = channels.get(cid)
-            role = None if ch is None else _channel_role(ch, schemas, self.role_of)
-            if role is None or role.startswith("!"):
-                continue
-            dec = _decode_values(role, batch, np.flatnonzero(batch.channel == cid), True, False)
-            if dec is not None:
-                out[(cid, role)] = dec
-        return out
-
     def _channel_roles(self, sc: McapScanner, warned: set[int]) -> dict[int, str]:
         roles: dict[int, str] = {}
         for cid, ch in sc.channels.items():
@@ -673,12 +598,11 @@ class _BagReader:
             typename = normalize_type(schema.name) if schema is not None else ""
             if ch.topic not in self.report.types:
                 self.report.types[ch.topic] = typename
-            role = _channel_role(ch, sc.schemas, self.role_of)
+            role = self.role_of.get(ch.topic)
             if role is None:
                 continue
-            if role.startswith("!"):
-                role = role[1:]
-                expected = ROLE_TYPES[role]
+            expected = ROLE_TYPES[role]
+            if typename != expected or ch.message_encoding != "cdr":
                 roles[cid] = "!" + role
                 if cid not in warned:
                     warned.add(cid)
@@ -696,7 +620,6 @@ class _BagReader:
     def _ingest_batch(self, batch: MessageBatch, roles: dict[int, str]) -> None:
         if len(batch) == 0:
             return
-        prepared = batch.prepared if isinstance(batch.prepared, dict) else {}
         chans = np.unique(batch.channel)
         for cid in chans.tolist():
             role = roles.get(cid)
@@ -709,11 +632,7 @@ class _BagReader:
             st = self.states[role]
             st.seen += len(sel)
             self.messages_read += len(sel)
-            dec = prepared.get((cid, role))
-            if dec is not None:
-                st.ingest(_take_decoded(dec, st.topic, self.report))
-            else:
-                st.ingest(_decode_role(role, batch, sel, st.topic, self.report))
+            st.ingest(_decode_role(role, batch, sel, st.topic, self.report))
 
     def topics_of(self, role: str) -> str:
         return {
@@ -836,9 +755,9 @@ def read_bag(
     message frame (imu_link), markers sorted by time. Problems are counted and described in
     the returned BagReport; a file that cannot be read at all raises BagError.
 
-    ``workers``: threads that decompress, check and decode the chunks a few ahead of the
-    checks (:func:`read_workers`; default one per core); the checks themselves run in this
-    thread in file order, so the log and the report are exactly those of ``workers=0``.
+    ``workers``: threads that decompress and check the zstd chunks a few ahead of the
+    decoding (:func:`read_workers`; default one on two cores or more); everything else runs in
+    this thread in file order, so the log and the report are exactly those of ``workers=0``.
     """
     reader = _BagReader(path, topics, None, workers)
     logs = list(reader.chunks(math.inf, 0.0))
@@ -857,8 +776,8 @@ def iter_bag(
     """Stream a bag as consecutive time chunks of about ``chunk_seconds`` of header-stamp time.
 
     Memory stays bounded: the MCAP chunks being unpacked (at most two per worker thread, see
-    :func:`read_bag` for ``workers``) plus ``lag_seconds`` + one chunk of decoded samples.
-    Chunk k holds the samples with stamps in [b_k, b_k+1) (b_k are multiples of
+    :func:`read_bag` for ``workers``, plus one) plus ``lag_seconds`` + one chunk of decoded
+    samples. Chunk k holds the samples with stamps in [b_k, b_k+1) (b_k are multiples of
     chunk_seconds; empty chunks are not yielded); each topic is strictly increasing within and
     across chunks; markers are in the chunk containing their stamp. Pass a BagReport as
     ``report`` to read the counts and warnings after the iteration (the generator's return value

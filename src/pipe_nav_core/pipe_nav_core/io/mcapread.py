@@ -3,8 +3,8 @@
 The scanner walks the data section record by record in file order (which is the recording
 order for rosbag2 and for our writer), decompresses each chunk and locates its Message records
 -- from the chunk's MessageIndex records when present (fully vectorized), otherwise by a tight
-scan of the record headers. With ``workers`` the chunks are decompressed, checked and located
-by a thread pool a few chunks ahead (zstandard, lz4 and zlib's CRC release the GIL), while
+scan of the record headers. With ``workers`` the zstd chunks are decompressed, checked and
+located by a thread pool a few chunks ahead (zstandard and zlib's CRC release the GIL), while
 what the chunks tell the scanner (channels, schemas, warnings, corrupt counts) is still taken
 in by the consumer's thread in file order: the same batches and warnings as without. A batch
 is one chunk's worth of messages as numpy arrays (record offsets, channel ids, log times) into
@@ -23,7 +23,7 @@ import os
 import struct
 import zlib
 from collections import deque
-from collections.abc import Callable, Container, Iterator, Mapping
+from collections.abc import Callable, Container, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -57,6 +57,9 @@ _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
 _LOOSE_BATCH_BYTES = 4 << 20
+# chunk compressions worth a worker thread: zstd decompression costs as much as a quarter of
+# reading; lz4 and stored chunks are unpacked faster than a thread hand-off pays back
+POOLED_COMPRESSIONS = frozenset({"zstd"})
 AHEAD_BYTES = 64 << 20  # compressed chunk bytes a pooled scanner reads ahead of its consumer
 
 
@@ -113,8 +116,7 @@ class MessageBatch:
 
     buf: the decompressed bytes; rec: offset of each Message record (at its opcode) in buf;
     channel: channel id per message; log_time: ns per message. Payload i is
-    ``buf[rec[i] + 31 : rec[i] + 31 + size[i]]``. prepared: what the scanner's ``prepare``
-    hook made of the batch in a worker thread (None without one).
+    ``buf[rec[i] + 31 : rec[i] + 31 + size[i]]``.
     """
 
     buf: NDArray[np.uint8]
@@ -122,7 +124,6 @@ class MessageBatch:
     channel: NDArray[np.int64]
     log_time: NDArray[np.int64]
     size: NDArray[np.int64]
-    prepared: object = None
 
     @property
     def payload_start(self) -> NDArray[np.int64]:
@@ -342,10 +343,6 @@ def _batch_from_indexes(
 
 # ----------------------------------------------------------------------------- scanner
 
-# The hook a pooled scanner runs in its worker threads on each chunk's batch, with the channels
-# and schemas read so far: (batch, channels, schemas) -> anything (the batch's ``prepared``).
-Prepare = Callable[[MessageBatch, Mapping[int, ChannelRecord], Mapping[int, SchemaRecord]], object]
-
 
 class McapScanner:
     """Linear, tolerant reader of one MCAP file.
@@ -402,7 +399,7 @@ class McapScanner:
     def _finish_chunk(self, u: _Unpacked, indexes: list[bytes], offset: int) -> MessageBatch | None:
         """The batch of a complete Chunk record from what :func:`_unpack` made of it: counts a
         corrupt chunk, takes the indexed batch when the channels its indexes name are known by
-        now, else the record scan (whose Schema and Channel records are taken in here)."""
+        now, else scans the records (taking their Schema and Channel records in)."""
         if u.error is not None:  # corrupt chunk: skip it, keep going
             self.truncated = True
             self.warn(
@@ -410,24 +407,17 @@ class McapScanner:
             )
             self._count_corrupt(indexes)
             return None
-        if u.indexed is not None and all(
-            _U16.unpack_from(ix, 0)[0] in self.channels for ix in indexes
+        if indexes and all(
+            len(ix) >= 2 and _U16.unpack_from(ix, 0)[0] in self.channels for ix in indexes
         ):
-            return u.indexed
-        if u.scanned is None:  # indexes that named channels still unknown here
-            offs, complete = scan_message_records(u.raw, self._on_schema, self._on_channel)
-            batch = _checked_batch(u.buf, offs)
-        else:
-            for r in u.records:
-                if isinstance(r, SchemaRecord):
-                    self._on_schema(r)
-                else:
-                    self._on_channel(r)
-            batch, complete = u.scanned, u.complete
+            batch = u.indexed if u.located else _batch_from_indexes(u.buf, indexes, self.channels)
+            if batch is not None:
+                return batch
+        offs, complete = scan_message_records(u.raw, self._on_schema, self._on_channel)
         if not complete:
             self.truncated = True
             self.warn(f"chunk at byte {offset} has a damaged record; the rest of it was skipped")
-        return batch
+        return _checked_batch(u.buf, offs)
 
     def _partial_chunk(self, content: bytes, offset: int) -> MessageBatch | None:
         """Recover what can be read from a Chunk record cut off by the end of the file."""
@@ -448,18 +438,17 @@ class McapScanner:
         self.warn(f"recovered {len(offs)} messages from the chunk cut off at byte {offset}")
         return _checked_batch(np.frombuffer(raw, dtype=np.uint8), offs)
 
-    def batches(self, workers: int = 0, prepare: Prepare | None = None) -> Iterator[MessageBatch]:
+    def batches(self, workers: int = 0) -> Iterator[MessageBatch]:
         """Message batches in file order.
 
-        ``workers`` > 0: that many threads decompress, CRC-check and locate the messages of
-        the chunks (zstandard, lz4 and zlib release the GIL), at most ``2 * workers`` chunks
-        (and :data:`AHEAD_BYTES` of compressed data) ahead of the consumer. Everything that
-        touches the scanner (schemas, channels, warnings, counts of corrupt chunks) still
-        happens in this thread, record by record in file order, so the batches, warnings and
-        counts are exactly those of ``workers=0``. ``prepare`` (``workers`` > 0 only) runs in
-        the worker on each chunk's batch, with the channels and schemas read up to that chunk
-        (the ones of chunks not yet taken in may be missing); its result is the batch's
-        ``prepared`` (None when it raised).
+        ``workers`` > 0: that many threads decompress and CRC-check the chunks compressed
+        the :data:`POOLED_COMPRESSIONS` way and locate their messages from their message
+        indexes (zstandard and zlib's CRC release the GIL), at most ``2 * workers`` chunks
+        (and :data:`AHEAD_BYTES` of compressed data) ahead of the consumer; other chunks are
+        unpacked in this thread. Everything that touches the scanner (schemas, channels,
+        record scans, warnings, counts of corrupt chunks) still happens in this thread,
+        record by record in file order, so the batches, warnings and counts are exactly those
+        of ``workers=0``.
         """
         self._ended = False
         if workers <= 0:
@@ -468,7 +457,7 @@ class McapScanner:
                 if batch is not None and len(batch):
                     yield batch
         else:
-            yield from self._pipelined(workers, prepare)
+            yield from self._pipelined(workers)
         if not self._ended:
             self.truncated = True
             self.warn(
@@ -482,7 +471,7 @@ class McapScanner:
         if kind == "chunk":
             _, content, indexes, offset = item
             if u is None:
-                u = _unpack(content, indexes, self.channels, None, {}, {})
+                u = _unpack(content, indexes, False)
             return self._finish_chunk(u, indexes, offset)
         if kind == "batch":
             return item[1]
@@ -494,12 +483,10 @@ class McapScanner:
             self._on_channel(parse_channel(item[1]))
         return None
 
-    def _pipelined(self, workers: int, prepare: Prepare | None) -> Iterator[MessageBatch]:
+    def _pipelined(self, workers: int) -> Iterator[MessageBatch]:
         """:meth:`batches` with the chunks unpacked by a pool of ``workers`` threads."""
         items = self._items()
         queue: deque[tuple[_Item, Future[_Unpacked] | None]] = deque()
-        ahead_schemas: dict[int, SchemaRecord] = {}
-        ahead_channels: dict[int, ChannelRecord] = {}
         in_flight = 0
         in_flight_bytes = 0
         failure: Exception | None = None
@@ -514,20 +501,10 @@ class McapScanner:
                     failure = exc
                     break
                 fut: Future[_Unpacked] | None = None
-                if item[0] == "chunk":
-                    fut = pool.submit(
-                        _unpack,
-                        item[1],
-                        item[2],
-                        None,
-                        prepare,
-                        {**self.channels, **ahead_channels},
-                        {**self.schemas, **ahead_schemas},
-                    )
+                if item[0] == "chunk" and _compression(item[1]) in POOLED_COMPRESSIONS:
+                    fut = pool.submit(_unpack, item[1], item[2], True)
                     in_flight += 1
                     in_flight_bytes += len(item[1])
-                elif item[0] in ("schema", "channel"):
-                    _read_ahead(item, ahead_schemas, ahead_channels)
                 queue.append((item, fut))
                 while queue and (in_flight > 2 * workers or in_flight_bytes > AHEAD_BYTES):
                     head, fut = queue.popleft()
@@ -625,19 +602,25 @@ class _Unpacked:
     """What :func:`_unpack` made of one complete Chunk record, without touching a scanner.
 
     error: why the chunk is unreadable (nothing else is set then); raw, buf: its
-    decompressed records (bytes and a uint8 view); indexed: the batch located from its
-    MessageIndex records (None when they do not check or were not tried); scanned: the batch
-    of a record scan with the Schema and Channel records it met (``records``, in order) and
-    whether its last record was complete -- made only when ``indexed`` is None.
+    decompressed records (bytes and a uint8 view); located: the MessageIndex records were
+    tried, giving ``indexed`` (None when they do not check).
     """
 
     error: Exception | None = None
     raw: bytes = b""
     buf: NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, dtype=np.uint8))
+    located: bool = False
     indexed: MessageBatch | None = None
-    scanned: MessageBatch | None = None
-    records: list[SchemaRecord | ChannelRecord] = field(default_factory=list)
-    complete: bool = True
+
+
+def _compression(content: bytes) -> str | None:
+    """The compression a Chunk record's content names (None when its header is unreadable)."""
+    if len(content) < 32:
+        return None
+    n = _U32.unpack_from(content, 28)[0]
+    if 32 + n > len(content):
+        return None
+    return content[32 : 32 + n].decode("utf-8", "replace")
 
 
 def unpack_chunk(content: bytes) -> bytes:
@@ -661,63 +644,19 @@ def unpack_chunk(content: bytes) -> bytes:
     return raw
 
 
-def _unpack(
-    content: bytes,
-    indexes: list[bytes],
-    known: Container[int] | None,
-    prepare: Prepare | None,
-    channels: Mapping[int, ChannelRecord],
-    schemas: Mapping[int, SchemaRecord],
-) -> _Unpacked:
-    """Decompress and check one Chunk record and locate its messages (safe in any thread: it
-    reads nothing but its arguments). The indexes are tried when every channel they name is
-    in ``known`` (None: whatever they name; the caller then checks the names); the records
-    are scanned when the indexes give nothing. ``prepare(batch, channels, schemas)`` (with
-    the chunk's own Schema and Channel records added) is stored on the batch as ``prepared``.
-    """
+def _unpack(content: bytes, indexes: list[bytes], locate: bool) -> _Unpacked:
+    """Decompress and check one Chunk record and, with ``locate``, locate its messages from
+    its message indexes as if every channel they name were known (the caller checks the
+    names). Safe in any thread: it reads nothing but its arguments."""
     try:
         raw = unpack_chunk(content)
     except Exception as exc:
         return _Unpacked(error=exc)
-    out = _Unpacked(raw=raw, buf=np.frombuffer(raw, dtype=np.uint8))
-    if indexes and all(len(ix) >= 2 for ix in indexes):
+    out = _Unpacked(raw=raw, buf=np.frombuffer(raw, dtype=np.uint8), located=locate)
+    if locate and indexes and all(len(ix) >= 2 for ix in indexes):
         named = {_U16.unpack_from(ix, 0)[0] for ix in indexes}
-        if known is None or all(cid in known for cid in named):
-            out.indexed = _batch_from_indexes(out.buf, indexes, named)
-    if out.indexed is None:
-        offs, out.complete = scan_message_records(raw, out.records.append, out.records.append)
-        out.scanned = _checked_batch(out.buf, offs)
-    batch = out.indexed if out.indexed is not None else out.scanned
-    if prepare is not None and batch is not None and len(batch):
-        if out.records:
-            channels = dict(channels)
-            schemas = dict(schemas)
-            for r in out.records:
-                if isinstance(r, SchemaRecord):
-                    schemas[r.id] = r
-                else:
-                    channels[r.id] = r
-        try:
-            batch.prepared = prepare(batch, channels, schemas)
-        except Exception:  # the consumer then does the work itself (and meets the error)
-            batch.prepared = None
+        out.indexed = _batch_from_indexes(out.buf, indexes, named)
     return out
-
-
-def _read_ahead(
-    item: _Item, schemas: dict[int, SchemaRecord], channels: dict[int, ChannelRecord]
-) -> None:
-    """Note a Schema or Channel record read ahead of the consumer (for ``prepare`` only; one
-    that does not parse is left to the consumer, which raises where the serial reader does)."""
-    try:
-        if item[0] == "schema":
-            s = parse_schema(item[1])
-            schemas[s.id] = s
-        else:
-            ch = parse_channel(item[1])
-            channels[ch.id] = ch
-    except Exception:
-        pass
 
 
 def _loose_batch(loose: bytearray, offs: list[int]) -> MessageBatch:
