@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .types import SensorLog
 
@@ -170,6 +171,18 @@ REST_TILT = 2e-3  # rad: the gravity direction either side agrees to this (the p
 REST_RATE = 2e-3  # rad/s: and the mean rates to this
 
 
+def same_at_rest(
+    gyro0: ArrayLike, accel0: ArrayLike, gyro1: ArrayLike, accel1: ArrayLike, slack: float = 1.0
+) -> bool:
+    """Whether IMU readings before (gyro0 rad/s, accel0 m/s^2) and after a hole agree as a pig
+    standing still reads them: the gravity direction within REST_TILT and every rate within
+    REST_RATE, both times ``slack`` (for single samples rather than window means)."""
+    a0, a1 = np.asarray(accel0, dtype=np.float64), np.asarray(accel1, dtype=np.float64)
+    cos = float(a0 @ a1 / max(np.linalg.norm(a0) * np.linalg.norm(a1), 1e-12))
+    rates = float(np.max(np.abs(np.subtract(gyro1, gyro0))))
+    return math.acos(min(1.0, cos)) <= slack * REST_TILT and rates <= slack * REST_RATE
+
+
 def fill_holes_at_rest(log: SensorLog) -> tuple[SensorLog, list[TimeHole]]:
     """The log with the IMU holes longer than fill_short_holes takes, but while the pig stood
     still (a logger stall, a shock left out, at a stop), filled at the IMU's rate with the mean
@@ -204,8 +217,7 @@ def fill_holes_at_rest(log: SensorLog) -> tuple[SensorLog, list[TimeHole]]:
             continue
         g0, g1 = imu.gyro[before].mean(axis=0), imu.gyro[after].mean(axis=0)
         a0, a1 = imu.accel[before].mean(axis=0), imu.accel[after].mean(axis=0)
-        cos = float(a0 @ a1 / max(np.linalg.norm(a0) * np.linalg.norm(a1), 1e-12))
-        if math.acos(min(1.0, cos)) > REST_TILT or float(np.max(np.abs(g1 - g0))) > REST_RATE:
+        if not same_at_rest(g0, a0, g1, a1):
             continue
         n = int(round((t1 - t0) / period)) - 1
         if n <= 0:

@@ -51,7 +51,7 @@ import numpy as np
 
 from .earth import geodetic_to_enu
 from .engine import NavEstimate, Navigator
-from .gaps import MIN_GAP_S, REST_MOVED_M, REST_RATE, REST_SPEED, REST_TILT
+from .gaps import MIN_GAP_S, REST_MOVED_M, REST_SPEED, same_at_rest
 from .imu_faults import MARGIN_S, MAX_ACCEL, MAX_RATE, MIN_FLAT
 from .kalman import chi2_threshold
 from .odometer_faults import find_odometer_faults, without_faults
@@ -145,10 +145,7 @@ class GuardedNavigator(Navigator):
             return False
         if abs(now[1] - before[1]) >= REST_MOVED_M or self._last_odo_speed >= REST_SPEED:
             return False
-        a0, a1 = np.asarray(last[2]), np.asarray(nxt[2])
-        cos = float(a0 @ a1 / max(np.linalg.norm(a0) * np.linalg.norm(a1), 1e-12))
-        rates = float(np.max(np.abs(np.subtract(nxt[1], last[1]))))
-        return math.acos(min(1.0, cos)) <= 5.0 * REST_TILT and rates <= 5.0 * REST_RATE
+        return same_at_rest(last[1], last[2], nxt[1], nxt[2], slack=5.0)
 
     def push_odometer(self, t: float, distance: float, speed: float) -> None:
         if self.lost_since is not None:

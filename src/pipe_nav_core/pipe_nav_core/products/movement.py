@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,6 +39,9 @@ from ..kalman import chi2_threshold
 from ..types import Datum, Trajectory
 from .integrity import IntegrityReport, integrity_report
 
+if TYPE_CHECKING:
+    from .welds import Weld
+
 FloatArray = NDArray[np.float64]
 
 MOVEMENT_THRESHOLD_M = 0.05  # smallest displacement reported as movement, m
@@ -48,24 +51,13 @@ BEND_TOLERANCE_M = 5.0  # bend apexes of the two runs this close (after weld ali
 MIN_WELD_PAIRS = 3  # fewer matched welds: the runs are aligned by their bends only
 
 
-class _WeldLike(Protocol):
-    number: int
-    distance: float
-    lat: float
-    lon: float
-    alt: float
-    sigma_h: float
-    sigma_v: float
-    sigma_distance: float
-
-
 class RunLike(Protocol):
     """What a comparison needs of one run (io.smoothed_bag.SmoothedRun has it): the smoothed
     centreline (with ``sigma_enu`` when known), the datum of its ``map`` frame, its welds."""
 
     trajectory: Trajectory
     datum: Datum
-    welds: Sequence[Any]
+    welds: Sequence[Weld]
 
 
 @dataclass(frozen=True)
