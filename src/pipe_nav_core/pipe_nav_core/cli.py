@@ -599,7 +599,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--geojson", help="centreline GeoJSON")
     p.add_argument("--kml", help="centreline KML")
     p.add_argument("--plot", help="report PNG")
-    p.add_argument("--method", default="rts", choices=["rts", "two-filter", "forward"])
+    p.add_argument("--method", default="rts", choices=["rts", "two-filter", "forward", "graph"])
     p.add_argument("--iterations", type=int, default=2, help="re-linearization passes (default 2)")
     p.add_argument("--spacing", type=float, default=0.5, help="CSV row spacing, m of chainage")
     p.add_argument("--strict", action="store_true", help="exit 3 unless the quality verdict is OK")

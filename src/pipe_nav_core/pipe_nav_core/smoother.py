@@ -5,7 +5,9 @@ Methods (``method``):
 - ``forward``: the forward filter alone (what the live node sees);
 - ``rts``: Rauch-Tung-Striebel over the recorded forward filter;
 - ``two-filter``: the forward filter fused with a filter run on the time-reversed data
-  (seed 001 RTS-FC, seed 004).
+  (seed 001 RTS-FC, seed 004);
+- ``graph``: the batch (factor-graph) smoother (:mod:`pipe_nav_core.graph`): Gauss-Newton over
+  the whole run with a robust loss on the markers, started from the ``rts`` result.
 
 Passes:
 1. the live filter (what the live node computes; ``forward`` of the result unless 2.; with
@@ -72,7 +74,7 @@ if TYPE_CHECKING:
     from .products.welds import Weld
 
 Array = NDArray[np.float64]
-METHODS = ("forward", "rts", "two-filter")
+METHODS = ("forward", "rts", "two-filter", "graph")
 # A pass linearized within these of its smoothed result has converged: Gauss-Newton converges
 # quadratically here (a 0.1 m step is followed by about 2 mm, a 2 mm one by microns), so the
 # result of such a pass is the optimum to well below a millimetre.
@@ -138,9 +140,11 @@ def _flip(layout: Layout) -> Array:
     return s
 
 
-# a forward pass feeds the log to the engine in this many time slices (identical results): the
-# engine holds its input buffers for one slice at a time, and a caller can show the progress
+# a forward pass feeds the log to the engine in up to this many time slices, each at least
+# SLICE_MIN_S long (identical results): the engine holds its input buffers for one slice at a
+# time, and a caller can show the progress; a slice costs about a millisecond of Python
 PROGRESS_SLICES = 40
+SLICE_MIN_S = 60.0  # s of data
 # receives the fraction (0..1) of each forward pass done, while a caller shows progress
 _FRACTION: contextvars.ContextVar[Callable[[float], None] | None] = contextvars.ContextVar(
     "pipe_nav_fraction", default=None
@@ -203,12 +207,14 @@ def run_forward(
     if len(log.imu) < 2:
         nav.run(log)
     else:
-        edges = np.linspace(log.imu.t[0], log.imu.t[-1], PROGRESS_SLICES + 1)
-        for i in range(PROGRESS_SLICES):
-            last = i == PROGRESS_SLICES - 1
+        span = float(log.imu.t[-1] - log.imu.t[0])
+        slices = int(np.clip(math.ceil(span / SLICE_MIN_S), 1, PROGRESS_SLICES))
+        edges = np.linspace(log.imu.t[0], log.imu.t[-1], slices + 1)
+        for i in range(slices):
+            last = i == slices - 1
             nav.run(slice_log(log, edges[i], math.inf if last else edges[i + 1]), final=last)
             if report is not None:
-                report((i + 1) / PROGRESS_SLICES)
+                report((i + 1) / slices)
     if nav.state is None:
         raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
     return nav
@@ -233,6 +239,8 @@ def smooth_log(
     ``forward``); then up to ``iterations`` smoothing passes, each linearized
     about the previous smoothed trajectory (Gauss-Newton), until the step is below
     CONVERGED_POS_M and CONVERGED_RAD and the excluded odometer epochs do not change.
+    ``graph``: those passes with RTS, then the batch smoother from their last smoothed
+    trajectory, with their odometer exclusions (:func:`_graph_result`).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -275,6 +283,7 @@ def smooth_log(
     exclude: Array | None = None
     reference: Array | None = None
     best: tuple[int, SmoothResult] | None = None
+    graph_start: tuple[Array, Array | None] = (np.zeros((0, 0)), None)
     n_pass = max(1, iterations)
     for it in range(n_pass):
         if it:
@@ -283,7 +292,7 @@ def smooth_log(
                               reverse=reverse)  # fmt: skip
         rec = nav.recording
         assert rec is not None
-        if method == "rts":
+        if method in ("rts", "graph"):
             say(f"RTS smoother (pass {it + 1})")
             e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
         else:
@@ -314,13 +323,54 @@ def smooth_log(
             and same_slips
         )
         if converged or it == n_pass - 1:
+            if method == "graph":  # where the batch smoother starts
+                slips = new_exclude if new_exclude is not None else exclude
+                graph_start = (smoothed_states(rec, e, layout), slips)
             break
         reference = smoothed_states(rec, e, layout)
         exclude = new_exclude
         del nav, rec, e, var, centre, result  # free this pass before the next
     assert best is not None
     best[1].summary["passes_run"] = it + 1
+    if method == "graph":
+        start, slips = graph_start
+        return _graph_result(log, cfg, start, slips, it + 1, say, reverse, result_of)
     return best[1]
+
+
+def _graph_result(
+    log: SensorLog,
+    cfg: NavConfig,
+    start: Array,
+    exclude: Array | None,
+    rts_passes: int,
+    say: Callable[[str], None],
+    reverse: bool,
+    result_of: Callable[[Navigator, Trajectory], SmoothResult],
+) -> SmoothResult:
+    """The batch smoother (pipe_nav_core.graph) from the RTS passes' last smoothed trajectory
+    (flat states start (K, SV_SIZE)) with their odometer exclusions; the summary says the
+    method, the RTS passes and the graph's iterations, markers downweighted by its robust
+    loss and factors left out by its gate."""
+    from .graph import graph_smooth
+
+    g = graph_smooth(log, cfg, start, odometer_exclude=exclude, reverse=reverse, say=say)
+    rec = g.nav.recording
+    assert rec is not None
+    centre = _centreline(rec, g.corrections(), g.solution.var, layout_for(cfg))
+    rec.close()
+    result = result_of(g.nav, centre)
+    result.summary.update(
+        method="graph",
+        passes=rts_passes,
+        passes_run=rts_passes,
+        graph_iterations=g.iterations,
+        graph_converged=g.converged,
+        graph_cost=g.history[-1],
+        graph_markers_downweighted=list(g.weighing.downweighted),
+        graph_factors_gated=dict(g.weighing.gated),
+    )
+    return result
 
 
 def anchored_config(

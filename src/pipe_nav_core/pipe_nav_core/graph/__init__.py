@@ -1,0 +1,24 @@
+"""Batch (factor-graph) smoothing of a whole run (``--method graph``).
+
+- :mod:`.problem`: the variables (every epoch's error state) and factors (prior, error-state
+  dynamics between epochs, measurements) of the batch problem linearized about a trajectory;
+- :mod:`.linearize`: builds it from the filter's own epoch and measurement kernels;
+- :mod:`.solver`: the sparse least-squares solve (QR elimination in time order) with marginal
+  covariances;
+- :mod:`.robust`: robust losses (IRLS weights);
+- :mod:`.batch`: Gauss-Newton with a robust loss on the markers, from the RTS solution.
+"""
+
+from .batch import GraphResult, graph_smooth
+from .problem import LinearChain, MeasurementFactor, Prior
+from .solver import ChainSolution, solve_chain
+
+__all__ = [
+    "ChainSolution",
+    "GraphResult",
+    "LinearChain",
+    "MeasurementFactor",
+    "Prior",
+    "graph_smooth",
+    "solve_chain",
+]

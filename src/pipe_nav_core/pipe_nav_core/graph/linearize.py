@@ -1,0 +1,341 @@
+"""The batch problem linearized about a trajectory, built from the filter's own epoch.
+
+:class:`FactorRecorder` is the :class:`~pipe_nav_core.engine.Navigator` run about a reference
+trajectory (the iterated smoother's pass: same alignment prior, same epochs, same inputs,
+same odometer exclusions), which also writes down, epoch by epoch, what its compiled epoch
+linearizes: the transition Phi_k, the process noise Qd_k and the offset (mechanization from
+X_{k-1} minus X_k) of every between-factor, from :func:`pipe_nav_core.epoch.run_epochs` itself
+(a prediction from zero error and zero covariance returns exactly those), and every
+measurement the epoch would apply, as a :class:`~.problem.MeasurementFactor` evaluated by the
+same kernel of :mod:`pipe_nav_core.measurements` with the same inputs and the same motion and
+disturbance gates. Nothing of a measurement model is written twice: the factors call the
+kernels; this module only passes them the epoch's inputs, as :func:`epoch._updates` does.
+
+The chi-square gates on the innovation are not applied here (they depend on the forward
+filter's covariance): the batch solver gates and weighs the factors itself (:mod:`.batch`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import earth
+from .. import measurements as meas
+from ..attitude import dcm_into
+from ..config import NOISE_EPOCH_S, NavConfig
+from ..engine import Navigator
+from ..epoch import (
+    D_FREE,
+    D_HAS_PREV_VEL,
+    D_PREV_VEL,
+    P_ARW,
+    P_EARTH_SIGN,
+    P_LEVER_KNOWN,
+    P_MAG_DECL,
+    P_MAG_DIP,
+    P_MAG_DIP_GATE,
+    P_MAG_NORM_GATE,
+    P_MAG_ON,
+    P_MAG_REF,
+    P_MAG_REF_OK,
+    P_MAG_SIGMA,
+    P_MARKER_TIME,
+    P_NHC_SIGMA,
+    P_ODO_SIGMA,
+    P_PIPE_D,
+    P_TILT_GATE,
+    P_TILT_ON,
+    P_TILT_SIGMA,
+    P_ZARU,
+    P_ZUPT,
+    S_LIN,
+    S_MECH,
+    W_DP,
+    W_EXCLUDED,
+    W_FMN,
+    W_GYRO,
+    W_HAS_ODO,
+    W_LEVER_RATE,
+    W_MAG_I,
+    W_MVB,
+    W_SPEED,
+    W_STOPPED,
+    W_T,
+    W_VJAC,
+    W_W_YZ,
+    Batch,
+    Filter,
+    Inputs,
+    run_epochs,
+)
+from ..state import I_VEL, L_ATT, SV_H, SV_LAT, c_nb_k
+from ..types import Marker, SensorLog
+from .problem import LinearChain, MeasurementFactor, Model, Prior
+
+Array = NDArray[np.float64]
+Index = NDArray[np.int64]
+
+
+def _odometer_model(args: tuple, rows: slice) -> Model:
+    """The odometer-velocity kernel with this epoch's inputs, rows 0 (speed) or 1: (NHC)."""
+
+    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
+        r, H, R = meas.odometer_velocity_k(sv, L, *args)
+        return r[rows].copy(), H[rows].copy(), R[rows, rows].copy()
+
+    return model
+
+
+def _zero_velocity_model(sigma: float) -> Model:
+    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
+        return meas.zero_velocity_k(sv, L, sigma)
+
+    return model
+
+
+def _zero_rate_model(gyro_mean: Array, sigma: float, earth_sign: float, free: bool) -> Model:
+    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
+        r, H, R = meas.zero_rate_k(sv, L, gyro_mean, sigma, earth_sign)
+        if free:  # as epoch._updates: no gyrocompassing while the heading is free
+            H[:, L[L_ATT] + 2] = 0.0
+        return r, H, R
+
+    return model
+
+
+def _tilt_model(f_mean_n: Array, c_mean: Array, accel_n: Array, sigma: float, c_f: Array) -> Model:
+    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
+        return meas.gravity_tilt_k(sv, L, f_mean_n, c_mean, accel_n, sigma, c_f)
+
+    return model
+
+
+def _mag_model(field_b: Array, c_nb: Array, declination: float, sigma: float) -> Model:
+    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
+        return meas.magnetic_heading_k(sv, L, field_b, c_nb, declination, sigma)
+
+    return model
+
+
+def _marker_model(marker: Array, time_sigma: float) -> Model:
+    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
+        return meas.marker_fix_k(sv, L, marker, time_sigma)
+
+    return model
+
+
+class FactorRecorder(Navigator):
+    """A Navigator pass about ``reference`` (flat states (K, SV_SIZE) at the epochs of an
+    earlier pass over the same data) that records the batch problem linearized about it:
+    :meth:`problem` after :meth:`Navigator.run`. Its recording (``recording``) is the pass's,
+    for the centreline at the IMU rate (:func:`pipe_nav_core.smoother._centreline`)."""
+
+    def __init__(
+        self,
+        config: NavConfig,
+        survey: Sequence[Marker] = (),
+        *,
+        reference: Array,
+        odometer_exclude: Array | None = None,
+        reverse: bool = False,
+    ) -> None:
+        super().__init__(
+            config,
+            survey,
+            record=True,
+            emit=False,
+            reverse=reverse,
+            reference=reference,
+            odometer_exclude=odometer_exclude,
+        )
+        K, n = len(reference), self.layout.n
+        self.phi = np.tile(np.eye(n), (K, 1, 1))
+        self.qd = np.zeros((K, n, n))
+        self.offset = np.zeros((K, n))
+        self.factors: list[MeasurementFactor] = []
+        self.prior: Prior | None = None
+        self._scratch: Batch | None = None
+        self._f: Filter | None = None
+
+    # ------------------------------------------------------------------ hooks
+    def _align(self, idx: Array) -> None:
+        super()._align(idx)
+        assert self.kf is not None
+        self.prior = Prior(self.kf.x.copy(), self.kf.P.copy())
+
+    def _call(
+        self,
+        batch: Batch,
+        inputs: Inputs,
+        markers: Array,
+        *,
+        stop: bool = False,
+        resume: bool = False,
+    ) -> None:
+        self._linearize(inputs, markers, stop, resume)
+        super()._call(batch, inputs, markers, stop=stop, resume=resume)
+
+    # ------------------------------------------------------------------ the problem
+    def problem(self) -> LinearChain:
+        """The linearized batch problem of the epochs run so far."""
+        if self.prior is None or self.recording is None:
+            raise ValueError("no navigation solution: the pass never aligned")
+        K = len(self.recording)
+        return LinearChain(
+            self.prior, self.phi[:K], self.qd[:K], self.offset[:K], list(self.factors)
+        )
+
+    def _scratch_for(self, samples: int) -> Batch:
+        b = self._scratch
+        if b is None or len(b.lat) < samples:
+            b = self._scratch = Batch(1, max(samples, 256), self.layout.n)
+        b.reset()
+        return b
+
+    def _linearize(self, inputs: Inputs, markers: Array, stop: bool, resume: bool) -> None:
+        """Each epoch of a batch once more, one at a time, from zero error and covariance on
+        a scratch copy of the filter's memory (its mechanization carry and the previous
+        epoch's speed and velocity, which do not depend on the error state): the prediction
+        gives Phi, Qd and the offset, then the factors are read off the epoch's inputs."""
+        assert self._prm is not None
+        L, prm = self.layout.index, self._prm
+        ref = self.reference
+        assert ref is not None
+        n = self.layout.n
+        if not resume or self._f is None:
+            self._f = Filter(
+                self._sv.copy(), np.zeros(n), np.zeros((n, n)), self._carry.copy(),
+                self._dyn.copy(),
+            )  # fmt: skip
+        f = self._f
+        ends = inputs.ends
+        B = len(ends)
+        no_markers = np.zeros((0, 7))
+        for e in range(B):
+            k = self._epoch + 1 + e
+            i0 = int(ends[e - 1]) + 1 if e else 0
+            i1 = int(ends[e]) + 1
+            one = Inputs(
+                inputs.imu_t[i0:i1], inputs.imu_g[i0:i1], inputs.imu_a[i0:i1],
+                np.array([i1 - i0 - 1], dtype=np.int64), inputs.s_odo[i0:i1],
+                inputs.has_odo[e : e + 1], inputs.excluded[e : e + 1],
+                inputs.resolution[e : e + 1], inputs.mag_i[e : e + 1], inputs.mag_t,
+                inputs.mag_f,
+            )  # fmt: skip
+            if resume and e == 0:
+                sb = self._scratch
+                assert sb is not None
+            else:
+                sb = self._scratch_for(i1 - i0)
+                f.x[:] = 0.0
+                f.P[:] = 0.0
+                run_epochs(True, False, k, f, L, prm, ref, one, no_markers, sb.buffers())
+                self.phi[k] = sb.phi[0]
+                self.qd[k] = sb.P_pred[0]  # predicted from zero covariance: Qd
+                self.offset[k] = sb.ws_x  # predicted from zero error: the offset
+            if stop and e == B - 1:
+                return
+            mk = markers if e == B - 1 else no_markers
+            self._factors_of_epoch(k, sb, one, f.dyn, prm, mk)
+            sb.marker_res = np.zeros((len(mk), 3))
+            run_epochs(False, True, k, f, L, prm, ref, one, mk, sb.buffers())
+
+    def _factors_of_epoch(
+        self, k: int, sb: Batch, inp: Inputs, dyn: Array, prm: Array, markers: Array
+    ) -> None:
+        """The measurements epoch._updates applies at epoch k, with its inputs and gates (but
+        not its innovation gate), as factors evaluated at the linearization point."""
+        ins = self.layout.has_vel
+        ws = sb.ws
+        T, speed = ws[W_T], ws[W_SPEED]
+        stopped, odo_ok = ws[W_STOPPED] != 0.0, ws[W_HAS_ODO] != 0.0
+        free = dyn[D_FREE] != 0.0
+        s1 = sb.ws_sv[S_MECH].copy()
+        s = sb.ws_sv[S_LIN].copy()
+        v_jac = ws[W_VJAC : W_VJAC + 3].copy()
+        add = self._add
+        if ins and odo_ok:
+            lever_known = prm[P_LEVER_KNOWN] != 0.0
+            bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * ws[W_W_YZ]
+            over = np.sqrt(NOISE_EPOCH_S / max(T, 1e-3))
+            sigma_speed = float(np.hypot(prm[P_ODO_SIGMA] * over, bend))
+            vel_b_offset = ws[W_MVB : W_MVB + 3] - c_nb_k(s1).T @ s1[I_VEL : I_VEL + 3]
+            args = (float(speed), vel_b_offset, float(ws[W_LEVER_RATE]), sigma_speed,
+                    float(prm[P_NHC_SIGMA] * over), v_jac, float(T))  # fmt: skip
+            add("nhc", k, s, _odometer_model(args, slice(1, 3)))
+            if ws[W_EXCLUDED] == 0.0:
+                add("odometer", k, s, _odometer_model(args, slice(0, 1)))
+        if stopped:
+            if ins:
+                add("zupt", k, s, _zero_velocity_model(float(prm[P_ZUPT])))
+            sigma = float(np.sqrt(prm[P_ARW] ** 2 / T + prm[P_ZARU] ** 2))
+            gyro_mean = ws[W_GYRO : W_GYRO + 3].copy()
+            add("zaru", k, s, _zero_rate_model(gyro_mean, sigma, float(prm[P_EARTH_SIGN]), free))
+        if prm[P_TILT_ON] != 0.0 and odo_ok and dyn[D_HAS_PREV_VEL] != 0.0:
+            dp = ws[W_DP : W_DP + 3]
+            accel_n = (dp / T - dyn[D_PREV_VEL : D_PREV_VEL + 3]) / T
+            f_mean_n = ws[W_FMN : W_FMN + 3].copy()
+            g = float(earth.gravity(s[SV_LAT], s[SV_H]))
+            gate = prm[P_TILT_GATE]
+            if not (abs(np.linalg.norm(f_mean_n) - g) > gate or np.linalg.norm(accel_n) > gate):
+                model = _tilt_model(f_mean_n, sb.ws_m[:, :3] / T, accel_n,
+                                    float(prm[P_TILT_SIGMA]), sb.ws_m[:, 3:] / T)  # fmt: skip
+                add("tilt", k, s, model)
+        i_mag = int(ws[W_MAG_I])
+        if prm[P_MAG_ON] != 0.0 and i_mag >= 0 and prm[P_MAG_REF_OK] != 0.0:
+            n_s = len(inp.imu_t)
+            j = 0
+            while j < n_s - 1 and inp.imu_t[j] < inp.mag_t[i_mag]:
+                j += 1
+            c = np.empty((3, 3))
+            q = sb.q[j]
+            dcm_into((float(q[0]), float(q[1]), float(q[2]), float(q[3])), c)
+            m_b = inp.mag_f[i_mag].copy()
+            m_n = c @ m_b
+            dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
+            norm = np.linalg.norm(m_b)
+            disturbed = (abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
+                         or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE])  # fmt: skip
+            if not disturbed:
+                model = _mag_model(m_b, c, float(prm[P_MAG_DECL]), float(prm[P_MAG_SIGMA]))
+                add("mag", k, s, model)
+        for row in markers:
+            vec = np.array(row, dtype=np.float64)
+            add("marker", k, s, _marker_model(vec, float(prm[P_MARKER_TIME])), robust=True,
+                name=self._marker_name(vec))  # fmt: skip
+
+    def _add(
+        self, kind: str, k: int, s: Array, model: Model, *, robust: bool = False, name: str = ""
+    ) -> None:
+        r, H, R = model(s, self.layout.index)
+        self.factors.append(MeasurementFactor(kind, k, r, H, R, model, robust, name))
+
+    def _marker_name(self, vec: Array) -> str:
+        for m in (*self.survey, *self._markers_seen):
+            if m.t == vec[0] and m.lat == vec[1] and m.lon == vec[2]:
+                return m.name
+        return ""
+
+
+def linearize(
+    log: SensorLog,
+    config: NavConfig,
+    reference: Array,
+    *,
+    odometer_exclude: Array | None = None,
+    reverse: bool = False,
+) -> tuple[LinearChain, FactorRecorder]:
+    """The batch problem of a time-sorted log linearized about reference (flat states
+    (K, SV_SIZE) at the epochs of an earlier pass of the engine over the same log, from the
+    alignment on), and the pass that built it (its recording holds the per-sample nominal)."""
+    nav = FactorRecorder(
+        config, log.markers, reference=reference, odometer_exclude=odometer_exclude,
+        reverse=reverse,
+    )  # fmt: skip
+    nav.run(log)
+    if nav.state is None:
+        raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
+    return nav.problem(), nav

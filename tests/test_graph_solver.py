@@ -1,0 +1,159 @@
+"""The batch (factor-graph) solver on linear Gaussian chains: it equals the RTS smoother and
+dense batch least squares to round-off, also with nearly constant states."""
+
+import numpy as np
+import pytest
+from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior
+from pipe_nav_core.graph.robust import cauchy_weight, huber_cost, huber_weight
+from pipe_nav_core.graph.solver import solve_chain, whitener
+from pipe_nav_core.smoothing import rts
+
+
+def _no_model(sv, L):  # noqa: ANN001, ANN202
+    raise AssertionError("a linear toy factor is never relinearized")
+
+
+def _toy(seed: int, K: int = 60, tiny: float | None = None):
+    """A random linear chain: n = 5 states (position/velocity pairs and one constant-ish
+    parameter), 1 to 2 measurement rows per epoch, some epochs without any."""
+    rng = np.random.default_rng(seed)
+    n = 5
+    phi = np.zeros((K, n, n))
+    qd = np.zeros((K, n, n))
+    off = np.zeros((K, n))
+    for k in range(1, K):
+        F = np.eye(n) + 0.1 * rng.standard_normal((n, n)) * (rng.random((n, n)) < 0.4)
+        F[4] = np.eye(n)[4]  # the parameter stays (a random walk)
+        phi[k] = F
+        B = 0.1 * rng.standard_normal((n, n))
+        q = B @ B.T + np.diag([1e-3, 2e-3, 1e-3, 2e-3, 1e-4])
+        if tiny is not None:
+            q[4, :] = q[:, 4] = 0.0
+            q[4, 4] = tiny
+        qd[k] = q
+        off[k] = 0.05 * rng.standard_normal(n)
+        if tiny is not None:
+            off[k, 4] = 0.0  # the linearization point holds the parameter constant too
+    P0 = np.diag([1.0, 0.5, 1.0, 0.5, 0.3])
+    x0 = rng.standard_normal(n) * 0.2
+    factors = []
+    for k in range(K):
+        for _ in range(int(rng.integers(0, 3))):
+            m = int(rng.integers(1, 3))
+            H = rng.standard_normal((m, n))
+            A = rng.standard_normal((m, m))
+            R = 0.1 * (A @ A.T + np.eye(m))
+            r = rng.standard_normal(m)
+            factors.append(MeasurementFactor("toy", k, r, H, R, _no_model))
+    return LinearChain(Prior(x0, P0), phi, qd, off, factors)
+
+
+def _kalman_rts(chain: LinearChain):
+    """Forward Kalman filter over the chain, then smoothing.rts: (mean, covariances)."""
+    n = chain.n
+    groups = chain.by_epoch()
+    x, P = chain.prior.x0.copy(), chain.prior.P0.copy()
+    P_upd, P_pred, phis, dxs, xs = [], [], [], [], []
+    for k in range(chain.K):
+        if k:
+            x = chain.phi[k] @ x + chain.offset[k]
+            P = chain.phi[k] @ P @ chain.phi[k].T + chain.qd[k]
+        P_pred.append(P.copy())
+        x_pred = x.copy()
+        for i in groups[k]:
+            f = chain.factors[i]
+            S = f.H @ P @ f.H.T + f.R
+            G = P @ f.H.T @ np.linalg.inv(S)
+            x = x + G @ (f.r - f.H @ x)
+            IKH = np.eye(n) - G @ f.H
+            P = IKH @ P @ IKH.T + G @ f.R @ G.T
+        P_upd.append(P.copy())
+        phis.append(chain.phi[k] if k else np.eye(n))
+        dxs.append(x - x_pred)
+        xs.append(x.copy())
+    e, cov = rts(P_upd, P_pred, phis, dxs)
+    return np.array(xs) + e, cov
+
+
+def _dense(chain: LinearChain):
+    """Dense weighted least squares over all epochs (information form)."""
+    K, n = chain.K, chain.n
+    N = K * n
+    A = np.zeros((N, N))
+    b = np.zeros(N)
+    P0i = np.linalg.inv(chain.prior.P0)
+    A[:n, :n] += P0i
+    b[:n] += P0i @ chain.prior.x0
+    for f in chain.factors:
+        sl = slice(f.epoch * n, (f.epoch + 1) * n)
+        Ri = np.linalg.inv(f.R)
+        A[sl, sl] += f.H.T @ Ri @ f.H
+        b[sl] += f.H.T @ Ri @ f.r
+    for k in range(1, K):
+        Qi = np.linalg.inv(chain.qd[k])
+        F, o = chain.phi[k], chain.offset[k]
+        pr, sl = slice((k - 1) * n, k * n), slice(k * n, (k + 1) * n)
+        A[pr, pr] += F.T @ Qi @ F
+        A[sl, sl] += Qi
+        A[pr, sl] -= F.T @ Qi
+        A[sl, pr] -= Qi @ F
+        b[sl] += Qi @ o
+        b[pr] -= F.T @ Qi @ o
+    cov = np.linalg.inv(A)
+    return np.linalg.solve(A, b).reshape(K, n), cov
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_graph_equals_rts_and_batch_on_a_linear_toy(seed: int) -> None:
+    chain = _toy(seed)
+    sol = solve_chain(chain, full=True)
+    x_rts, P_rts = _kalman_rts(chain)
+    x_lsq, cov = _dense(chain)
+    scale = np.abs(x_lsq).max()
+    assert np.abs(sol.delta - x_rts).max() < 1e-10 * scale
+    assert np.abs(sol.delta - x_lsq).max() < 1e-10 * scale
+    assert sol.cov is not None
+    assert np.abs(sol.cov - P_rts).max() < 1e-10 * np.abs(P_rts).max()
+    n = chain.n
+    for k in (0, chain.K // 2, chain.K - 1):
+        blk = cov[k * n : (k + 1) * n, k * n : (k + 1) * n]
+        assert np.allclose(sol.cov[k], blk, rtol=1e-9, atol=1e-12)
+    assert np.allclose(sol.var, np.diagonal(P_rts, axis1=1, axis2=2), rtol=1e-9)
+    # the cost the linear model reaches is the minimum of the cost at zero
+    assert 0.0 < sol.cost < sol.cost0
+
+
+def test_graph_resolves_nearly_constant_states_like_rts() -> None:
+    """A parameter with process noise 1e-19 per epoch (as the filter's misalignment states):
+    the normal equations lose it in double precision, the QR elimination does not."""
+    chain = _toy(7, K=200, tiny=1e-19)
+    sol = solve_chain(chain)
+    x_rts, _ = _kalman_rts(chain)
+    assert np.abs(sol.delta - x_rts).max() < 1e-8 * np.abs(x_rts).max()
+    # the parameter is one value over the run, as its dynamics say
+    assert np.ptp(sol.delta[:, 4]) < 1e-6 * max(abs(sol.delta[0, 4]), 1e-3)
+
+
+def test_weights_scale_and_remove_factors() -> None:
+    chain = _toy(4, K=30)
+    w = np.ones(len(chain.factors))
+    w[0] = 0.0  # left out
+    w[1] = 0.25  # noise four times larger
+    sol = solve_chain(chain, w)
+    f0, f1 = chain.factors[0], chain.factors[1]
+    keep = [f for i, f in enumerate(chain.factors) if i != 0]
+    keep[0] = MeasurementFactor(f1.kind, f1.epoch, f1.r, f1.H, 4.0 * f1.R, _no_model)
+    ref = solve_chain(LinearChain(chain.prior, chain.phi, chain.qd, chain.offset, keep))
+    assert f0.epoch >= 0
+    assert np.abs(sol.delta - ref.delta).max() < 1e-12 * np.abs(ref.delta).max()
+
+
+def test_whitener_and_robust_weights() -> None:
+    C = np.array([[4.0, 1.0], [1.0, 2.0]])
+    W = whitener(C)
+    assert np.allclose(W @ C @ W.T, np.eye(2))
+    S = np.diag([1.0, 0.0])  # singular: floored, still finite
+    assert np.all(np.isfinite(whitener(S)))
+    assert np.allclose(huber_weight([0.5, 3.0, 6.0]), [1.0, 1.0, 0.5])
+    assert np.allclose(huber_cost([1.0, 6.0]), [1.0, 2 * 3.0 * 6.0 - 9.0])
+    assert cauchy_weight(30.0) < 0.011
