@@ -146,3 +146,13 @@ def assert_logs_equal(a: SensorLog, b: SensorLog) -> None:
         assert abs(ma.lat - mb.lat) < 1e-15 and abs(ma.lon - mb.lon) < 1e-15
         assert ma.alt == mb.alt
         np.testing.assert_allclose(ma.sigma_enu, mb.sigma_enu, rtol=1e-12)
+
+
+def test_target_stem_undoes_staging():
+    """A document written to a staging path names itself after its target (the GeoJSON and
+    KML of pipe-nav smooth were named '.sample_centerline.geojson.b7be8e0b')."""
+    from pipe_nav_core.io.atomic import target_stem
+
+    for name in ("a.geojson", "dir/.a.geojson.0123abcd.part", ".a.kml.89abcdef.tmp"):
+        assert target_stem(name) == "a"
+    assert target_stem(".hidden.geojson") == ".hidden"

@@ -8,6 +8,8 @@ from pipe_nav_core import warmup
 def test_ensure_warm_compiles_once_and_says_so(tmp_path, monkeypatch):
     marker = tmp_path / "kernels_warm.txt"
     monkeypatch.setattr(warmup, "_marker", lambda: marker)
+    # the AOT module of the real install is left as it is (tests/test_aot.py builds one)
+    monkeypatch.setattr(warmup, "_build_aot", lambda jit, tell: "not built in this test")
     said: list[str] = []
     assert not warmup.is_warm()
     assert warmup.ensure_warm(said.append) is True

@@ -1,16 +1,28 @@
-"""Compiled numeric kernels: one place that decides how numba compiles them."""
+"""Compiled numeric kernels: one place that decides how they are compiled and called.
+
+A kernel is a nopython function compiled by numba (``@kernel``). Where the installer has built
+the ahead-of-time module for the current sources (:mod:`pipe_nav_core.aot`), a kernel called
+from Python runs its AOT export and numba is not even imported; a call that no export fits
+(argument types the installer never saw, or a kernel Python never called there) turns the
+whole process to numba's just-in-time kernels, cached on disk (:func:`to_jit`). The results
+are the same either way (the same compiled code; tested bit for bit on the sample).
+``PIPE_NAV_KERNELS=jit`` makes a process use numba from the start.
+"""
 
 from __future__ import annotations
 
 import ast
 import hashlib
+import inspect
 import os
+import sys
+import threading
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from numba import njit
+from . import aot
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -65,6 +77,7 @@ def _kernel_sources() -> list[Path]:
         new = _imports(m, modules[m], modules) - seen
         seen |= new
         todo.extend(new)
+    seen.discard("aot")  # builds and loads the AOT module: no kernel's code depends on it
     return sorted(modules[m] for m in seen)
 
 
@@ -136,22 +149,140 @@ def _install_package_locators() -> None:
         return
 
 
-if not os.environ.get("NUMBA_CACHE_LOCATOR_CLASSES"):
-    _install_package_locators()
+_NUMBA_READY = False
+
+
+def _numba_njit(**options: Any) -> Any:
+    """numba.njit, numba imported (and this package's cache locators installed) on first use."""
+    global _NUMBA_READY
+    from numba import njit as numba_njit
+
+    if not _NUMBA_READY:
+        if not os.environ.get("NUMBA_CACHE_LOCATOR_CLASSES"):
+            _install_package_locators()
+        _NUMBA_READY = True
+    return numba_njit(**options)
+
+
+njit = _numba_njit  # what kernel() compiles with (a test may replace it)
+
+
+def _compile(func: Callable[..., Any], nogil: bool, decorate: Callable[..., Any]) -> Any:
+    """func as a numba dispatcher, cached on disk where numba finds a writable cache
+    directory, else compiled in every process."""
+    try:
+        return decorate(cache=True, error_model="numpy", nogil=nogil)(func)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return decorate(error_model="numpy", nogil=nogil)(func)
+
+
+class AotKernel:
+    """A kernel as the AOT module serves it: each call runs the export whose argument types
+    match (as numba's dispatcher picks a specialization), an array with only another layout
+    copied to the layout an export takes; any other call turns the process to JIT
+    (:func:`to_jit`) and runs the numba dispatcher."""
+
+    def __init__(self, func: Callable[..., Any], nogil: bool, exports: list[aot.Export]) -> None:
+        self.py_func = func
+        self.nogil = nogil
+        self.exports = exports
+        self.dispatcher: Any = None
+        self.__name__ = func.__name__
+        self.__qualname__ = func.__qualname__
+        self.__module__ = func.__module__
+        self.__doc__ = func.__doc__
+        self.__wrapped__ = func
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if self.dispatcher is None:
+            if kwargs:
+                args = inspect.signature(self.py_func).bind(*args, **kwargs).args
+                kwargs = {}
+            for check, fn, arity, _ in self.exports:
+                if len(args) == arity and check(*args):
+                    return fn(*args)
+            for check, fn, arity, specs in self.exports:
+                if len(args) == arity:
+                    fitted = aot.coerced(args, specs)
+                    if fitted is not None and check(*fitted):
+                        return fn(*fitted)
+            to_jit(f"{self.__module__}.{self.__qualname__} called with other argument types")
+        return self.dispatcher(*args, **kwargs)
+
+    def __repr__(self) -> str:
+        return f"<AOT kernel {self.__module__}.{self.__qualname__}>"
+
+
+_KERNELS: list[AotKernel] = []
+_SWITCH = threading.Lock()
+JIT_REASON: str | None = None  # why this process runs numba's JIT kernels (None: AOT)
+
+
+def _load_exports() -> dict[str, list[aot.Export]] | None:
+    if os.environ.get("PIPE_NAV_KERNELS") == "jit":
+        return None
+    return aot.load(_PACKAGE, _package_stamp())
+
+
+_EXPORTS = _load_exports()
+AOT_LOADED = _EXPORTS is not None  # this process started on the AOT module
+if _EXPORTS is None:
+    JIT_REASON = "no ahead-of-time module for these sources"
+
+
+def to_jit(reason: str) -> None:
+    """Turn this process to numba's JIT kernels: every AOT kernel gets its dispatcher and the
+    package's modules are rebound to the dispatchers (numba resolves a kernel's callees
+    through its module's globals). ``PIPE_NAV_AOT_DEBUG=1`` says why on stderr."""
+    global _EXPORTS, JIT_REASON
+    with _SWITCH:
+        if _EXPORTS is None:
+            return
+        if os.environ.get("PIPE_NAV_AOT_DEBUG"):
+            print(f"pipe_nav_core: JIT kernels from here on: {reason}", file=sys.stderr)
+        for k in _KERNELS:
+            k.dispatcher = _compile(k.py_func, k.nogil, _numba_njit)
+        prefix = __name__.rpartition(".")[0] + "."
+        for name, module in list(sys.modules.items()):
+            if module is not None and name.startswith(prefix):
+                for attr, value in list(vars(module).items()):
+                    if isinstance(value, AotKernel):
+                        setattr(module, attr, value.dispatcher)
+        _EXPORTS = None
+        JIT_REASON = reason
 
 
 def kernel(func: Callable[..., Any] | None = None, *, nogil: bool = False) -> Any:
-    """func compiled with numba, cached on disk where numba finds a writable cache directory
-    (next to the source file, ~/.cache/numba or NUMBA_CACHE_DIR) and recompiled whenever any
-    source file of the package changes, else compiled in every process. ``@kernel`` or
-    ``@kernel(nogil=True)`` (the compiled code releases the GIL: it can run in a thread while
-    the caller works).
+    """func compiled: ``@kernel`` or ``@kernel(nogil=True)`` (the compiled code releases the
+    GIL: it can run in a thread while the caller works). Its AOT export where the module is
+    built (:class:`AotKernel`), else numba's dispatcher, cached on disk where numba finds a
+    writable cache directory (next to the source file, ~/.cache/numba or NUMBA_CACHE_DIR) and
+    recompiled whenever any source file the kernels depend on changes.
 
     error_model="numpy": a zero interval gives inf/nan as in numpy, not ZeroDivisionError.
     """
     if func is None:
         return lambda f: kernel(f, nogil=nogil)
-    try:
-        return njit(cache=True, error_model="numpy", nogil=nogil)(func)
-    except RuntimeError:  # "cannot cache function ...: no locator available"
-        return njit(error_model="numpy", nogil=nogil)(func)
+    if _EXPORTS is not None:
+        if func.__module__.startswith(__name__.rpartition(".")[0] + "."):
+            k = AotKernel(func, nogil, _EXPORTS.get(f"{func.__module__}:{func.__qualname__}", []))
+            _KERNELS.append(k)
+            return k
+        to_jit(f"a kernel from outside the package: {func.__module__}.{func.__qualname__}")
+    return _compile(func, nogil, njit)
+
+
+def build_aot() -> int:
+    """Build the AOT module from the kernels this process has compiled with numba (run the
+    work first: pipe_nav_core.warmup does); returns the number of exports."""
+    from numba.core.registry import CPUDispatcher
+
+    prefix = __name__.rpartition(".")[0] + "."
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if module is None or not name.startswith(prefix):
+            continue
+        for value in list(vars(module).values()):
+            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name:
+                found[f"{name}:{value.py_func.__qualname__}"] = value
+    return aot.build(_PACKAGE, _package_stamp(), sorted(found.items()))

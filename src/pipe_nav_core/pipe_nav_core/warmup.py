@@ -9,11 +9,13 @@ declares itself ready, so it follows a bag from its first message.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 from .config import NavConfig
 from .types import SensorLog
@@ -61,14 +63,20 @@ def _marker() -> Path:
 
 
 def is_warm() -> bool:
-    """Whether every kernel has been compiled for the package's current sources (a marker
-    beside the package holds the kernels' source stamp once :func:`ensure_warm` has run)."""
+    """Whether every kernel has been compiled for the package's current sources, and the
+    ahead-of-time module built or found not buildable (a marker beside the package holds the
+    kernels' source stamp and the AOT outcome once :func:`ensure_warm` has run)."""
     from . import jit
 
     try:
-        return _marker().read_text(encoding="utf-8") == jit._package_stamp()
+        stamp, _, aot = _marker().read_text(encoding="utf-8").partition("\n")
     except OSError:
         return False
+    if stamp != jit._package_stamp() or not aot.startswith("aot:"):
+        return False
+    # built, but this process could not load it (its format changed since): build it again
+    forced_jit = os.environ.get("PIPE_NAV_KERNELS") == "jit"
+    return jit.AOT_LOADED or forced_jit or aot.startswith("aot: failed")
 
 
 def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
@@ -86,14 +94,28 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     t0 = time.perf_counter()
     warm_live()
     warm_smoothers()
+    aot = _build_aot(jit, tell)
     try:
         marker = _marker()
         marker.parent.mkdir(exist_ok=True)
-        marker.write_text(jit._package_stamp(), encoding="utf-8")
+        marker.write_text(f"{jit._package_stamp()}\naot: {aot}", encoding="utf-8")
     except OSError:  # a read-only install: numba then compiles in every process anyway
         pass
     tell(f"pipe_nav_core: kernels ready in {time.perf_counter() - t0:.0f} s")
     return True
+
+
+def _build_aot(jit: Any, tell: Callable[[str], None]) -> str:
+    """Build the ahead-of-time module from the kernels this process compiled (jit.build_aot);
+    what came of it, for the marker. A failure is said and leaves numba's kernels in use."""
+    if jit.JIT_REASON is None:
+        return "loaded"
+    try:
+        return f"{jit.build_aot()} exports"
+    except Exception as exc:  # no C compiler, numba without pycc, ...: JIT kernels stay
+        why = f"{type(exc).__name__}: {(str(exc).strip().splitlines() or [''])[-1]}"
+        tell(f"pipe_nav_core: kernels stay just-in-time (the ahead-of-time build failed: {why})")
+        return f"failed ({why})"
 
 
 def main() -> int:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -57,6 +58,18 @@ def ensure_not_input(
 
 def _tmp_name(target: Path) -> Path:
     return target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
+
+
+_STAGED = re.compile(r"^\.(.+)\.[0-9a-f]{8}\.(?:tmp|part)$")
+
+
+def target_stem(path: str | os.PathLike[str]) -> str:
+    """The file name without its extension of the file ``path`` becomes: its own, or for a
+    staging path (:func:`all_or_none`, :func:`atomic_path`) its target's (what a document
+    names itself after)."""
+    name = os.path.basename(os.fspath(path))
+    staged = _STAGED.match(name)
+    return os.path.splitext(staged.group(1) if staged else name)[0]
 
 
 @contextlib.contextmanager

@@ -20,7 +20,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from ..types import Marker, Trajectory
-from .atomic import atomic_write
+from .atomic import atomic_write, target_stem
 from .centreline import require_finite
 
 if TYPE_CHECKING:
@@ -198,7 +198,7 @@ def write_geojson(
     """Write :func:`to_geojson` to ``path`` (RFC 7946 GeoJSON, UTF-8); refuses non-finite
     samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
-    doc = to_geojson(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
+    doc = to_geojson(traj, markers, name=target_stem(path),
                      bends=bends, strain_features=strain_features, welds=welds,
                      bridges=bridges)  # fmt: skip
     with atomic_write(path, "w") as f:
@@ -241,7 +241,7 @@ def write_points_geojson(
         for lat, lon, alt, props in points
     ]
     doc = {"type": "FeatureCollection",
-           "name": name or os.path.splitext(os.path.basename(path))[0],
+           "name": name or target_stem(path),
            "features": feats}  # fmt: skip
     with atomic_write(path, "w") as f:
         json.dump(doc, f, separators=(",", ":"), allow_nan=False)
@@ -402,7 +402,7 @@ def write_kml(
 ) -> None:
     """Write :func:`to_kml` to ``path`` (UTF-8); refuses non-finite samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
-    doc = to_kml(traj, markers, name=os.path.splitext(os.path.basename(path))[0],
+    doc = to_kml(traj, markers, name=target_stem(path),
                  bends=bends, strain_features=strain_features, welds=welds,
                  bridges=bridges)  # fmt: skip
     with atomic_write(path, "w") as f:

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .atomic import atomic_write
+from .atomic import atomic_write, target_stem
 
 if TYPE_CHECKING:
     from ..products.movement import MovementReport, PointMovement
@@ -101,7 +101,7 @@ def write_movement_geojson(
     path: str | os.PathLike[str], report: MovementReport, name: str | None = None
 ) -> None:
     """Write :func:`to_movement_geojson` (RFC 7946, UTF-8); name: default the file's stem."""
-    doc = to_movement_geojson(report, name or os.path.splitext(os.path.basename(path))[0])
+    doc = to_movement_geojson(report, name or target_stem(path))
     with atomic_write(path, "w") as f:
         json.dump(doc, f, separators=(",", ":"), allow_nan=False)
         f.write("\n")

@@ -1,0 +1,242 @@
+"""Ahead-of-time compiled kernels: the ones a command calls, in one extension module.
+
+Loading numba and its first cached kernel costs about 0.6 s in every process, a third of
+smoothing the bundled sample. So the installer (:mod:`pipe_nav_core.warmup`), once numba has
+compiled every kernel, builds the kernels that Python calls (with the argument types it called
+them with) into one extension module with numba.pycc; later processes import that module (a
+millisecond, numba not imported) and :mod:`pipe_nav_core.jit` routes each call to the export
+whose argument types match, exactly as numba's dispatcher would choose the specialization.
+
+The module is valid for one source stamp of the kernels (jit._package_stamp) and one CPU: a
+sidecar JSON beside it records both and, per export, the kernel and its argument types. An
+export is the same compiled code numba would run (a trampoline calling the kernel, so the
+kernel keeps its own compile options), and it releases the GIL as ``@kernel(nogil=True)``.
+Where the build fails (no C compiler, numba without pycc) the kernels stay just-in-time.
+"""
+
+from __future__ import annotations
+
+import importlib.machinery
+import importlib.util
+import json
+import os
+import shutil
+import sys
+import tempfile
+import warnings
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MODULE = "_pipe_nav_kernels"  # the extension module's name (its PyInit symbol)
+FORMAT = 1  # of the sidecar: a module built by another version of this file is not loaded
+SIDECAR = "kernels_aot.json"
+Check = Callable[..., bool]
+Export = tuple[Check, Callable[..., Any], int, list[dict[str, Any]]]  # check, fn, arity, specs
+
+
+def _cpu() -> str:
+    """The CPU the exports are built for (llvmlite's name of this host; "" when unknown)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return sys.platform
+
+
+# --- loading (no numba) ----------------------------------------------------------------------
+
+
+def _check_source(spec: dict[str, Any], expr: str) -> str:
+    """A Python expression true when the value ``expr`` has numba's type ``spec``."""
+    kind = spec["k"]
+    if kind == "a":
+        flags = f"{expr}.flags"
+        layout = {"C": f" and {flags}.c_contiguous", "F": f" and {flags}.f_contiguous"}
+        return (
+            f"(type({expr}) is _nd and {expr}.dtype == _dt[{spec['dt']!r}] and "
+            f"{expr}.ndim == {spec['nd']} and {flags}.writeable is {not spec['ro']} and "
+            f"{flags}.aligned{layout.get(spec['l'], '')})"
+        )
+    if kind == "f":
+        return f"(type({expr}) in _floats)"
+    if kind == "i":
+        return f"(type({expr}) in _ints)"
+    if kind == "b":
+        return f"(type({expr}) in _bools)"
+    items = spec["items"]
+    head = (
+        f"type({expr}).__qualname__ == {spec['cls'].rpartition('.')[2]!r} and "
+        f"type({expr}).__module__ == {spec['cls'].rpartition('.')[0]!r}"
+        if kind == "nt"
+        else f"type({expr}) is tuple"
+    )
+    parts = [f"{head} and len({expr}) == {len(items)}"]
+    parts += [_check_source(s, f"{expr}[{i}]") for i, s in enumerate(items)]
+    return "(" + " and ".join(parts) + ")"
+
+
+_CHECK_GLOBALS = {
+    "_nd": np.ndarray,
+    "_dt": {name: np.dtype(name) for name in ("float64", "float32", "int64", "int32", "bool")},
+    "_floats": (float, np.float64),
+    "_ints": (int, np.int64),
+    "_bools": (bool, np.bool_),
+}
+
+
+def _checker(specs: list[dict[str, Any]]) -> Check:
+    """A function of the call's arguments, true when they have exactly these numba types."""
+    names = [f"a{i}" for i in range(len(specs))]
+    body = " and ".join(_check_source(s, n) for s, n in zip(specs, names)) or "True"
+    src = f"def check({', '.join(names)}):\n    return {body}\n"
+    ns = dict(_CHECK_GLOBALS)
+    exec(src, ns)  # noqa: S102  (generated from the sidecar's type specs only)
+    return ns["check"]  # type: ignore[no-any-return]
+
+
+def coerced(args: tuple[Any, ...], specs: list[dict[str, Any]]) -> tuple[Any, ...] | None:
+    """args with each array made a writable C-contiguous copy where its export wants one and
+    only its layout or write flag differ (the same numbers, so the same result as numba's
+    specialization for the other layout); None when a dtype, rank or other type differs."""
+    out = []
+    for a, s in zip(args, specs):
+        if s["k"] == "a" and isinstance(a, np.ndarray):
+            if a.dtype != np.dtype(s["dt"]) or a.ndim != s["nd"] or s["l"] not in "CA":
+                return None
+            if not (a.flags.c_contiguous and a.flags.writeable):
+                a = np.array(a, order="C")
+        out.append(a)
+    return tuple(out)
+
+
+def load(package: Path, stamp: str) -> dict[str, list[Export]] | None:
+    """The exports of the module built for this stamp and CPU, by kernel ("module:qualname");
+    None when there is none (not built, stale, built elsewhere or failing to load)."""
+    try:
+        meta = json.loads((package / "__pycache__" / SIDECAR).read_text(encoding="utf-8"))
+        if (meta.get("format"), meta.get("stamp"), meta.get("cpu")) != (FORMAT, stamp, _cpu()):
+            return None
+        path = package / "__pycache__" / meta["file"]
+        loader = importlib.machinery.ExtensionFileLoader(MODULE, str(path))
+        spec = importlib.util.spec_from_file_location(MODULE, path, loader=loader)
+        if spec is None:
+            return None
+        module = importlib.util.module_from_spec(spec)
+        loader.exec_module(module)
+        exports: dict[str, list[Export]] = {}
+        for e in meta["exports"]:
+            fn = getattr(module, e["symbol"])
+            exports.setdefault(e["kernel"], []).append(
+                (_checker(e["args"]), fn, len(e["args"]), e["args"])
+            )
+        return exports
+    except (OSError, ValueError, KeyError, ImportError, AttributeError, SyntaxError):
+        return None
+
+
+# --- building (numba) ------------------------------------------------------------------------
+
+
+def _spec(t: Any) -> dict[str, Any] | None:
+    """numba type -> the sidecar's spec of it; None for a type the exports do not take."""
+    from numba.core import types
+
+    if isinstance(t, types.Omitted):
+        return {"k": "o"}
+    if isinstance(t, types.Array) and str(t.dtype) in _CHECK_GLOBALS["_dt"] and t.aligned:
+        return {"k": "a", "dt": str(t.dtype), "nd": t.ndim, "l": t.layout, "ro": not t.mutable}
+    if t == types.float64:
+        return {"k": "f"}
+    if t == types.int64:
+        return {"k": "i"}
+    if t == types.boolean:
+        return {"k": "b"}
+    if isinstance(t, types.BaseTuple):
+        items = [_spec(x) for x in t.types]
+        if any(s is None or s["k"] == "o" for s in items):
+            return None
+        if isinstance(t, (types.NamedTuple, types.NamedUniTuple)):
+            cls = t.instance_class
+            return {"k": "nt", "cls": f"{cls.__module__}.{cls.__qualname__}", "items": items}
+        return {"k": "t", "items": items}
+    return None
+
+
+def _entries(dispatchers: Iterable[tuple[str, Any]]) -> list[tuple[str, Any, Any, list[Any]]]:
+    """(kernel key, dispatcher, numba signature, arg specs) of every specialization Python
+    called, leaving out those with a type the exports do not take."""
+    out = []
+    for key, disp in dispatchers:
+        for argtypes in disp.signatures:
+            specs = [_spec(t) for t in argtypes]
+            if all(s is not None for s in specs):
+                out.append((key, disp, disp.overloads[argtypes].signature, specs))
+    return out
+
+
+def build(package: Path, stamp: str, dispatchers: Iterable[tuple[str, Any]]) -> int:
+    """Compile the specializations of these (key, numba dispatcher) pairs that this process
+    has compiled into the extension module for this CPU and write its sidecar; returns how
+    many exports. Raises (anything numba.pycc or the C compiler raise) when it cannot."""
+    from llvmlite import binding
+
+    with warnings.catch_warnings():  # pending deprecation since numba 0.57, no replacement yet
+        warnings.simplefilter("ignore")
+        from numba.pycc import CC
+        from numba.pycc import compiler as pycc_compiler
+
+    entries = _entries(dispatchers)
+    cache = package / "__pycache__"
+    cache.mkdir(exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix="pipe_nav_aot_"))
+    real_compile = pycc_compiler.compile_extra
+    nogil: dict[int, bool] = {}
+
+    def compile_extra(typingctx: Any, targetctx: Any, func: Any, args: Any, ret: Any,
+                      flags: Any, *rest: Any, **kw: Any) -> Any:  # fmt: skip
+        flags.release_gil = nogil.get(id(func), False)  # as the kernel's @kernel(nogil=...)
+        return real_compile(typingctx, targetctx, func, args, ret, flags, *rest, **kw)
+
+    try:
+        cc = CC(MODULE)
+        cc.output_dir = str(work)
+        cc.verbose = False
+        cc.target_cpu = binding.get_host_cpu_name()
+        meta_exports = []
+        for i, (key, disp, sig, specs) in enumerate(entries):
+            passed = [t for t, s in zip(sig.args, specs) if s["k"] != "o"]
+            names = ", ".join(f"a{j}" for j in range(len(passed)))
+            ns: dict[str, Any] = {"kernel": disp}
+            exec(f"def trampoline({names}):\n    return kernel({names})\n", ns)  # noqa: S102
+            symbol = f"k{i}"
+            nogil[id(ns["trampoline"])] = bool(disp.targetoptions.get("nogil"))
+            cc.export(symbol, sig.return_type(*passed))(ns["trampoline"])
+            meta_exports.append({"kernel": key, "symbol": symbol,
+                                 "args": [s for s in specs if s["k"] != "o"]})  # fmt: skip
+        pycc_compiler.compile_extra = compile_extra
+        try:
+            cc.compile()
+        finally:
+            pycc_compiler.compile_extra = real_compile
+        built = next(work.glob(f"{MODULE}*"))
+        name = f"kernels-{stamp[:16]}{''.join(built.suffixes)}"
+        tmp = cache / f"{name}.{os.getpid()}.tmp"
+        shutil.copyfile(built, tmp)
+        tmp.replace(cache / name)  # a new name: a process holding the old one is unaffected
+        meta = {"format": FORMAT, "stamp": stamp, "cpu": _cpu(), "file": name,
+                "exports": meta_exports}  # fmt: skip
+        side = cache / f"{SIDECAR}.{os.getpid()}.tmp"
+        side.write_text(json.dumps(meta), encoding="utf-8")
+        side.replace(cache / SIDECAR)
+        for old in cache.glob("kernels-*"):
+            if old.name != name and not old.name.endswith(".tmp"):
+                old.unlink(missing_ok=True)
+        return len(meta_exports)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
