@@ -5,10 +5,11 @@ Each iteration linearizes the whole problem about the current trajectory X
 (:func:`.linearize.linearize`: the filter's own transition, process noise and measurement
 kernels), weighs the factors (:func:`factor_weights`: Huber IRLS weights on the markers, the
 filter's chi-square gate on the others, both on the residual at X), solves every epoch's
-correction at once (:func:`.solver.solve_chain`) and moves X by it. A step that raises the
-robust cost is halved (at most MAX_HALVINGS times; Levenberg-Marquardt's safeguard in its
-simplest form). It stops when a step is below the iterated smoother's convergence thresholds
-(:data:`pipe_nav_core.smoother.CONVERGED_POS_M`, :data:`~pipe_nav_core.smoother.CONVERGED_RAD`).
+correction at once (:func:`.solver.solve_chain`) and moves X by it (its turn of the initial
+heading as an exact rotation about the first marker, :func:`.rotation.retract`). A step that
+raises the robust cost and is not followed by a smaller one is retried at half its length (at
+most MAX_HALVINGS times in a row: a line search in its simplest form). It stops when a step is
+below CONVERGED_POS_M and CONVERGED_RAD.
 """
 
 from __future__ import annotations
@@ -22,11 +23,12 @@ from numpy.typing import NDArray
 
 from ..config import NavConfig
 from ..kalman import chi2_threshold
-from ..state import Layout, inject_many, layout_for
-from ..types import SensorLog
+from ..state import Layout, layout_for
+from ..types import SensorLog, markers_sorted
 from .linearize import FactorRecorder, linearize
 from .problem import LinearChain
 from .robust import HUBER_K, huber_cost, huber_weight
+from .rotation import Pivot, retract
 from .solver import ChainSolution, solve_chain
 
 Array = NDArray[np.float64]
@@ -129,11 +131,14 @@ def graph_smooth(
     docstring). odometer_exclude: (N, 2) s intervals without odometer speed factors (slips);
     reverse: the log runs in reversed time (the Navigator's reverse)."""
     layout = layout_for(config)
+    markers = markers_sorted(log.markers)
+    pivot: Pivot | None = (markers[0].lat, markers[0].lon, markers[0].alt) if markers else None
     X = np.array(reference, dtype=np.float64)
     history: list[float] = []
     best_cost = math.inf
     X_prev: Array | None = None
     delta_prev: Array | None = None
+    step_prev = (math.inf, math.inf)
     halvings = 0
     it = 0
     while True:
@@ -147,18 +152,24 @@ def graph_smooth(
         cost = sol.cost0 - quad + float(loss.sum())  # the robust objective at X
         history.append(cost)
         weighing = Weighing(w, down, gated, cost)
+        step = _step(sol.delta, layout)
+        # a step that raised the cost is kept if the next one is smaller (a large first step
+        # from far off often raises it on the way into the basin: the iterated smoother's
+        # passes take such steps too); else it is retried at half its length
         rising = cost > best_cost * (1.0 + 1e-9) + 1e-9
-        if rising and X_prev is not None and delta_prev is not None and halvings < MAX_HALVINGS:
-            halvings += 1  # the last step overshot: retry half of it
+        shrinking = step[0] < step_prev[0] or step[1] < step_prev[1]
+        retry = rising and not shrinking and halvings < MAX_HALVINGS
+        if retry and X_prev is not None and delta_prev is not None:
+            halvings += 1
             delta_prev = 0.5 * delta_prev
-            X = inject_many(X_prev, delta_prev, layout)
+            step_prev = (0.5 * step_prev[0], 0.5 * step_prev[1])
+            X = retract(X_prev, delta_prev, layout, pivot)
             continue
         halvings = 0
         best_cost = min(best_cost, cost)
-        pos, att = _step(sol.delta, layout)
-        converged = pos < CONVERGED_POS_M and att < CONVERGED_RAD
+        converged = step[0] < CONVERGED_POS_M and step[1] < CONVERGED_RAD
         if converged or it >= max_iterations:
-            states = inject_many(X, sol.delta, layout)
+            states = retract(X, sol.delta, layout, pivot)
             return GraphResult(nav, sol, states, it, converged, history, weighing)
-        X_prev, delta_prev = X, sol.delta
-        X = inject_many(X, sol.delta, layout)
+        X_prev, delta_prev, step_prev = X, sol.delta, step
+        X = retract(X, sol.delta, layout, pivot)
