@@ -58,7 +58,8 @@ def factor_weights(
     """IRLS weights of the factors at the linearization point: Huber weights on the robust
     ones (markers), and for the others 1, or 0 when their whitened squared residual exceeds
     the chi-square quantile of gate_probability (the filter's gate, here on the residual of
-    the current trajectory rather than on the innovation). Returns (weights, names of the
+    the current trajectory rather than on the innovation); exact factors (MeasurementFactor.exact)
+    keep weight 1 and add nothing to the loss. Returns (weights, names of the
     downweighted robust factors, gated count per kind, the robust loss per factor)."""
     F = len(chain.factors)
     w = np.ones(F)
@@ -66,6 +67,8 @@ def factor_weights(
     down: list[str] = []
     gated: dict[str, int] = {}
     for i, f in enumerate(chain.factors):
+        if f.exact:  # a constraint: weight 1, and no part in the cost the steps are judged on
+            continue
         e = f.whitened_norm()
         if f.robust:
             w[i] = float(huber_weight(e, huber_k))

@@ -27,8 +27,38 @@ from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
+# variances below this fraction of a covariance's largest are raised to it (whitener): such a
+# factor is a constraint, exact to double precision
+EIG_FLOOR = 1e-15
+MIN_VARIANCE = 1e-24  # and never below this (a marker surveyed exactly, passed at rest)
 # evaluates a measurement model at a flat state (SV_SIZE,) and layout index: (r, H, R)
 Model = Callable[[Array, Index], tuple[Array, Array, Array]]
+
+
+def whitener(C: Array) -> Array:
+    """W (m, m) with W C W^T = I for a covariance C (m, m): the inverse of its lower Cholesky
+    factor. A variance that is exactly zero (the odometer reading error carried from one
+    epoch to the next, a marker surveyed exactly) is raised to EIG_FLOOR times the largest
+    (at least MIN_VARIANCE), which makes its factor a constraint exact to double precision;
+    if C is still not positive definite, its eigenvalues are floored likewise. numpy's LAPACK
+    calls only: scipy.linalg's run OpenBLAS threads that cost milliseconds per call on these
+    small matrices under load."""
+    C = 0.5 * (C + C.T)
+    d = np.diag(C)
+    floor = max(EIG_FLOOR * float(d.max()), MIN_VARIANCE)
+    zero = np.flatnonzero(d <= floor)
+    if len(zero):
+        C = C.copy()
+        C[zero, zero] = floor
+    try:
+        L = np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        s, U = np.linalg.eigh(C)
+        s = np.maximum(s, max(EIG_FLOOR * float(s.max()), MIN_VARIANCE))
+        return (U / np.sqrt(s)).T
+    # inverse of the upper triangular L^T: its LU needs no row exchange (an exact
+    # back-substitution), unlike that of L
+    return np.linalg.inv(L.T).T
 
 
 @dataclass
@@ -59,8 +89,17 @@ class MeasurementFactor:
     name: str = ""
 
     def whitened_norm(self) -> float:
-        """sqrt(r^T R^-1 r) at the linearization point (dimensionless)."""
-        return float(np.sqrt(self.r @ np.linalg.solve(self.R, self.r)))
+        """sqrt(r^T R^-1 r) at the linearization point (dimensionless; R floored as by
+        :func:`whitener`)."""
+        return float(np.linalg.norm(whitener(self.R) @ self.r))
+
+    @property
+    def exact(self) -> bool:
+        """Some direction of the measurement has no noise (a marker surveyed exactly: only
+        its passage-time error along the track): a constraint, which no robust loss or gate
+        can weigh (its whitened residual is round-off over MIN_VARIANCE)."""
+        s = np.linalg.eigvalsh(0.5 * (self.R + self.R.T))
+        return bool(s.min() <= max(1e-12 * s.max(), MIN_VARIANCE))
 
 
 @dataclass

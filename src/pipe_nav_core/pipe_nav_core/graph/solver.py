@@ -27,13 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .problem import LinearChain
+from .problem import LinearChain, whitener
 
 Array = NDArray[np.float64]
-
-# eigenvalues of a process noise below this fraction of its largest are raised to it when the
-# noise is not numerically positive definite (its Cholesky factor fails)
-EIG_FLOOR = 1e-15
 
 
 @dataclass
@@ -49,31 +45,6 @@ class ChainSolution:
     cost0: float
     cost: float
     cov: Array | None = None
-
-
-def whitener(C: Array) -> Array:
-    """W (m, m) with W C W^T = I for a covariance C (m, m): the inverse of its lower Cholesky
-    factor. A variance that is exactly zero (the odometer reading error carried from one
-    epoch to the next) is raised to EIG_FLOOR times the largest, which makes its factor a
-    constraint that is exact to double precision; if C is still not positive definite, its
-    eigenvalues are floored likewise. numpy's LAPACK calls only: scipy.linalg's run OpenBLAS
-    threads that cost milliseconds per call on these small matrices under load."""
-    C = 0.5 * (C + C.T)
-    d = np.diag(C)
-    floor = EIG_FLOOR * max(float(d.max()), 1e-300)
-    zero = np.flatnonzero(d <= floor)
-    if len(zero):
-        C = C.copy()
-        C[zero, zero] = floor
-    try:
-        L = np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:
-        s, U = np.linalg.eigh(C)
-        s = np.maximum(s, EIG_FLOOR * max(float(s.max()), 1e-300))
-        return (U / np.sqrt(s)).T
-    # inverse of the upper triangular L^T: its LU needs no row exchange (an exact
-    # back-substitution), unlike that of L
-    return np.linalg.inv(L.T).T
 
 
 def _rows(
