@@ -18,7 +18,7 @@ from pipe_nav_core.graph.rotation import rotate_about
 from pipe_nav_core.sim import get_scenario, simulate
 from pipe_nav_core.smoothing import rts_packed
 from pipe_nav_core.state import SV_H, SV_LAT, SV_LON, SV_Q, inject_many, layout_for
-from pipe_nav_core.types import markers_sorted
+from pipe_nav_core.types import SensorLog, markers_sorted
 
 from pipe_nav_core import attitude as att
 from pipe_nav_core import earth
@@ -129,6 +129,7 @@ def test_graph_is_as_accurate_as_rts_with_covering_sigmas(scenario: str, exact: 
     g = _scored(run, res)
     assert res.summary["method"] == "graph" and res.summary["graph_converged"]
     assert res.summary["graph_iterations"] >= 1
+    assert res.summary["graph_markers_downweighted"] == []  # every marker is right
     # at least as accurate (to 5 % and 2 mm: the two share their problem, the graph gates and
     # weighs its factors on the smoothed residuals instead of the forward innovations)
     assert g.max_h <= 1.05 * rts.max_h + 0.002
@@ -166,3 +167,23 @@ def test_heading_from_marker_geometry_from_30_degrees_off(converged) -> None:
     assert np.abs(enu - ref).max() < 0.01  # m: the solution the anchored start reaches
     assert g.history[0] > 10.0 * g.history[-1]  # the start was far from the optimum
     assert g.iterations <= 6
+
+
+def test_robust_loss_bounds_a_wrong_marker() -> None:
+    """sag104 with a third marker in the middle whose survey is 0.5 m east and 0.25 m up of
+    the truth: the Huber loss downweights it and the centreline stays within centimetres,
+    where least squares (RTS, which trusts every marker) follows it."""
+    scn = replace(get_scenario("sag104"), marker_chainages=(0.0, 52.0, 103.8))
+    run = simulate(scn, seed=1)
+    first, mid, last = markers_sorted(run.log.markers)
+    lat, lon, h = earth.enu_to_geodetic(np.array([0.5, 0.0, 0.25]), mid.lat, mid.lon, mid.alt)
+    wrong = replace(mid, lat=float(lat), lon=float(lon), alt=float(h))
+    log = SensorLog(run.log.imu, run.log.odometer, run.log.mag, [first, wrong, last])
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    res = sm.smooth_log(log, cfg, method="graph")
+    g = score(res.centreline, run.truth, log.markers, datum=res.datum)
+    assert res.summary["graph_markers_downweighted"] == [mid.name]
+    assert g.max_h < 0.06 and g.max_v < 0.04  # m
+    rts = sm.smooth_log(log, cfg, method="rts")
+    r = score(rts.centreline, run.truth, log.markers, datum=rts.datum)
+    assert r.max_h > 5.0 * g.max_h
