@@ -63,6 +63,19 @@ def test_quaternion_chain_matches_scipy():
     np.testing.assert_allclose(att.rotvec_from_quat(att.quat_from_rotvec(rv)), rv, atol=1e-12)
 
 
+def test_quaternion_of_a_matrix_equals_scipys_bit_for_bit():
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.random(5000, random_state=3)
+    m = r.as_matrix()
+    m[:4] = [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]),
+             np.diag([-1.0, -1.0, 1.0])]  # each branch at its edge (angles 0 and pi)
+    got = att.quat_from_dcm(m)
+    assert np.array_equal(got, att.quat_normalize(Rotation.from_matrix(m).as_quat()))
+    assert np.array_equal(att.quat_from_dcm(m[7]), got[7])
+    assert att.quat_from_dcm(m.reshape(50, 100, 3, 3)).shape == (50, 100, 4)
+
+
 def test_config_from_dict_degrees_and_errors():
     cfg = NavConfig.from_dict({"initial_azimuth_deg": 90, "mode": "dr"})
     assert cfg.initial_azimuth == pytest.approx(math.pi / 2)

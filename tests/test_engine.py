@@ -283,10 +283,13 @@ def test_live_filter_after_the_heading_is_anchored():
     assert diag["accepted_marker"] == len(run.log.markers) and diag["rejected_marker"] == 0
 
 
-def test_progress_slices_give_identical_results():
+def test_progress_slices_give_identical_results(monkeypatch):
     """A forward pass feeds the log in time slices (and reports its progress): the estimates
     are those of the whole log at once."""
+    from pipe_nav_core import smoother
     from pipe_nav_core.smoother import report_fraction, reset_fraction, run_forward
+
+    monkeypatch.setattr(smoother, "SLICE_MIN_S", 5.0)  # slices of 5 s of data: many
 
     run = simulate("sag104", seed=6)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())

@@ -136,13 +136,32 @@ def dcm_from_quat(q: ArrayLike) -> Array:
 
 
 def quat_from_dcm(c: ArrayLike) -> Array:
-    """Unit quaternion of a rotation matrix (robust for any angle)."""
-    from scipy.spatial.transform import Rotation
-
+    """Unit quaternion of a rotation matrix, shape (..., 4) (robust for any angle: each
+    matrix's quaternion from its largest of trace and diagonal, as scipy's
+    Rotation.from_matrix, bit for bit (tested), without its 0.2 s import)."""
     c = np.asarray(c, dtype=np.float64)
-    return quat_normalize(
-        Rotation.from_matrix(c.reshape(-1, 3, 3)).as_quat().reshape(c.shape[:-2] + (4,))
-    )
+    m = c.reshape(-1, 3, 3)
+    d = np.diagonal(m, axis1=-2, axis2=-1)
+    tr = d.sum(axis=-1)
+    choice = np.argmax(np.concatenate([d, tr[:, None]], axis=-1), axis=-1)
+    q = np.empty((len(m), 4))
+    rows = np.arange(len(m))
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = rows[choice == i]
+        ms = m[s]
+        q[s, i] = 1 - tr[s] + 2 * ms[:, i, i]
+        q[s, j] = ms[:, j, i] + ms[:, i, j]
+        q[s, k] = ms[:, k, i] + ms[:, i, k]
+        q[s, 3] = ms[:, k, j] - ms[:, j, k]
+    s = rows[choice == 3]
+    ms = m[s]
+    q[s, 0] = ms[:, 2, 1] - ms[:, 1, 2]
+    q[s, 1] = ms[:, 0, 2] - ms[:, 2, 0]
+    q[s, 2] = ms[:, 1, 0] - ms[:, 0, 1]
+    q[s, 3] = 1 + tr[s]
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return quat_normalize(q.reshape(c.shape[:-2] + (4,)))
 
 
 def dcm_from_rotvec(rv: ArrayLike) -> Array:

@@ -7,13 +7,14 @@ are counted per measurement type, never silently lost. The measurement contract 
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 from functools import lru_cache
+from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import chdtri
 
 from .jit import kernel
 from .measurements import Measurement
@@ -21,11 +22,45 @@ from .measurements import Measurement
 Array = NDArray[np.float64]
 
 
+def _chi2_upper_tail(dof: int, x: float) -> tuple[float, float]:
+    """(Q, f): the upper tail P(X > x) and the density at x of a chi-square with an integer
+    number of degrees of freedom, in closed form (sums of Poisson terms, with erfc for odd
+    dof): accurate to round-off in relative terms far into the tail."""
+    h = 0.5 * x
+    if dof % 2 == 0:
+        term, q = math.exp(-h), 0.0
+        for j in range(dof // 2):
+            term = math.exp(-h) if j == 0 else term * h / j
+            q += term
+    else:
+        term = math.sqrt(h / math.pi) * math.exp(-h) * 2.0  # h^(1/2) e^-h / Gamma(3/2)
+        q = math.erfc(math.sqrt(h))
+        for j in range(dof // 2):
+            q += term
+            term *= h / (j + 1.5)
+    density = math.exp((0.5 * dof - 1.0) * math.log(x) - h - 0.5 * dof * math.log(2.0)
+                       - math.lgamma(0.5 * dof))  # fmt: skip
+    return q, density
+
+
 @lru_cache(maxsize=64)
 def chi2_threshold(probability: float, dof: int) -> float:
-    """Chi-square quantile: NIS above it is rejected (scipy.special's inverse of the upper
-    tail: the same as scipy.stats.chi2.ppf, without importing scipy.stats)."""
-    return float(chdtri(dof, 1.0 - probability))
+    """Chi-square quantile for an integer dof (the gates' m rows): NIS above it is rejected.
+    Newton's method on the log of the closed-form upper tail, from the Wilson-Hilferty
+    approximation; equal to scipy.stats.chi2.ppf to about 1e-14 (tested), without scipy's
+    0.2 s import in every command."""
+    tail = 1.0 - probability
+    if not (0.0 < tail < 1.0 and dof >= 1):
+        raise ValueError(f"chi-square quantile of probability {probability} with {dof} dof")
+    z = NormalDist().inv_cdf(probability)
+    x = dof * max(1.0 - 2.0 / (9.0 * dof) + z * math.sqrt(2.0 / (9.0 * dof)), 0.1) ** 3
+    for _ in range(100):
+        q, f = _chi2_upper_tail(dof, x)
+        step = (math.log(q) - math.log(tail)) * q / f  # Newton on log Q(x) = log tail
+        x = max(x + step, 0.5 * x)
+        if abs(step) <= 1e-15 * x:
+            break
+    return x
 
 
 @dataclass

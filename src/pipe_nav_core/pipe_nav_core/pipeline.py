@@ -255,11 +255,15 @@ def smooth_bag(
         result.centreline, result.config or config, spacing=spacing, reference=reference
     )
     result.summary["integrity"] = result.products.summary()
-    if len(log.mag.t):
-        say("girth welds")
-        result.welds = run_welds(log, result, result.config or config)
-        result.summary["welds"] = weld_summary(result.welds)
-    write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter)
+
+    def find_welds() -> None:
+        if len(log.mag.t):
+            say("girth welds")
+            result.welds = run_welds(log, result, result.config or config)
+            result.summary["welds"] = weld_summary(result.welds)
+
+    write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter,
+                   meanwhile=find_welds)  # fmt: skip
     return result, report
 
 
@@ -363,14 +367,17 @@ def write_products(
     spacing: float = 0.5,
     progress: Progress | None = None,
     plotter: PlotProcess | None = None,
+    meanwhile: Callable[[], None] | None = None,
 ) -> Trajectory:
     """Write the bag, CSV, GeoJSON, KML and plot of a smoothing result: all of them or, if
     one fails (or the run is interrupted), none (io.atomic.all_or_none). ``plotter``: a
-    child process that draws the plot meanwhile (else it is drawn here)."""
+    child process that draws the plot meanwhile (else it is drawn here); ``meanwhile``: the
+    last work on ``result`` that the other outputs need and the plot does not (the welds),
+    done while the plot is drawn."""
     say = progress or (lambda _m: None)
     rows = centreline_rows(result, spacing)
     with all_or_none(outputs.paths()) as staged:
-        _write_staged(result, outputs, rows, staged, say, plotter)
+        _write_staged(result, outputs, rows, staged, say, plotter, meanwhile)
     return rows
 
 
@@ -396,12 +403,15 @@ def _write_staged(
     staged: dict[str, Path],
     say: Progress,
     plotter: PlotProcess | None,
+    meanwhile: Callable[[], None] | None,
 ) -> None:
     products = result.products
     bends = products.bends if products else []
     if outputs.plot:  # first: a child process draws it while the others are written
         say("plotting")
         _submit_plot(result, rows, staged[outputs.plot], Path(outputs.plot).stem, plotter)
+    if meanwhile is not None:
+        meanwhile()
     features = products.features if products else []
     if outputs.bag:
         say("writing bag")

@@ -2,7 +2,8 @@
 
 Times whole ``pipe-nav`` processes, as a user starts them: ``smooth`` of ``bags/sample.mcap``
 into every product and ``info`` of the same bag, each the median of ``--repeat`` runs with the
-kernels compiled (as ``.ci/bootstrap`` leaves them); with ``--cold``, also the first smooth of
+kernels compiled (as ``.ci/bootstrap`` leaves them: ahead of time, and numba's JIT cache for
+reference, PIPE_NAV_KERNELS=jit); with ``--cold``, also the first smooth of
 a fresh copy of the package (no compiled kernel: what a user would wait without the bootstrap's
 warm-up). Prints a Markdown table: wall seconds and the ratio to the bag's duration (x real
 time). Wall times are noisy on a shared machine: run it on a quiet one.
@@ -57,8 +58,15 @@ def measure(bag: Path, repeat: int, cold: bool) -> list[tuple[str, float, float]
             env = {**os.environ, "PYTHONPATH": str(fresh)}
             rows.append(("smooth, fresh install (kernels compiled in the run)", smooth(env)))
         smooth()  # the kernels loaded once, as after the bootstrap
-        walls = [smooth() for _ in range(repeat)]
+        jit_env = {**os.environ, "PIPE_NAV_KERNELS": "jit"}
+        walls, jit_walls = [], []
+        for _ in range(repeat):  # alternating, so that both see the same machine
+            walls.append(smooth())
+            jit_walls.append(smooth(jit_env))
         rows.append(("smooth, every product (median)", statistics.median(walls)))
+        rows.append(("smooth, every product (best)", min(walls)))
+        rows.append(("smooth with numba's JIT kernels instead (median)",
+                     statistics.median(jit_walls)))  # fmt: skip
         info = [_wall([py, "-m", "pipe_nav_core.cli", "info", str(bag)]) for _ in range(repeat)]
         rows.append(("info (median)", statistics.median(info)))
         imports = [_wall([py, "-c", "import pipe_nav_core.pipeline"]) for _ in range(repeat)]
