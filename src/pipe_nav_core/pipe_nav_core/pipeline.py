@@ -43,6 +43,7 @@ from .odometer_faults import find_odometer_faults, without_faults
 from .plot_process import PlotProcess
 from .products import IntegrityReport, integrity_report, read_bends_reference
 from .products.welds import Weld, detect_welds
+from .recording import drop_spare
 from .segments import smooth_segments
 from .sensors import GRADES
 from .smoother import SmoothResult, smooth_log
@@ -228,22 +229,10 @@ def smooth_bag(
             iterations=iterations, progress=say, reverse=reverse,
         )  # fmt: skip
 
-    gaps = [h for h in find_holes(log, short=True)
-            if h.kind == "data gap" and not h.moved <= MAX_BRIDGED_M]  # fmt: skip
-    if gaps:
-        say(f"smoothing {len(gaps) + 1} segments between data gaps")
-        result, segments = smooth_segments(log, config, gaps, smooth)
-        result.summary["segments"] = [vars(s) for s in segments]
-        described = {h.describe() for h in gaps}
-        report.warnings = [w for w in report.warnings if w not in described]
-        report.warnings += [f"{h.describe()}: the pipe across it is not mapped" for h in gaps]
-        report.warnings += [
-            f"{s.t1 - s.t0:.1f} s of data from t = {s.t0:.3f} s not mapped ({s.why})"
-            for s in segments
-            if s.how == "unmapped"
-        ]
-    else:
-        result = smooth(log)
+    try:
+        result = _smooth_segments(log, report, config, smooth, say)
+    finally:
+        drop_spare()  # the recordings' chunk arrays kept for the next pass
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
     failures = [f"{d}: the centreline does not fit its markers"
@@ -265,6 +254,32 @@ def smooth_bag(
     write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter,
                    meanwhile=find_welds)  # fmt: skip
     return result, report
+
+
+def _smooth_segments(
+    log: SensorLog,
+    report: BagReport,
+    config: NavConfig,
+    smooth: Callable[..., SmoothResult],
+    say: Progress,
+) -> SmoothResult:
+    """The run smoothed whole, or in segments between its data gaps (named in the report)."""
+    gaps = [h for h in find_holes(log, short=True)
+            if h.kind == "data gap" and not h.moved <= MAX_BRIDGED_M]  # fmt: skip
+    if not gaps:
+        return smooth(log)
+    say(f"smoothing {len(gaps) + 1} segments between data gaps")
+    result, segments = smooth_segments(log, config, gaps, smooth)
+    result.summary["segments"] = [vars(s) for s in segments]
+    described = {h.describe() for h in gaps}
+    report.warnings = [w for w in report.warnings if w not in described]
+    report.warnings += [f"{h.describe()}: the pipe across it is not mapped" for h in gaps]
+    report.warnings += [
+        f"{s.t1 - s.t0:.1f} s of data from t = {s.t0:.3f} s not mapped ({s.why})"
+        for s in segments
+        if s.how == "unmapped"
+    ]
+    return result
 
 
 def smooth_with_imu_model(

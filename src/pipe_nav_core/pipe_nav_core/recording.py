@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import threading
 import weakref
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -72,10 +73,48 @@ class _Growable:
         return self._a[: self._n]
 
 
+# Chunk arrays no recording uses any more (spilled, or of a closed recording), by shape, for
+# the next chunks: memory the process has written before costs nothing to write again, while
+# fresh memory costs a page fault per 4 kB (on a virtual machine up to 10 us each, ten times
+# the packing itself). At most RAM_BUDGET_BYTES are kept; drop_spare() frees them.
+_SPARE: dict[tuple[int, ...], list[Array]] = {}
+_SPARE_LOCK = threading.Lock()
+
+
+READ_BUFFERS = 3  # chunks read back from disk that a caller may still be reading
+
+
+def _take(width: int) -> Array:
+    """A (CHUNK_EPOCHS, width) array: a spare one if there is one, else a new one."""
+    shape = (CHUNK_EPOCHS, width)
+    with _SPARE_LOCK:
+        spare = _SPARE.get(shape)
+        if spare:
+            return spare.pop()
+    return np.empty(shape)
+
+
+def _give(chunk: Array) -> None:
+    """Keep a chunk array no recording uses any more for the next (within the budget)."""
+    with _SPARE_LOCK:
+        spare = _SPARE.setdefault(chunk.shape, [])
+        if (len(spare) + 1) * chunk.nbytes <= RAM_BUDGET_BYTES:
+            spare.append(chunk)
+
+
+def drop_spare() -> None:
+    """Free the spare chunk arrays (after a smoothing, say)."""
+    with _SPARE_LOCK:
+        _SPARE.clear()
+
+
 class _Chunks:
     """Fixed-width float64 rows in chunks of CHUNK_EPOCHS rows; beyond budget bytes in
     memory the oldest full chunks are written to a temporary directory (in a background
-    thread: the array stays in use until its file is complete)."""
+    thread: the array stays in use until its file is complete, then serves a later chunk).
+    Chunks read back from disk go into READ_BUFFERS buffers in turn: a caller holds at most the
+    rows of the last ones it asked for (:func:`~pipe_nav_core.smoothing.rts_packed` reads one
+    chunk ahead while the gains of the one before take the first row of the one after)."""
 
     def __init__(self, width: int, budget: int) -> None:
         self.width = width
@@ -87,7 +126,7 @@ class _Chunks:
         self._writer: ThreadPoolExecutor | None = None
         self._writes: list[Future[None]] = []
         self._finalizer: weakref.finalize | None = None
-        self._cache: tuple[int, Array] | None = None  # last chunk read back from disk
+        self._read: list[tuple[int, Array]] = []  # the last chunks read back from disk
 
     def __len__(self) -> int:
         return self._n
@@ -99,7 +138,7 @@ class _Chunks:
         while done < count:
             i, j = divmod(self._n, CHUNK_EPOCHS)
             if j == 0:
-                self._chunks.append(np.empty((CHUNK_EPOCHS, self.width)))
+                self._chunks.append(_take(self.width))
                 if len(self._chunks) - self._oldest_in_ram > self._in_ram:
                     self._spill(self._oldest_in_ram)
                     self._oldest_in_ram += 1
@@ -119,12 +158,13 @@ class _Chunks:
         for job in [w for w in self._writes if w.done()]:
             self._writes.remove(job)
             job.result()  # a failed write (disk full) raises here
-        path = os.path.join(self._dir, f"{i}.npy")
+        path = os.path.join(self._dir, f"{i}.bin")  # raw float64 rows
         chunks, chunk = self._chunks, self._chunks[i]
 
         def write() -> None:
-            np.save(path, chunk)
-            chunks[i] = path  # read back from the file from now on; the array goes
+            chunk.tofile(path)
+            chunks[i] = path  # read back from the file from now on
+            _give(chunk)
 
         assert self._writer is not None
         self._writes.append(self._writer.submit(write))
@@ -139,9 +179,17 @@ class _Chunks:
         """Rows of chunk i (the filled ones), from memory or read back from disk."""
         c = self._chunks[i]
         if isinstance(c, str):
-            if self._cache is None or self._cache[0] != i:
-                self._cache = (i, np.load(c))
-            c = self._cache[1]
+            hit = [a for k, a in self._read if k == i]
+            if hit:
+                c = hit[0]
+            else:
+                full = len(self._read) == READ_BUFFERS
+                buf = self._read.pop(0)[1] if full else _take(self.width)
+                with open(c, "rb") as f:
+                    if f.readinto(memoryview(buf).cast("B")) != buf.nbytes:
+                        raise OSError(f"{c}: a spilled chunk of the recording is cut short")
+                self._read.append((i, buf))
+                c = buf
         return c[: min(CHUNK_EPOCHS, self._n - i * CHUNK_EPOCHS)]
 
     def rows(self, ks: Array) -> Array:
@@ -159,9 +207,12 @@ class _Chunks:
         return len(self._chunks)
 
     def close(self) -> None:
-        self._chunks, self._cache, self._n = [], None, 0
         if self._finalizer is not None:
-            self._finalizer()
+            self._finalizer()  # the pending writes end first (and give their arrays back)
+        for c in [*self._chunks, *(a for _, a in self._read)]:
+            if not isinstance(c, str):
+                _give(c)
+        self._chunks, self._read, self._n = [], [], 0
 
 
 def _remove(directory: str, writer: ThreadPoolExecutor) -> None:
