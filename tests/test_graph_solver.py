@@ -1,11 +1,13 @@
 """The batch (factor-graph) solver on linear Gaussian chains: it equals the RTS smoother and
 dense batch least squares to round-off, also with nearly constant states."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
-from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior
+from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior, whitener
 from pipe_nav_core.graph.robust import cauchy_weight, huber_cost, huber_weight
-from pipe_nav_core.graph.solver import solve_chain, whitener
+from pipe_nav_core.graph.solver import solve_chain, whiten
 from pipe_nav_core.smoothing import rts
 
 
@@ -45,7 +47,7 @@ def _toy(seed: int, K: int = 60, tiny: float | None = None):
             R = 0.1 * (A @ A.T + np.eye(m))
             r = rng.standard_normal(m)
             factors.append(MeasurementFactor("toy", k, r, H, R, _no_model))
-    return LinearChain(Prior(x0, P0), phi, qd, off, factors)
+    return LinearChain.dense(Prior(x0, P0), phi, qd, off, factors)
 
 
 def _kalman_rts(chain: LinearChain):
@@ -143,7 +145,7 @@ def test_weights_scale_and_remove_factors() -> None:
     f0, f1 = chain.factors[0], chain.factors[1]
     keep = [f for i, f in enumerate(chain.factors) if i != 0]
     keep[0] = MeasurementFactor(f1.kind, f1.epoch, f1.r, f1.H, 4.0 * f1.R, _no_model)
-    ref = solve_chain(LinearChain(chain.prior, chain.phi, chain.qd, chain.offset, keep))
+    ref = solve_chain(replace(chain, factors=keep))
     assert f0.epoch >= 0
     assert np.abs(sol.delta - ref.delta).max() < 1e-12 * np.abs(ref.delta).max()
 
@@ -157,3 +159,17 @@ def test_whitener_and_robust_weights() -> None:
     assert np.allclose(huber_weight([0.5, 3.0, 6.0]), [1.0, 1.0, 0.5])
     assert np.allclose(huber_cost([1.0, 6.0]), [1.0, 2 * 3.0 * 6.0 - 9.0])
     assert cauchy_weight(30.0) < 0.011
+
+
+def test_batched_whitening_matches_each_factor() -> None:
+    chain = _toy(5, K=20)
+    exact = MeasurementFactor("toy", 3, np.ones(2), np.ones((2, 5)), np.diag([0.0, 1.0]), _no_model)
+    factors = [*chain.factors, exact]
+    wf = whiten(factors, chain.n)
+    for i, f in enumerate(factors):
+        assert np.isclose(wf.norm[i], f.whitened_norm(), rtol=1e-12)
+        assert wf.exact[i] == f.exact
+        rows = wf.rows[wf.start[np.flatnonzero(wf.order == i)[0]] :][: len(f.r)]
+        assert np.allclose(rows, whitener(f.R) @ f.H, rtol=1e-12, atol=1e-12)
+    assert wf.exact[-1] and not wf.exact[:-1].any()
+    assert np.all(np.diff(wf.epochs) >= 0)

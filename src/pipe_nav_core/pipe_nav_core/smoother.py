@@ -283,7 +283,6 @@ def smooth_log(
     exclude: Array | None = None
     reference: Array | None = None
     best: tuple[int, SmoothResult] | None = None
-    graph_start: tuple[Array, Array | None] = (np.zeros((0, 0)), None)
     n_pass = max(1, iterations)
     for it in range(n_pass):
         if it:
@@ -323,18 +322,17 @@ def smooth_log(
             and same_slips
         )
         if converged or it == n_pass - 1:
-            if method == "graph":  # where the batch smoother starts
+            if method == "graph":  # the batch smoother, from this pass's smoothed trajectory
+                start = smoothed_states(rec, e, layout)
                 slips = new_exclude if new_exclude is not None else exclude
-                graph_start = (smoothed_states(rec, e, layout), slips)
+                del nav, rec, e, var, centre, result, best  # the RTS passes' memory first
+                return _graph_result(log, cfg, start, slips, it + 1, say, reverse, result_of)
             break
         reference = smoothed_states(rec, e, layout)
         exclude = new_exclude
         del nav, rec, e, var, centre, result  # free this pass before the next
     assert best is not None
     best[1].summary["passes_run"] = it + 1
-    if method == "graph":
-        start, slips = graph_start
-        return _graph_result(log, cfg, start, slips, it + 1, say, reverse, result_of)
     return best[1]
 
 

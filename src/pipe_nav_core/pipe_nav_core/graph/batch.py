@@ -29,14 +29,16 @@ from .linearize import FactorRecorder, linearize
 from .problem import LinearChain
 from .robust import HUBER_K, huber_cost, huber_weight
 from .rotation import Pivot, retract
-from .solver import ChainSolution, solve_chain
+from .solver import ChainSolution, WhitenedFactors, solve_chain, whiten
 
 Array = NDArray[np.float64]
 
 MAX_ITERATIONS = 10  # Gauss-Newton iterations (linearizations) at most
 MAX_HALVINGS = 4  # step halvings of one iteration at most when the robust cost rises
-CONVERGED_POS_M = 0.001  # m: largest position step of a converged iteration
-CONVERGED_RAD = 1e-5  # rad: largest attitude step of a converged iteration
+# a step below these ends the iterations (the iterated smoother's thresholds,
+# pipe_nav_core.smoother; the step is applied: what remains is of second order in it)
+CONVERGED_POS_M = 0.01  # m: largest position step of a converged iteration
+CONVERGED_RAD = 1e-4  # rad: largest attitude step of a converged iteration
 
 
 @dataclass
@@ -53,29 +55,37 @@ class Weighing:
 
 
 def factor_weights(
-    chain: LinearChain, gate_probability: float, huber_k: float = HUBER_K
+    chain: LinearChain,
+    gate_probability: float,
+    huber_k: float = HUBER_K,
+    whitened: WhitenedFactors | None = None,
 ) -> tuple[Array, list[str], dict[str, int], Array]:
     """IRLS weights of the factors at the linearization point: Huber weights on the robust
     ones (markers), and for the others 1, or 0 when their whitened squared residual exceeds
     the chi-square quantile of gate_probability (the filter's gate, here on the residual of
     the current trajectory rather than on the innovation); exact factors (MeasurementFactor.exact)
-    keep weight 1 and add nothing to the loss. Returns (weights, names of the
-    downweighted robust factors, gated count per kind, the robust loss per factor)."""
+    keep weight 1 and add nothing to the loss. Returns (weights, names of the downweighted
+    robust factors, gated count per kind, the robust loss per factor)."""
+    wf = whitened if whitened is not None else whiten(chain.factors, chain.n)
     F = len(chain.factors)
     w = np.ones(F)
     loss = np.zeros(F)
     down: list[str] = []
     gated: dict[str, int] = {}
+    gates = {m: chi2_threshold(gate_probability, m) for m in (1, 2, 3)}
     for i, f in enumerate(chain.factors):
-        if f.exact:  # a constraint: weight 1, and no part in the cost the steps are judged on
+        if wf.exact[i]:  # a constraint: weight 1, and no part in the cost steps are judged on
             continue
-        e = f.whitened_norm()
+        e = float(wf.norm[i])
         if f.robust:
             w[i] = float(huber_weight(e, huber_k))
             loss[i] = float(huber_cost(e, huber_k))
             if w[i] < 1.0:
                 down.append(f.name or f"{f.kind}@{f.epoch}")
-        elif not e * e <= chi2_threshold(gate_probability, len(f.r)):
+            continue
+        m = len(f.r)
+        gate = gates[m] if m in gates else chi2_threshold(gate_probability, m)
+        if not e * e <= gate:
             w[i] = 0.0
             gated[f.kind] = gated.get(f.kind, 0) + 1
         else:
@@ -148,10 +158,11 @@ def graph_smooth(
         it += 1
         say(f"graph: linearizing about the trajectory (iteration {it})")
         chain, nav = linearize(log, config, X, odometer_exclude=odometer_exclude, reverse=reverse)
-        w, down, gated, loss = factor_weights(chain, config.gate_probability, huber_k)
+        wf = whiten(chain.factors, chain.n)
+        w, down, gated, loss = factor_weights(chain, config.gate_probability, huber_k, wf)
         say(f"graph: solving {chain.K} epochs, {len(chain.factors)} factors")
-        sol = solve_chain(chain, w)
-        quad = sum(float(w[i]) * chain.factors[i].whitened_norm() ** 2 for i in range(len(w)))
+        sol = solve_chain(chain, w, whitened=wf)
+        quad = float(np.sum(w * wf.norm**2))
         cost = sol.cost0 - quad + float(loss.sum())  # the robust objective at X
         history.append(cost)
         weighing = Weighing(w, down, gated, cost)
@@ -167,6 +178,7 @@ def graph_smooth(
             delta_prev = 0.5 * delta_prev
             step_prev = (0.5 * step_prev[0], 0.5 * step_prev[1])
             X = retract(X_prev, delta_prev, layout, pivot)
+            del chain, nav, wf, sol  # before the next linearization is built
             continue
         halvings = 0
         best_cost = min(best_cost, cost)
@@ -176,3 +188,4 @@ def graph_smooth(
             return GraphResult(nav, sol, states, it, converged, history, weighing)
         X_prev, delta_prev, step_prev = X, sol.delta, step
         X = retract(X, sol.delta, layout, pivot)
+        del chain, nav, wf, sol  # before the next linearization is built

@@ -71,6 +71,7 @@ from ..epoch import (
     Inputs,
     run_epochs,
 )
+from ..recording import phi_rows
 from ..state import I_VEL, L_ATT, SV_H, SV_LAT, c_nb_k
 from ..types import Marker, SensorLog
 from .problem import LinearChain, MeasurementFactor, Model, Prior
@@ -152,9 +153,24 @@ class FactorRecorder(Navigator):
             odometer_exclude=odometer_exclude,
         )
         K, n = len(reference), self.layout.n
-        self.phi = np.tile(np.eye(n), (K, 1, 1))
-        self.qd = np.zeros((K, n, n))
+        # the rows of Phi that can differ from the identity's, and the rows of Qd that can be
+        # more than diagonal: those of the attitude, velocity and position errors (the nonzero
+        # rows of the system matrix, process.discretize_k)
+        self.phi_rows = phi_rows(self.layout)
+        self.qd_rows = np.arange(self.layout.pos.stop)
+        self.phi = np.zeros((K, len(self.phi_rows), n))
+        self.phi[:, np.arange(len(self.phi_rows)), self.phi_rows] = 1.0
+        self.qd = np.zeros((K, len(self.qd_rows), n))
+        self.qd_diag = np.zeros((K, n))
         self.offset = np.zeros((K, n))
+        # what _store_transition checks is not lost: the identity's rows of Phi, and Qd's
+        # entries off its diagonal outside qd_rows
+        rest = np.setdiff1d(np.arange(n), self.phi_rows)
+        self._phi_rest, self._eye_rest = rest, np.eye(n)[rest]
+        q = np.setdiff1d(np.arange(n), self.qd_rows)
+        qi, qj = np.meshgrid(q, q, indexing="ij")
+        off = qi != qj
+        self._qd_off = (qi[off], qj[off])
         self.factors: list[MeasurementFactor] = []
         self.prior: Prior | None = None
         self._scratch: Batch | None = None
@@ -185,8 +201,9 @@ class FactorRecorder(Navigator):
             raise ValueError("no navigation solution: the pass never aligned")
         K = len(self.recording)
         return LinearChain(
-            self.prior, self.phi[:K], self.qd[:K], self.offset[:K], list(self.factors)
-        )
+            self.prior, self.phi[:K], self.qd[:K], self.qd_diag[:K], self.offset[:K],
+            self.phi_rows, self.qd_rows, list(self.factors),
+        )  # fmt: skip
 
     def _scratch_for(self, samples: int) -> Batch:
         b = self._scratch
@@ -233,15 +250,23 @@ class FactorRecorder(Navigator):
                 f.x[:] = 0.0
                 f.P[:] = 0.0
                 run_epochs(True, False, k, f, L, prm, ref, one, no_markers, sb.buffers())
-                self.phi[k] = sb.phi[0]
-                self.qd[k] = sb.P_pred[0]  # predicted from zero covariance: Qd
-                self.offset[k] = sb.ws_x  # predicted from zero error: the offset
+                self._store_transition(k, sb.phi[0], sb.P_pred[0], sb.ws_x)
             if stop and e == B - 1:
                 return
             mk = markers if e == B - 1 else no_markers
             self._factors_of_epoch(k, sb, one, f.dyn, prm, mk)
             sb.marker_res = np.zeros((len(mk), 3))
             run_epochs(False, True, k, f, L, prm, ref, one, mk, sb.buffers())
+
+    def _store_transition(self, k: int, phi: Array, qd: Array, offset: Array) -> None:
+        """Epoch k's transition phi (n, n), process noise qd (n, n) (predicted from zero
+        covariance) and offset (n,) (predicted from zero error), compactly (LinearChain)."""
+        if not np.array_equal(phi[self._phi_rest], self._eye_rest) or np.any(qd[self._qd_off]):
+            raise ValueError("the transition or process noise has more than the stored rows")
+        self.phi[k] = phi[self.phi_rows]
+        self.qd[k] = qd[self.qd_rows]
+        self.qd_diag[k] = np.diagonal(qd)
+        self.offset[k] = offset
 
     def _factors_of_epoch(
         self, k: int, sb: Batch, inp: Inputs, dyn: Array, prm: Array, markers: Array

@@ -106,25 +106,62 @@ class MeasurementFactor:
 class LinearChain:
     """The whole batch problem linearized about one trajectory (see the module docstring).
 
-    prior: on delta_0; phi (K, n, n), qd (K, n, n), offset (K, n): the between-factor from
-    epoch k-1 to k in row k (row 0 unused); factors: every measurement factor, any order.
+    prior: on delta_0; the between-factor from epoch k-1 to k in row k (row 0 unused), stored
+    compactly: the rows phi_rows of Phi_k (phi (K, r, n); the other rows are the identity's),
+    the rows qd_rows of Qd_k (qd (K, q, n); by symmetry also those columns) and its diagonal
+    (qd_diag (K, n); Qd_k is zero elsewhere), the offset (K, n); factors: every measurement
+    factor, any order. :meth:`dense` builds one from full matrices.
     """
 
     prior: Prior
     phi: Array
     qd: Array
+    qd_diag: Array
     offset: Array
+    phi_rows: Index
+    qd_rows: Index
     factors: list[MeasurementFactor] = field(default_factory=list)
+
+    @classmethod
+    def dense(
+        cls,
+        prior: Prior,
+        phi: Array,
+        qd: Array,
+        offset: Array,
+        factors: list[MeasurementFactor] | None = None,
+    ) -> LinearChain:
+        """A chain from full transitions phi (K, n, n) and process noises qd (K, n, n)."""
+        n = phi.shape[1]
+        every = np.arange(n)
+        diag = np.diagonal(qd, axis1=1, axis2=2).copy()
+        return cls(prior, phi, qd, diag, offset, every, every, list(factors or []))
 
     @property
     def K(self) -> int:
         """Number of epochs (variables)."""
-        return int(self.phi.shape[0])
+        return int(self.offset.shape[0])
 
     @property
     def n(self) -> int:
         """Error-state size."""
-        return int(self.phi.shape[1])
+        return int(self.offset.shape[1])
+
+    def transitions(self, a: int, b: int) -> Array:
+        """Phi_k (b - a, n, n) of the epochs a .. b-1."""
+        out = np.tile(np.eye(self.n), (b - a, 1, 1))
+        out[:, self.phi_rows] = self.phi[a:b]
+        return out
+
+    def process_noise(self, a: int, b: int) -> Array:
+        """Qd_k (b - a, n, n) of the epochs a .. b-1."""
+        n = self.n
+        out = np.zeros((b - a, n, n))
+        i = np.arange(n)
+        out[:, i, i] = self.qd_diag[a:b]
+        out[:, self.qd_rows] = self.qd[a:b]
+        out[:, :, self.qd_rows] = np.swapaxes(self.qd[a:b], 1, 2)
+        return out
 
     def by_epoch(self) -> list[list[int]]:
         """Indices into factors, grouped by epoch (K lists)."""
