@@ -70,7 +70,7 @@ def generate_launch_description():
     arguments = [
         ("bag", "", "input bag: .mcap file or rosbag2 directory (required)"),
         ("output", "", "output .mcap (default <bag stem>_smoothed.mcap beside the bag)"),
-        ("method", "rts", "smoother: rts | two-filter | forward (as pipe-nav smooth --method)"),
+        ("method", "rts", "smoother: rts | two-filter | forward | graph (smooth --method)"),
         ("iterations", "2", "re-linearization passes"),
         ("spacing", "0.5", "centreline sample spacing, m of chainage"),
         ("markers_csv", "", "marker CSV adding to or replacing /markers"),

@@ -366,7 +366,7 @@ SMOOTHER_NODE_SPECS = [
     ParamSpec("bag", "", STR, "input bag: .mcap file or rosbag2 directory (required)"),
     ParamSpec("output", "", STR, "output .mcap; default <bag stem>_smoothed.mcap beside the bag"),
     ParamSpec(
-        "method", "rts", STR, "smoother, as pipe-nav smooth --method: rts | two-filter | forward"
+        "method", "rts", STR, "smoother (smooth --method): rts | two-filter | forward | graph"
     ),
     ParamSpec("iterations", 2, INT, "re-linearization passes, as pipe-nav smooth --iterations"),
     ParamSpec("spacing", 0.5, FLOAT, "centreline sample spacing along the chainage, m"),
