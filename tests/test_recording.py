@@ -82,3 +82,20 @@ def test_transition_rows_outside_the_stored_ones_must_be_identity():
     phi[layout.bg.start, layout.pos.start] = 1e-3  # a row the recording does not keep
     with pytest.raises(ValueError, match="identity"):
         rec.add_epoch(np.zeros(SV_SIZE), dx=np.zeros(layout.n), P_upd=phi, P_pred=phi, phi=phi)
+        rec.variances()  # packed in a second thread: its error comes with the next read
+
+
+def test_an_epoch_is_stored_as_it_was_given_while_the_caller_goes_on():
+    """The covariances are packed in a second thread: add_epoch's arrays are the caller's to
+    change at once (the engine updates its covariance in place right after the alignment)."""
+    layout = Layout("ins", gyro_errors=True)
+    epochs = _epochs(layout, 40)
+    rec = Recording(layout)
+    given = []
+    for state, dx, P_upd, P_pred, phi in epochs:
+        given.append(P_upd.copy())
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+        P_upd *= 3.0  # as the filter's next prediction would
+    for k in (0, 21, 39):
+        P = given[k]
+        np.testing.assert_array_equal(rec.P_upd(k), np.triu(P) + np.triu(P, 1).T)

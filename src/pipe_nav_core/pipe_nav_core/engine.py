@@ -329,7 +329,8 @@ class Navigator:
         self._carry = np.zeros(6)
         self._dyn = np.zeros(D_SIZE)
         self._prm: Array | None = None
-        self._batch: Batch | None = None
+        self._batches: list[Batch | None] = [None, None]
+        self._batch_turn = 0
         self._out: list[NavEstimate] = []
         self._counts: dict[str, int] = defaultdict(int)
         self._first_marker: Marker | None = self.survey[0] if self.survey else None
@@ -835,11 +836,16 @@ class Navigator:
         )  # fmt: skip
 
     def _batch_for(self, epochs: int, samples: int) -> Batch:
-        """The output buffers, reused from batch to batch (fresh memory costs page faults)."""
-        b = self._batch
+        """The output buffers, reused from batch to batch (fresh memory costs page faults);
+        two in turn when recording, the recording packing one's covariances in a second
+        thread while the next batch runs (Recording.add_epochs)."""
+        if self.recording is not None:
+            self._batch_turn ^= 1
+        b = self._batches[self._batch_turn]
         if b is None or len(b.sv) < epochs or len(b.lat) < samples:
             size = max(epochs, MAX_BATCH if self.recording is not None else 1)
-            b = self._batch = Batch(size, max(samples, 2 * size * 20), self.layout.n)
+            b = Batch(size, max(samples, 2 * size * 20), self.layout.n)
+            self._batches[self._batch_turn] = b
         b.reset()
         return b
 

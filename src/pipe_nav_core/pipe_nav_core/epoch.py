@@ -498,7 +498,7 @@ def _updates(
     out.counts[C_EPOCHS] += 1
 
 
-@kernel
+@kernel(nogil=True)
 def run_epochs(
     stop: bool,
     resume: bool,

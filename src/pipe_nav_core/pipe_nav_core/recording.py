@@ -252,7 +252,9 @@ class Recording:
         self._reference = reference
         linearized = self.linearized = reference is not None
         self.format = EpochRows(layout.n, phi_rows(layout))
-        self._rows = _Chunks(self.format.width, ram_budget)
+        self._packed = _Chunks(self.format.width, ram_budget)
+        self._packer: ThreadPoolExecutor | None = None
+        self._packing: Future[None] | None = None
         n = layout.n
         self._states = _Growable((SV_SIZE,))
         self._dx = _Growable((n,))
@@ -264,7 +266,15 @@ class Recording:
         self.marker_residuals: dict[str, Array] = {}
 
     def __len__(self) -> int:
-        return len(self._rows)
+        return len(self._packed)
+
+    @property
+    def _rows(self) -> _Chunks:
+        """The packed rows, every epoch added so far packed."""
+        if self._packing is not None:
+            job, self._packing = self._packing, None
+            job.result()  # a failed pack raises here
+        return self._packed
 
     # ------------------------------------------------------------------ filling
     def add_epochs(
@@ -280,9 +290,22 @@ class Recording:
     ) -> None:
         """B epochs: states (B, SV_SIZE); dx, x_upd, end_offset (B, n); P_upd, P_pred, phi
         (B, n, n) (rows of phi outside :func:`phi_rows` must be the identity's). x_upd and
-        end_offset only for a recording about a reference."""
-        for a, b, out in self._rows.claim(len(states)):
-            self.format.pack(out, P_upd[a:b], P_pred[a:b], phi[a:b])
+        end_offset only for a recording about a reference.
+
+        The covariances are packed in a second thread while the caller goes on (the packing
+        kernel releases the GIL), after the previous call's: the caller must leave this
+        call's P_upd, P_pred and phi as they are until its next call (the engine alternates
+        two output buffers), or until it reads the recording."""
+        claims = self._rows.claim(len(states))
+
+        def pack() -> None:
+            for a, b, out in claims:
+                self.format.pack(out, P_upd[a:b], P_pred[a:b], phi[a:b])
+
+        if self._packer is None:
+            self._packer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pipe-nav-pack")
+            weakref.finalize(self, self._packer.shutdown, wait=False)
+        self._packing = self._packer.submit(pack)
         self._states.extend(states)
         self._dx.extend(dx)
         if self.linearized:
@@ -291,11 +314,13 @@ class Recording:
             self._end_offset.extend(end_offset)
 
     def add_epoch(self, state: Array, **arrays: Array | None) -> None:
-        """One epoch: :meth:`add_epochs` with (SV_SIZE,), (n,) and (n, n) arrays."""
+        """One epoch: :meth:`add_epochs` with (SV_SIZE,), (n,) and (n, n) arrays (copied:
+        the caller may go on changing them)."""
         self.add_epochs(
-            np.asarray(state)[None],
-            **{k: None if v is None else np.asarray(v)[None] for k, v in arrays.items()},
-        )
+            np.array(state, dtype=np.float64)[None],
+            **{k: None if v is None else np.array(v, dtype=np.float64)[None]
+               for k, v in arrays.items()},
+        )  # fmt: skip
 
     def add_blocks(
         self,
@@ -422,3 +447,6 @@ class Recording:
         files (also done when the recording is garbage collected); the per-epoch and
         per-sample arrays stay."""
         self._rows.close()
+        if self._packer is not None:
+            self._packer.shutdown(wait=True)
+            self._packer = None

@@ -66,7 +66,7 @@ class EpochRows:
         return rows[:, self.diag]
 
 
-@kernel
+@kernel(nogil=True)
 def _pack(P_upd: Array, P_pred: Array, phi: Array, phi_rows: NDArray[np.int64], out: Array) -> bool:
     """EpochRows.pack; False if a row of phi outside phi_rows is not the identity's."""
     B, n = P_upd.shape[0], P_upd.shape[1]
