@@ -506,6 +506,14 @@ def test_a_bug_is_an_internal_error_and_debug_shows_its_traceback(tmp_path, monk
 
     assert issubclass(BagError, errors.PipeNavError)
     assert issubclass(MarkerCsvError, errors.InputError) and issubclass(MarkerCsvError, ValueError)
+    from pipe_nav_core.io import mcapread
+
+    from pipe_nav_core import config
+
+    assert config.ConfigError is errors.ConfigError and issubclass(errors.ConfigError, ValueError)
+    assert issubclass(errors.ConfigError, errors.InputError)
+    assert issubclass(errors.McapFormatError, errors.PipeNavError)
+    assert mcapread.McapFormatError is errors.McapFormatError
 
 
 def test_a_simulated_run_with_a_magnetometer_has_a_vendor_tally_to_locate(tmp_path: Path):

@@ -286,8 +286,9 @@ def test_live_filter_after_the_heading_is_anchored():
 def test_progress_slices_give_identical_results(monkeypatch):
     """A forward pass feeds the log in time slices (and reports its progress): the estimates
     are those of the whole log at once."""
-    from pipe_nav_core import smoother
     from pipe_nav_core.smoother import report_fraction, reset_fraction, run_forward
+
+    from pipe_nav_core import smoother
 
     monkeypatch.setattr(smoother, "SLICE_MIN_S", 5.0)  # slices of 5 s of data: many
 

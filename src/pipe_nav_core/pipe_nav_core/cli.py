@@ -744,7 +744,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("pipe-nav: interrupted", file=sys.stderr)
         return 130
-    except (PipeNavError, ConfigError, ValueError, OSError, KeyError) as exc:
+    except (PipeNavError, ValueError, OSError, KeyError) as exc:
         if args.debug:
             raise
         print(f"pipe-nav: error: {_one_line(exc)}", file=sys.stderr)

@@ -11,12 +11,8 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
+from .errors import ConfigError
 from .sensors import GRADES, ImuSpec, imu_grade
-
-
-class ConfigError(ValueError):
-    """An invalid estimator setting; the message names the setting and what is allowed."""
-
 
 NOISE_EPOCH_S = 0.1  # s, averaging time of odometer_speed_sigma and nhc_sigma
 

@@ -16,3 +16,13 @@ class PipeNavError(Exception):
 
 class InputError(PipeNavError, ValueError):
     """The content of a file, or a value, the user gave is wrong."""
+
+
+class ConfigError(InputError):
+    """An invalid estimator or node setting; the message names the setting (as the user gave
+    it: ``--set KEY``, a YAML key, a ROS parameter) and what is allowed."""
+
+
+class McapFormatError(PipeNavError):
+    """The file is not MCAP at all (a one-line reason, without the path: the bag reader adds
+    it when it turns this into a :class:`~pipe_nav_core.io.topics.BagError`)."""

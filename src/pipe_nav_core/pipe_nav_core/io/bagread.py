@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import InputError
+from ..errors import InputError, McapFormatError
 from ..types import (
     ImuSamples,
     MagSamples,
@@ -47,7 +47,6 @@ from ..types import (
 )
 from . import cdr
 from .mcapread import (
-    McapFormatError,
     McapScanner,
     MessageBatch,
     chunk_messages,

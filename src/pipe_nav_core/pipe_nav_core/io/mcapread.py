@@ -31,6 +31,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import McapFormatError
+
 MAGIC = b"\x89MCAP0\r\n"
 
 OP_HEADER = 0x01
@@ -61,10 +63,6 @@ _LOOSE_BATCH_BYTES = 4 << 20
 # reading; lz4 and stored chunks are unpacked faster than a thread hand-off pays back
 POOLED_COMPRESSIONS = frozenset({"zstd"})
 AHEAD_BYTES = 64 << 20  # compressed chunk bytes a pooled scanner reads ahead of its consumer
-
-
-class McapFormatError(Exception):
-    """The file is not MCAP at all (raised with a one-line reason)."""
 
 
 @dataclass
