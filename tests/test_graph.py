@@ -13,7 +13,8 @@ import pytest
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.graph import graph_smooth, solve_chain
-from pipe_nav_core.graph.linearize import linearize
+from pipe_nav_core.graph.batch import StreamingSolve, factor_weights
+from pipe_nav_core.graph.linearize import FactorRecorder, linearize
 from pipe_nav_core.graph.rotation import rotate_about
 from pipe_nav_core.sim import get_scenario, simulate
 from pipe_nav_core.smoothing import rts_packed
@@ -108,6 +109,24 @@ def test_factors_are_the_measurement_models(converged) -> None:
         first = np.abs(f.H @ d).max()
         assert np.abs(r1 - lin).max() < 1e-3 * first + 1e-12, f.kind
     assert {"nhc", "odometer", "zupt", "zaru", "marker"} <= seen
+
+
+def test_streaming_solve_equals_the_batch_solve(converged) -> None:
+    """The Gauss-Newton iteration's solve, eliminating epoch by epoch as the pass runs
+    (StreamingSolve, nothing of the problem kept), equals the solve of the whole chain."""
+    _, log, cfg, lay, X, ex = converged
+    chain, _ = linearize(log, cfg, X, odometer_exclude=ex)
+    w, weighing, _ = factor_weights(chain, cfg.gate_probability)
+    whole = solve_chain(chain, w)
+    stream = StreamingSolve(lay.n, cfg.gate_probability)
+    nav = FactorRecorder(cfg, log.markers, reference=X, odometer_exclude=ex, sink=stream)
+    nav.run(log)
+    sol, wg = stream.finish()
+    assert not nav.factors and not len(nav.phi)  # the sink kept nothing
+    assert np.abs(sol.delta - whole.delta).max() < 1e-9
+    assert np.allclose(sol.var, whole.var, rtol=1e-9, atol=0.0)
+    assert wg.gated == weighing.gated and wg.downweighted == weighing.downweighted
+    assert np.isclose(sol.cost0, whole.cost0, rtol=1e-9)
 
 
 def _scored(run, res):  # noqa: ANN001, ANN202

@@ -2,14 +2,16 @@
 marker factors, started from a smoothed trajectory (the RTS solution).
 
 Each iteration linearizes the whole problem about the current trajectory X
-(:func:`.linearize.linearize`: the filter's own transition, process noise and measurement
-kernels), weighs the factors (:func:`factor_weights`: Huber IRLS weights on the markers, the
-filter's chi-square gate on the others, both on the residual at X), solves every epoch's
-correction at once (:func:`.solver.solve_chain`) and moves X by it (its turn of the initial
-heading as an exact rotation about the first marker, :func:`.rotation.retract`). A step that
-raises the robust cost and is not followed by a smaller one is retried at half its length (at
-most MAX_HALVINGS times in a row: a line search in its simplest form). It stops when a step is
-below CONVERGED_POS_M and CONVERGED_RAD.
+(:class:`.linearize.FactorRecorder`: the filter's own transition, process noise and
+measurement kernels), weighs the factors (:func:`factor_weight`: Huber IRLS weights on the
+markers, the filter's chi-square gate on the others, both on the residual at X), solves every
+epoch's correction at once, eliminating epoch by epoch as the linearization goes
+(:class:`StreamingSolve`, :class:`.solver.Eliminator`: the problem is never held whole, so
+memory does not grow with the run beyond a few arrays of K rows) and moves X by it (its turn
+of the initial heading as an exact rotation about the first marker, :func:`.rotation.retract`).
+A step that raises the robust cost and is not followed by a smaller one is retried at half its
+length (at most MAX_HALVINGS times in a row: a line search in its simplest form). It stops
+when a step is below CONVERGED_POS_M and CONVERGED_RAD.
 """
 
 from __future__ import annotations
@@ -25,11 +27,11 @@ from ..config import NavConfig
 from ..kalman import chi2_threshold
 from ..state import Layout, layout_for
 from ..types import SensorLog, markers_sorted
-from .linearize import FactorRecorder, linearize
-from .problem import LinearChain
+from .linearize import FactorRecorder
+from .problem import LinearChain, MeasurementFactor, Prior, whitener
 from .robust import HUBER_K, huber_cost, huber_weight
 from .rotation import Pivot, retract
-from .solver import ChainSolution, WhitenedFactors, solve_chain, whiten
+from .solver import ChainSolution, Eliminator, WhitenedFactors, whiten
 
 Array = NDArray[np.float64]
 
@@ -43,15 +45,40 @@ CONVERGED_RAD = 1e-4  # rad: largest attitude step of a converged iteration
 
 @dataclass
 class Weighing:
-    """Factor weights of one linearization and what they did: weights (F,) (0: left out);
-    downweighted: names of the robust factors (markers) with weight < 1; gated: factors left
-    out per kind; robust_cost: the objective at the linearization point (prior and between
-    terms plus the robust loss of the measurements, dimensionless)."""
+    """What the factor weights of one linearization did: downweighted: names of the robust
+    factors (markers) with weight < 1; gated: factors left out per kind; robust_cost: the
+    objective at the linearization point (prior and between terms plus the robust loss of
+    the measurements, dimensionless)."""
 
-    weights: Array
     downweighted: list[str] = field(default_factory=list)
     gated: dict[str, int] = field(default_factory=dict)
     robust_cost: float = math.nan
+
+    def note(self, f: MeasurementFactor, weight: float, exact: bool) -> None:
+        """Count factor f with its weight."""
+        if exact:
+            return
+        if f.robust and weight < 1.0:
+            self.downweighted.append(f.name or f"{f.kind}@{f.epoch}")
+        elif not f.robust and weight == 0.0:
+            self.gated[f.kind] = self.gated.get(f.kind, 0) + 1
+
+
+def factor_weight(
+    f: MeasurementFactor, e: float, exact: bool, gate_probability: float, huber_k: float
+) -> tuple[float, float]:
+    """IRLS weight and robust loss of one factor whose whitened residual norm at the
+    linearization point is e: the Huber weight and loss on a robust factor (marker); for the
+    others weight 1 and loss e^2, or weight 0 (and no loss) when e^2 exceeds the chi-square
+    gate for its rows (the filter's gate, here on the residual of the current trajectory
+    rather than on the innovation); an exact factor (MeasurementFactor.exact) is a
+    constraint: weight 1, and no part in the cost the steps are judged on."""
+    if exact:
+        return 1.0, 0.0
+    if f.robust:
+        return float(huber_weight(e, huber_k)), float(huber_cost(e, huber_k))
+    gate = chi2_threshold(gate_probability, len(f.r))  # (cached)
+    return (1.0, e * e) if e * e <= gate else (0.0, 0.0)
 
 
 def factor_weights(
@@ -59,38 +86,66 @@ def factor_weights(
     gate_probability: float,
     huber_k: float = HUBER_K,
     whitened: WhitenedFactors | None = None,
-) -> tuple[Array, list[str], dict[str, int], Array]:
-    """IRLS weights of the factors at the linearization point: Huber weights on the robust
-    ones (markers), and for the others 1, or 0 when their whitened squared residual exceeds
-    the chi-square quantile of gate_probability (the filter's gate, here on the residual of
-    the current trajectory rather than on the innovation); exact factors (MeasurementFactor.exact)
-    keep weight 1 and add nothing to the loss. Returns (weights, names of the downweighted
-    robust factors, gated count per kind, the robust loss per factor)."""
+) -> tuple[Array, Weighing, Array]:
+    """:func:`factor_weight` of every factor of a chain: (weights (F,), what they did, the
+    robust loss per factor (F,))."""
     wf = whitened if whitened is not None else whiten(chain.factors, chain.n)
     F = len(chain.factors)
-    w = np.ones(F)
-    loss = np.zeros(F)
-    down: list[str] = []
-    gated: dict[str, int] = {}
-    gates = {m: chi2_threshold(gate_probability, m) for m in (1, 2, 3)}
+    w, loss = np.ones(F), np.zeros(F)
+    out = Weighing()
     for i, f in enumerate(chain.factors):
-        if wf.exact[i]:  # a constraint: weight 1, and no part in the cost steps are judged on
-            continue
-        e = float(wf.norm[i])
-        if f.robust:
-            w[i] = float(huber_weight(e, huber_k))
-            loss[i] = float(huber_cost(e, huber_k))
-            if w[i] < 1.0:
-                down.append(f.name or f"{f.kind}@{f.epoch}")
-            continue
-        m = len(f.r)
-        gate = gates[m] if m in gates else chi2_threshold(gate_probability, m)
-        if not e * e <= gate:
-            w[i] = 0.0
-            gated[f.kind] = gated.get(f.kind, 0) + 1
-        else:
-            loss[i] = e * e
-    return w, down, gated, loss
+        w[i], loss[i] = factor_weight(
+            f, float(wf.norm[i]), bool(wf.exact[i]), gate_probability, huber_k
+        )
+        out.note(f, float(w[i]), bool(wf.exact[i]))
+    return w, out, loss
+
+
+class StreamingSolve:
+    """An :class:`~.linearize.EpochSink` that weighs each factor as it comes
+    (:func:`factor_weight`) and eliminates epoch by epoch (:class:`~.solver.Eliminator`): the
+    Gauss-Newton iteration's solve without keeping the problem. :meth:`finish` returns the
+    solution and the weighing (its robust cost included)."""
+
+    def __init__(self, n: int, gate_probability: float, huber_k: float = HUBER_K) -> None:
+        self.n = n
+        self.gate_probability = gate_probability
+        self.huber_k = huber_k
+        self.weighing = Weighing()
+        self._quad = 0.0  # sum of w e^2: the measurements' part of the weighted cost
+        self._loss = 0.0  # sum of their robust loss
+        self._elim = Eliminator(n)
+
+    def _rows(self, factors: list[MeasurementFactor]) -> tuple[Array, Array]:
+        rows, rhs = [np.zeros((0, self.n))], [np.zeros(0)]
+        for f in factors:
+            W = whitener(f.R)
+            wr = W @ f.r
+            e = float(np.linalg.norm(wr))
+            exact = f.exact
+            w, loss = factor_weight(f, e, exact, self.gate_probability, self.huber_k)
+            self.weighing.note(f, w, exact)
+            self._quad += w * e * e
+            self._loss += loss
+            if w > 0.0:
+                rows.append(np.sqrt(w) * (W @ f.H))
+                rhs.append(np.sqrt(w) * wr)
+        return np.vstack(rows), np.concatenate(rhs)
+
+    def start(self, prior: Prior, factors: list[MeasurementFactor]) -> None:
+        self._elim.first(prior.x0, prior.P0, *self._rows(factors))
+
+    def epoch(self, phi: Array, qd: Array, offset: Array, factors: list[MeasurementFactor]) -> None:
+        self._elim.add(phi, qd, offset, *self._rows(factors))
+
+    def close(self) -> None:
+        """Free the eliminator's rows without solving."""
+        self._elim.close()
+
+    def finish(self) -> tuple[ChainSolution, Weighing]:
+        sol = self._elim.finish()
+        self.weighing.robust_cost = sol.cost0 - self._quad + self._loss
+        return sol, self.weighing
 
 
 def _step(delta: Array, layout: Layout) -> tuple[float, float]:
@@ -156,16 +211,23 @@ def graph_smooth(
     it = 0
     while True:
         it += 1
-        say(f"graph: linearizing about the trajectory (iteration {it})")
-        chain, nav = linearize(log, config, X, odometer_exclude=odometer_exclude, reverse=reverse)
-        wf = whiten(chain.factors, chain.n)
-        w, down, gated, loss = factor_weights(chain, config.gate_probability, huber_k, wf)
-        say(f"graph: solving {chain.K} epochs, {len(chain.factors)} factors")
-        sol = solve_chain(chain, w, whitened=wf)
-        quad = float(np.sum(w * wf.norm**2))
-        cost = sol.cost0 - quad + float(loss.sum())  # the robust objective at X
+        say(f"graph: linearizing and solving about the trajectory (iteration {it})")
+        stream = StreamingSolve(layout.n, config.gate_probability, huber_k)
+        nav = FactorRecorder(
+            config, log.markers, reference=X, odometer_exclude=odometer_exclude,
+            reverse=reverse, sink=stream,
+        )  # fmt: skip
+        try:
+            nav.run(log)
+        except BaseException:
+            stream.close()
+            raise
+        if nav.state is None:
+            stream.close()
+            raise ValueError("no navigation solution: no usable IMU data after alignment")
+        sol, weighing = stream.finish()
+        cost = weighing.robust_cost  # the robust objective at X
         history.append(cost)
-        weighing = Weighing(w, down, gated, cost)
         step = _step(sol.delta, layout)
         # a step that raised the cost is kept if the next one is smaller (a large first step
         # from far off often raises it on the way into the basin: the iterated smoother's
@@ -178,7 +240,7 @@ def graph_smooth(
             delta_prev = 0.5 * delta_prev
             step_prev = (0.5 * step_prev[0], 0.5 * step_prev[1])
             X = retract(X_prev, delta_prev, layout, pivot)
-            del chain, nav, wf, sol  # before the next linearization is built
+            del nav, sol  # before the next linearization is built
             continue
         halvings = 0
         best_cost = min(best_cost, cost)
@@ -188,4 +250,4 @@ def graph_smooth(
             return GraphResult(nav, sol, states, it, converged, history, weighing)
         X_prev, delta_prev, step_prev = X, sol.delta, step
         X = retract(X, sol.delta, layout, pivot)
-        del chain, nav, wf, sol  # before the next linearization is built
+        del nav, sol  # before the next linearization is built

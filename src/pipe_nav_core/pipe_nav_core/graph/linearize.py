@@ -18,6 +18,7 @@ filter's covariance): the batch solver gates and weighs the factors itself (:mod
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,13 +72,17 @@ from ..epoch import (
     Inputs,
     run_epochs,
 )
-from ..recording import phi_rows
+from ..recording import Recording, phi_rows
 from ..state import I_VEL, L_ATT, SV_H, SV_LAT, c_nb_k
 from ..types import Marker, SensorLog
 from .problem import LinearChain, MeasurementFactor, Model, Prior
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
+
+# bytes of the pass's packed covariances kept in memory when a sink takes the problem (the
+# rest spills to disk: only the per-sample nominal and the mean errors are read)
+SINK_RAM_BUDGET = 32 * 2**20
 
 
 def _odometer_model(args: tuple, rows: slice) -> Model:
@@ -128,11 +133,24 @@ def _marker_model(marker: Array, time_sigma: float) -> Model:
     return model
 
 
+class EpochSink(Protocol):
+    """Receives the linearized problem epoch by epoch, in order, instead of the recorder
+    keeping it (a solver that eliminates as it goes: memory independent of the run's length)."""
+
+    def start(self, prior: Prior, factors: list[MeasurementFactor]) -> None:
+        """The prior on epoch 0 and epoch 0's factors."""
+
+    def epoch(self, phi: Array, qd: Array, offset: Array, factors: list[MeasurementFactor]) -> None:
+        """The next epoch's between-factor (phi, qd (n, n), offset (n,)) and its factors."""
+
+
 class FactorRecorder(Navigator):
     """A Navigator pass about ``reference`` (flat states (K, SV_SIZE) at the epochs of an
     earlier pass over the same data) that records the batch problem linearized about it:
-    :meth:`problem` after :meth:`Navigator.run`. Its recording (``recording``) is the pass's,
-    for the centreline at the IMU rate (:func:`pipe_nav_core.smoother._centreline`)."""
+    :meth:`problem` after :meth:`Navigator.run`, or, with a ``sink``, hands it over epoch by
+    epoch and keeps none of it. Its recording (``recording``) is the pass's, for the centreline
+    at the IMU rate (:func:`pipe_nav_core.smoother._centreline`); with a sink its covariances
+    are spilled to disk beyond SINK_RAM_BUDGET (nothing here reads them)."""
 
     def __init__(
         self,
@@ -142,6 +160,7 @@ class FactorRecorder(Navigator):
         reference: Array,
         odometer_exclude: Array | None = None,
         reverse: bool = False,
+        sink: EpochSink | None = None,
     ) -> None:
         super().__init__(
             config,
@@ -152,7 +171,11 @@ class FactorRecorder(Navigator):
             reference=reference,
             odometer_exclude=odometer_exclude,
         )
-        K, n = len(reference), self.layout.n
+        self.sink = sink
+        if sink is not None:
+            self.recording = Recording(self.layout, reference=self.reference,
+                                       ram_budget=SINK_RAM_BUDGET)  # fmt: skip
+        K, n = (0 if sink is not None else len(reference)), self.layout.n
         # the rows of Phi that can differ from the identity's, and the rows of Qd that can be
         # more than diagonal: those of the attitude, velocity and position errors (the nonzero
         # rows of the system matrix, process.discretize_k)
@@ -175,12 +198,15 @@ class FactorRecorder(Navigator):
         self.prior: Prior | None = None
         self._scratch: Batch | None = None
         self._f: Filter | None = None
+        self._pending: tuple[Array, Array, Array] = (np.zeros(0), np.zeros(0), np.zeros(0))
 
     # ------------------------------------------------------------------ hooks
     def _align(self, idx: Array) -> None:
         super()._align(idx)
         assert self.kf is not None
         self.prior = Prior(self.kf.x.copy(), self.kf.P.copy())
+        if self.sink is not None:
+            self.sink.start(self.prior, [])
 
     def _call(
         self,
@@ -250,11 +276,19 @@ class FactorRecorder(Navigator):
                 f.x[:] = 0.0
                 f.P[:] = 0.0
                 run_epochs(True, False, k, f, L, prm, ref, one, no_markers, sb.buffers())
-                self._store_transition(k, sb.phi[0], sb.P_pred[0], sb.ws_x)
+                if self.sink is not None:
+                    self._pending = (sb.phi[0].copy(), sb.P_pred[0].copy(), sb.ws_x.copy())
+                else:
+                    self._store_transition(k, sb.phi[0], sb.P_pred[0], sb.ws_x)
             if stop and e == B - 1:
                 return
             mk = markers if e == B - 1 else no_markers
+            first = len(self.factors)
             self._factors_of_epoch(k, sb, one, f.dyn, prm, mk)
+            if self.sink is not None:  # epoch k is complete: hand it over
+                phi, qd, offset = self._pending
+                self.sink.epoch(phi, qd, offset, self.factors[first:])
+                del self.factors[first:]
             sb.marker_res = np.zeros((len(mk), 3))
             run_epochs(False, True, k, f, L, prm, ref, one, mk, sb.buffers())
 

@@ -130,6 +130,119 @@ def _triangular(A: Array, rows: int) -> Array:
     return R[:rows]
 
 
+class Eliminator:
+    """The elimination of the module docstring fed one epoch at a time, in order: the prior and
+    epoch 0's measurements (:meth:`first`), then each epoch's between-factor and
+    measurements (:meth:`add`, or :meth:`add_whitened`); :meth:`finish` back-substitutes.
+    Measurement rows come whitened (rows (m, n) = W H, rhs (m,) = W r, robust weights already
+    applied). Holds one block of information and the rows kept for back-substitution
+    (spilled to disk beyond RAM_BUDGET_BYTES), whatever the length of the run."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.K = 0  # epochs added
+        self.cost0 = 0.0
+        self.cost = 0.0
+        self._store = _Chunks(2 * n * n + n, RAM_BUDGET_BYTES)  # R_kk, R_k,k+1, z_k
+        self._out = np.empty((PIECE, 2 * n * n + n))
+        self._filled = 0
+        self._Rt = np.zeros((n, n))
+        self._zt = np.zeros(n)
+
+    def first(self, x0: Array, P0: Array, rows: Array, rhs: Array) -> None:
+        """Epoch 0: the prior (mean x0 (n,), covariance P0 (n, n)) and its measurement rows."""
+        n = self.n
+        W0 = whitener(P0)
+        A = np.vstack([np.c_[W0, W0 @ x0], np.c_[rows, rhs]])
+        self.cost0 += float(np.sum(A[:, -1] ** 2))
+        T = _triangular(A, n + 1)
+        self._Rt, self._zt = T[:n, :n], T[:n, n]
+        self.cost += float(T[n, n] ** 2)
+        self.K = 1
+
+    def add(self, phi: Array, qd: Array, offset: Array, rows: Array, rhs: Array) -> None:
+        """The next epoch: transition phi (n, n), process noise qd (n, n) and offset (n,) of
+        its between-factor, and its whitened measurement rows."""
+        W = whitener(qd)
+        self.add_whitened(W @ phi, W, W @ offset, rows, rhs)
+
+    def add_whitened(self, WPhi: Array, W: Array, Wo: Array, rows: Array, rhs: Array) -> None:
+        """:meth:`add` with the between-factor whitened: W Phi, W = Qd^(-1/2), W offset."""
+        n = self.n
+        nn = n * n
+        A = np.zeros((2 * n + len(rhs), 2 * n + 1))
+        A[:n, :n], A[:n, -1] = self._Rt, self._zt
+        A[n : 2 * n, :n] = -WPhi
+        A[n : 2 * n, n : 2 * n] = W
+        A[n : 2 * n, -1] = Wo
+        A[2 * n :, n : 2 * n] = rows
+        A[2 * n :, -1] = rhs
+        self.cost0 += float(Wo @ Wo + rhs @ rhs)
+        T = _triangular(A, 2 * n + 1)
+        out = self._out[self._filled]
+        out[:nn] = T[:n, :n].reshape(nn)
+        out[nn : 2 * nn] = T[:n, n : 2 * n].reshape(nn)
+        out[2 * nn :] = T[:n, -1]
+        self._filled += 1
+        if self._filled == PIECE:
+            self._flush()
+        self._Rt, self._zt = T[n : 2 * n, n : 2 * n], T[n : 2 * n, -1]
+        self.cost += float(T[2 * n, -1] ** 2)
+        self.K += 1
+
+    def _flush(self) -> None:
+        for p, q, view in self._store.claim(self._filled):
+            view[:] = self._out[p:q]
+        self._filled = 0
+
+    def close(self) -> None:
+        """Free the kept rows (and their files) without solving."""
+        self._store.close()
+
+    def finish(self, full: bool = False) -> ChainSolution:
+        """Back-substitution and marginal covariances (full: also the (K, n, n) covariances);
+        frees the kept rows."""
+        try:
+            self._flush()
+            return self._back_substitute(full)
+        finally:
+            self._store.close()
+
+    def _back_substitute(self, full: bool) -> ChainSolution:
+        K, n = self.K, self.n
+        nn = n * n
+        store = self._store
+        delta = np.empty((K, n))
+        var = np.empty((K, n))
+        cov = np.empty((K, n, n)) if full else None
+        Ri = np.linalg.inv(self._Rt)  # upper triangular: back-substitution
+        delta[-1] = Ri @ self._zt
+        S = Ri @ Ri.T
+        var[-1] = np.diag(S)
+        if cov is not None:
+            cov[-1] = S
+        for c in range(store.n_chunks - 1, -1, -1):
+            block = store.chunk(c)
+            for a in range(((len(block) - 1) // PIECE) * PIECE, -1, -PIECE):
+                piece = block[a : a + PIECE]
+                B = len(piece)
+                # per epoch at once: R_kk^-1 (upper triangular: back-substitution), G_k, the
+                # solution given delta_{k+1} = 0 and R_kk^-1 R_kk^-T
+                Ri = np.linalg.inv(piece[:, :nn].reshape(B, n, n))
+                G = Ri @ piece[:, nn : 2 * nn].reshape(B, n, n)
+                d0 = np.einsum("bij,bj->bi", Ri, piece[:, 2 * nn :])
+                RRt = Ri @ np.swapaxes(Ri, 1, 2)
+                for j in range(B - 1, -1, -1):
+                    k = c * CHUNK_EPOCHS + a + j  # this row holds epoch k's (from step k + 1)
+                    delta[k] = d0[j] - G[j] @ delta[k + 1]
+                    S = RRt[j] + G[j] @ S @ G[j].T
+                    S = 0.5 * (S + S.T)
+                    var[k] = np.diag(S)
+                    if cov is not None:
+                        cov[k] = S
+        return ChainSolution(delta, var, self.cost0, self.cost, cov)
+
+
 def solve_chain(
     chain: LinearChain,
     weights: Array | None = None,
@@ -150,77 +263,18 @@ def solve_chain(
     rows, rhs = wf.rows * scale[:, None], wf.rhs * scale
     first = np.searchsorted(wf.epochs, np.arange(K + 1), side="left")
     at = wf.start[first]  # rows of epoch k: at[k] .. at[k + 1]
-    store = _Chunks(2 * n * n + n, RAM_BUDGET_BYTES)  # per epoch: R_kk, R_k,k+1, z_k
+    elim = Eliminator(n)
     try:
-        return _eliminate(chain, rows, rhs, at, store, full)
-    finally:
-        store.close()
-
-
-def _eliminate(
-    chain: LinearChain, rows: Array, rhs: Array, at: Array, store: _Chunks, full: bool
-) -> ChainSolution:
-    K, n = chain.K, chain.n
-    nn = n * n
-    # epoch 0: the prior and its measurements
-    W0 = whitener(chain.prior.P0)
-    M, m = rows[at[0] : at[1]], rhs[at[0] : at[1]]
-    A = np.vstack([np.c_[W0, W0 @ chain.prior.x0], np.c_[M, m]])
-    cost0 = float(np.sum(A[:, -1] ** 2))
-    T = _triangular(A, n + 1)
-    Rt, zt = T[:n, :n], T[:n, n]
-    cost = float(T[n, n] ** 2)
-    for a in range(1, K, PIECE):
-        b = min(a + PIECE, K)
-        W = whiteners(chain.process_noise(a, b))
-        WPhi = W @ chain.transitions(a, b)
-        Wo = np.einsum("bij,bj->bi", W, chain.offset[a:b])
-        out = np.empty((b - a, 2 * nn + n))
-        for j, k in enumerate(range(a, b)):
-            M, m = rows[at[k] : at[k + 1]], rhs[at[k] : at[k + 1]]
-            A = np.zeros((2 * n + len(m), 2 * n + 1))
-            A[:n, :n], A[:n, -1] = Rt, zt
-            A[n : 2 * n, :n] = -WPhi[j]
-            A[n : 2 * n, n : 2 * n] = W[j]
-            A[n : 2 * n, -1] = Wo[j]
-            A[2 * n :, n : 2 * n] = M
-            A[2 * n :, -1] = m
-            cost0 += float(Wo[j] @ Wo[j] + m @ m)
-            T = _triangular(A, 2 * n + 1)
-            out[j, :nn] = T[:n, :n].reshape(nn)
-            out[j, nn : 2 * nn] = T[:n, n : 2 * n].reshape(nn)
-            out[j, 2 * nn :] = T[:n, -1]
-            Rt, zt = T[n : 2 * n, n : 2 * n], T[n : 2 * n, -1]
-            cost += float(T[2 * n, -1] ** 2)
-        for p, q, view in store.claim(b - a):
-            view[:] = out[p:q]
-    # back-substitution and marginal covariances, last epoch first
-    delta = np.empty((K, n))
-    var = np.empty((K, n))
-    cov = np.empty((K, n, n)) if full else None
-    Ri = np.linalg.inv(Rt)  # upper triangular: back-substitution
-    delta[-1] = Ri @ zt
-    S = Ri @ Ri.T
-    var[-1] = np.diag(S)
-    if cov is not None:
-        cov[-1] = S
-    for c in range(store.n_chunks - 1, -1, -1):
-        block = store.chunk(c)
-        for a in range(((len(block) - 1) // PIECE) * PIECE, -1, -PIECE):
-            piece = block[a : a + PIECE]
-            B = len(piece)
-            # per epoch at once: R_kk^-1 (upper triangular: back-substitution), G_k, the
-            # solution given delta_{k+1} = 0 and R_kk^-1 R_kk^-T
-            Ri = np.linalg.inv(piece[:, :nn].reshape(B, n, n))
-            G = Ri @ piece[:, nn : 2 * nn].reshape(B, n, n)
-            d0 = np.einsum("bij,bj->bi", Ri, piece[:, 2 * nn :])
-            RRt = Ri @ np.swapaxes(Ri, 1, 2)
-            for j in range(B - 1, -1, -1):
-                k = c * CHUNK_EPOCHS + a + j  # this row holds epoch k's (from epoch k+1's step)
-                delta[k] = d0[j] - G[j] @ delta[k + 1]
-                S = RRt[j] + G[j] @ S @ G[j].T
-                S = 0.5 * (S + S.T)
-                var[k] = np.diag(S)
-                if cov is not None:
-                    cov[k] = S
-    return ChainSolution(delta, var, cost0, cost, cov)
+        elim.first(chain.prior.x0, chain.prior.P0, rows[at[0] : at[1]], rhs[at[0] : at[1]])
+        for a in range(1, K, PIECE):
+            b = min(a + PIECE, K)
+            W = whiteners(chain.process_noise(a, b))
+            WPhi = W @ chain.transitions(a, b)
+            Wo = np.einsum("bij,bj->bi", W, chain.offset[a:b])
+            for j, k in enumerate(range(a, b)):
+                s = slice(at[k], at[k + 1])
+                elim.add_whitened(WPhi[j], W[j], Wo[j], rows[s], rhs[s])
+    except BaseException:
+        elim.close()
+        raise
+    return elim.finish(full)
