@@ -43,9 +43,11 @@ def whitener(C: Array) -> Array:
     if C is still not positive definite, its eigenvalues are floored likewise. numpy's LAPACK
     calls only: scipy.linalg's run OpenBLAS threads that cost milliseconds per call on these
     small matrices under load."""
-    C = 0.5 * (C + C.T)
     d = np.diag(C)
     floor = max(EIG_FLOOR * float(d.max()), MIN_VARIANCE)
+    if len(d) == 1 or not np.any(C - np.diag(d)):  # diagonal (most measurement noises)
+        return np.diag(1.0 / np.sqrt(np.maximum(d, floor)))
+    C = 0.5 * (C + C.T)
     zero = np.flatnonzero(d <= floor)
     if len(zero):
         C = C.copy()
@@ -98,8 +100,12 @@ class MeasurementFactor:
         """Some direction of the measurement has no noise (a marker surveyed exactly: only
         its passage-time error along the track): a constraint, which no robust loss or gate
         can weigh (its whitened residual is round-off over MIN_VARIANCE)."""
-        s = np.linalg.eigvalsh(0.5 * (self.R + self.R.T))
-        return bool(s.min() <= max(1e-12 * s.max(), MIN_VARIANCE))
+        d = np.diag(self.R)
+        if len(d) == 1 or not np.any(self.R - np.diag(d)):  # diagonal: its own eigenvalues
+            s = np.sort(d)
+        else:
+            s = np.linalg.eigvalsh(0.5 * (self.R + self.R.T))
+        return bool(s[0] <= max(1e-12 * s[-1], MIN_VARIANCE))
 
 
 @dataclass
