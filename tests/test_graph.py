@@ -206,3 +206,18 @@ def test_robust_loss_bounds_a_wrong_marker() -> None:
     rts = sm.smooth_log(log, cfg, method="rts")
     r = score(rts.centreline, run.truth, log.markers, datum=rts.datum)
     assert r.max_h > 5.0 * g.max_h
+
+
+def test_graph_in_reversed_time() -> None:
+    """A log in reversed time (a segment aligned at its end: smooth_log reverse=True, the
+    Earth turning the other way in every pass) smooths to the RTS solution."""
+    run = simulate("sag104", seed=1)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    rlog = sm.reverse_log(run.log)
+    a = sm.smooth_log(rlog, cfg, method="rts", reverse=True).centreline
+    res = sm.smooth_log(rlog, cfg, method="graph", reverse=True)
+    b = res.centreline
+    assert res.summary["graph_converged"]
+    ea = earth.geodetic_to_enu(a.lat, a.lon, a.h, a.lat[0], a.lon[0], a.h[0])
+    eb = earth.geodetic_to_enu(b.lat, b.lon, b.h, a.lat[0], a.lon[0], a.h[0])
+    assert np.abs(ea - eb).max() < 0.002  # m

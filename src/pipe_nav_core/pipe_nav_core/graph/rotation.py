@@ -42,10 +42,10 @@ def retract(X: Array, delta: Array, layout: Layout, pivot: Pivot | None) -> Arra
     the initial heading, theta = delta[0, attitude up], applied as the exact rotation of the
     whole trajectory about pivot and only the rest of the step, delta - theta g (g: the error
     state of a unit rotation, :meth:`FreeHeading.direction`), injected, turned with the
-    trajectory. Without a pivot (no marker): X (+) delta."""
-    if pivot is None:
+    trajectory. Without a pivot (no marker) or a turn: X (+) delta."""
+    theta = 0.0 if pivot is None else float(delta[0, layout.att.start + 2])
+    if pivot is None or theta == 0.0:
         return inject_many(X, delta, layout)
-    theta = float(delta[0, layout.att.start + 2])
     g = FreeHeading(0.0, *pivot).direction(
         X[:, SV_LAT], X[:, SV_LON], X[:, SV_H], X[:, SV_VEL], layout
     )
