@@ -222,7 +222,10 @@ class FactorRecorder(Navigator):
 
     # ------------------------------------------------------------------ the problem
     def problem(self) -> LinearChain:
-        """The linearized batch problem of the epochs run so far."""
+        """The linearized batch problem of the epochs run so far (not with a sink: it took
+        the problem)."""
+        if self.sink is not None:
+            raise ValueError("the problem went to the sink, epoch by epoch")
         if self.prior is None or self.recording is None:
             raise ValueError("no navigation solution: the pass never aligned")
         K = len(self.recording)
