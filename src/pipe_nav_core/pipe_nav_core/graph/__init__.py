@@ -6,7 +6,9 @@
 - :mod:`.solver`: the sparse least-squares solve (QR elimination in time order) with marginal
   covariances;
 - :mod:`.robust`: robust losses (IRLS weights);
-- :mod:`.batch`: Gauss-Newton with a robust loss on the markers, from the RTS solution.
+- :mod:`.rotation`: a step's turn of the initial heading applied as an exact rotation;
+- :mod:`.batch`: Gauss-Newton with a robust loss on the markers, from the RTS solution,
+  solving each linearization as its pass runs.
 """
 
 from .batch import GraphResult, graph_smooth

@@ -19,10 +19,13 @@ equations square their between-factor weights (~1e19) against the measurement in
 Marginal covariances come from the same factor, backwards: Sigma_K = R~_K^-1 R~_K^-T and
 Sigma_k = R_kk^-1 R_kk^-T + G_k Sigma_{k+1} G_k^T with G_k = R_kk^-1 R_k,k+1.
 
-The whitening (Cholesky factors of every noise covariance) runs batched, PIECE epochs or all
-factors of one size at once; only the elimination is a loop over the epochs. Its rows
-(R_kk, R_k,k+1, z_k: 23 kB per epoch with 38 error states) are kept like the forward pass's
-recording, beyond RAM_BUDGET_BYTES in a temporary directory (:class:`recording._Chunks`).
+:class:`Eliminator` takes the epochs one at a time (the Gauss-Newton iterations feed it as
+their linearization pass runs, :class:`.batch.StreamingSolve`, and never hold the problem);
+:func:`solve_chain` feeds it a whole :class:`~.problem.LinearChain`, whitening (Cholesky factors
+of every noise covariance) batched, PIECE epochs or all factors of one size at once. The rows
+kept for back-substitution (R_kk, R_k,k+1, z_k: 23 kB per epoch with 38 error states) are
+stored like the forward pass's recording, beyond RAM_BUDGET_BYTES in a temporary directory
+(:class:`recording._Chunks`).
 """
 
 from __future__ import annotations
