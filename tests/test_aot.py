@@ -158,7 +158,10 @@ def test_the_aot_kernels_are_said_in_the_warm_marker(tmp_path, monkeypatch):
     monkeypatch.setattr(warmup, "_marker", lambda: marker)
     marker.write_text(jit._package_stamp())  # a marker written before the AOT module existed
     assert not warmup.is_warm()
-    marker.write_text(f"{jit._package_stamp()}\naot: 12 exports")
+    marker.write_text(f"{jit._package_stamp()}\naot: 12 exports (warm-up {warmup.WARM_UP})")
     assert warmup.is_warm() is jit.AOT_LOADED  # built, and loaded here (else: build again)
-    marker.write_text(f"{jit._package_stamp()}\naot: failed (no compiler)")
+    marker.write_text(f"{jit._package_stamp()}\naot: failed (no compiler) (warm-up "
+                      f"{warmup.WARM_UP})")  # fmt: skip
     assert warmup.is_warm()  # tried for these sources: the JIT kernels serve
+    marker.write_text(f"{jit._package_stamp()}\naot: 12 exports (warm-up 1)")
+    assert not warmup.is_warm()  # an older warm-up: its module lacks what this one adds

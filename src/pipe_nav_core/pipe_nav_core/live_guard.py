@@ -74,7 +74,7 @@ class GuardedNavigator(Navigator):
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
         self._last: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None
         self._period: float | None = None
-        self._repeat = np.zeros(6, dtype=np.int64)
+        self._repeat = [0] * 6  # per axis (gyro, accel): the same high reading repeated
         self.lost_since: float | None = None
         self.lost_reason = ""
         self._latest: NavEstimate | None = None
@@ -93,8 +93,8 @@ class GuardedNavigator(Navigator):
         if self.lost_since is not None:
             self._counts["ignored_lost"] += 1
             return
-        g = tuple(float(v) for v in gyro)
-        a = tuple(float(v) for v in accel)
+        g = (float(gyro[0]), float(gyro[1]), float(gyro[2]))
+        a = (float(accel[0]), float(accel[1]), float(accel[2]))
         if not all(map(math.isfinite, (t, *g, *a))):
             super().push_imu(t, g, a)  # counted and dropped there
             return
@@ -198,14 +198,17 @@ class GuardedNavigator(Navigator):
 
     def _saturated(self, g: tuple[float, ...], a: tuple[float, ...]) -> bool:
         """True while an axis repeats one high reading MIN_FLAT times or more."""
+        repeat = self._repeat
+        if max(map(abs, g)) < SATURATED_RATE and max(map(abs, a)) < SATURATED_ACCEL:
+            if any(repeat):  # no axis high: every count ends (the common case, per sample)
+                self._repeat = [0] * 6
+            return False
         values = (*g, *a)
         prev = (*self._last[1], *self._last[2]) if self._last is not None else None
-        high = [abs(v) >= (SATURATED_RATE if i < 3 else SATURATED_ACCEL)
-                for i, v in enumerate(values)]  # fmt: skip
         for i, v in enumerate(values):
-            same = prev is not None and high[i] and v == prev[i]
-            self._repeat[i] = self._repeat[i] + 1 if same else 0
-        return bool(np.any(self._repeat >= MIN_FLAT - 1))
+            high = abs(v) >= (SATURATED_RATE if i < 3 else SATURATED_ACCEL)
+            repeat[i] = repeat[i] + 1 if prev is not None and high and v == prev[i] else 0
+        return max(repeat) >= MIN_FLAT - 1
 
     def _fill(self, last: tuple, nxt: tuple, period: float) -> None:
         t0, g0, a0 = last

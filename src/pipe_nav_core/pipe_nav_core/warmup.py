@@ -23,6 +23,9 @@ from .types import SensorLog
 # The demo run's first 70 s: rest, then two markers (10 s and 62 s), enough for every code path
 # of the live filter (alignment, odometer, non-holonomic, magnetometer and marker updates).
 _SPAN_S = 70.0
+# what the warm-up runs (its kernels' argument types are what the AOT module exports): a new
+# number builds the module again where an older warm-up made it (2: the graph smoother too)
+WARM_UP = 2
 
 
 @lru_cache(maxsize=1)
@@ -51,7 +54,7 @@ def warm_smoothers() -> float:
 
     t0 = time.perf_counter()
     log, config = _warmup_run()
-    for method in ("rts", "two-filter", "forward"):
+    for method in ("rts", "two-filter", "forward", "graph"):
         smooth_log(log, config, method=method, iterations=2)
     return time.perf_counter() - t0
 
@@ -72,7 +75,7 @@ def is_warm() -> bool:
         stamp, _, aot = _marker().read_text(encoding="utf-8").partition("\n")
     except OSError:
         return False
-    if stamp != jit._package_stamp() or not aot.startswith("aot:"):
+    if stamp != jit._package_stamp() or not aot.endswith(f"(warm-up {WARM_UP})"):
         return False
     # built, but this process could not load it (its format changed since): build it again
     forced_jit = os.environ.get("PIPE_NAV_KERNELS") == "jit"
@@ -92,13 +95,16 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
         "them takes about 2 minutes on a 2-core machine)"
     )
     t0 = time.perf_counter()
+    forced_jit = os.environ.get("PIPE_NAV_KERNELS") == "jit"
+    jit.to_jit("the warm-up compiles every kernel and builds the AOT module from them")
     warm_live()
     warm_smoothers()
-    aot = _build_aot(jit, tell)
+    aot = "not built (PIPE_NAV_KERNELS=jit)" if forced_jit else _build_aot(jit, tell)
     try:
         marker = _marker()
         marker.parent.mkdir(exist_ok=True)
-        marker.write_text(f"{jit._package_stamp()}\naot: {aot}", encoding="utf-8")
+        marker.write_text(f"{jit._package_stamp()}\naot: {aot} (warm-up {WARM_UP})",
+                          encoding="utf-8")  # fmt: skip
     except OSError:  # a read-only install: numba then compiles in every process anyway
         pass
     tell(f"pipe_nav_core: kernels ready in {time.perf_counter() - t0:.0f} s")
@@ -108,8 +114,6 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
 def _build_aot(jit: Any, tell: Callable[[str], None]) -> str:
     """Build the ahead-of-time module from the kernels this process compiled (jit.build_aot);
     what came of it, for the marker. A failure is said and leaves numba's kernels in use."""
-    if jit.JIT_REASON is None:
-        return "loaded"
     try:
         return f"{jit.build_aot()} exports"
     except Exception as exc:  # no C compiler, numba without pycc, ...: JIT kernels stay
