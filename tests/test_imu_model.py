@@ -110,7 +110,7 @@ def test_a_short_rest_falls_back_on_the_declared_noise():
 
 def test_the_declared_noise_is_read_from_the_bag_and_used(tmp_path):
     from pipe_nav_core.io import write_sensor_bag
-    from pipe_nav_core.io.bagread import declared_imu_noise
+    from pipe_nav_core.io.baginfo import declared_imu_noise
     from pipe_nav_core.pipeline import load_log
 
     run = simulate("demo", 0)

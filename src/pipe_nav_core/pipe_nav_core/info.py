@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from .config import NavConfig
 from .imu_model import choose, measured_noise, nearest_grade, static_spans
 from .io import TopicNames, merge_markers, read_bag, read_markers_csv
-from .io.bagread import declared_imu_noise
+from .io.baginfo import declared_imu_noise
 from .io.topics import DEFAULT_TOPICS
 
 GAP_FACTOR = 5.0  # a stamp step over this many median periods is a gap

@@ -3,8 +3,9 @@ centreline CSV, GeoJSON and KML; ROS message conversion lives in :mod:`.rosmsg`.
 
 Modules: :mod:`.topics` (names, BagError, BagReport), :mod:`.stamps` (exact ns <-> s),
 :mod:`.cdr` (vectorized CDR), :mod:`.mcapread` / :mod:`.mcapwrite` (MCAP records),
-:mod:`.bagread`, :mod:`.bagwrite`, :mod:`.rosmsg`, :mod:`.markers_csv`, :mod:`.centreline`,
-:mod:`.gis`, :mod:`.atomic`.
+:mod:`.bagread` (the reader, with :mod:`.bagfiles`, :mod:`.bagdecode`, :mod:`.topic_checks`),
+:mod:`.baginfo` (cheap metadata), :mod:`.bagwrite`, :mod:`.rosmsg`, :mod:`.markers_csv`,
+:mod:`.centreline`, :mod:`.gis`, :mod:`.atomic`.
 """
 
 from __future__ import annotations
@@ -15,16 +16,9 @@ from .atomic import (
     atomic_write,
     ensure_not_input,
 )
-from .bagread import (
-    BagInfo,
-    TopicInfo,
-    bag_files,
-    bag_info,
-    bag_time_range,
-    concat_logs,
-    iter_bag,
-    read_bag,
-)
+from .bagfiles import bag_files
+from .baginfo import BagInfo, TopicInfo, bag_info, bag_time_range
+from .bagread import concat_logs, iter_bag, read_bag
 from .bagwrite import write_output_bag, write_rosbag2_metadata, write_sensor_bag
 from .centreline import (
     CENTRELINE_COLUMNS,
