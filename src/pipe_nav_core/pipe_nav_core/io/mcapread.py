@@ -13,6 +13,11 @@ cut anywhere (the readable prefix is used, even the part of a chunk that a strea
 decompressor recovers), with corrupt chunks (skipped, counted) and with files without a
 summary section. The summary reader gives cheap counts and time ranges.
 
+The records are parsed here, not with :mod:`mcap.records`, because that tolerance needs it:
+strings are decoded with replacement characters and a field that runs past the end of its
+record raises ValueError, where ``mcap.records`` raises UnicodeDecodeError on a damaged topic
+name and returns a cut-off field short without a word (tests/test_mcapread.py).
+
 MCAP format: https://mcap.dev/spec (little-endian; records are opcode u8, length u64, content).
 """
 

@@ -8,6 +8,11 @@ first, chunks each followed by their MessageIndex records, Metadata records (ros
 bag metadata in one named ``rosbag2``), DataEnd, then a summary (schemas, channels, statistics,
 chunk indexes, metadata indexes, summary offsets) and the footer, with CRCs. Nothing is done
 per message in Python except assembling the chunk (a list join).
+
+The few records written once per file or per chunk (Header, Schema, Channel, Metadata,
+Attachment, their indexes, Statistics, ChunkIndex, SummaryOffset, DataEnd, Footer) are built by
+the ``mcap`` library's record classes (:mod:`mcap.records`); the Message, Chunk and
+MessageIndex records, which carry every message, are assembled here with numpy.
 """
 
 from __future__ import annotations
@@ -19,26 +24,36 @@ from dataclasses import dataclass
 from typing import BinaryIO
 
 import numpy as np
+from mcap.data_stream import RecordBuilder
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
 from numpy.typing import NDArray
 
 from .mcapread import (
     MAGIC,
     MESSAGE_HEADER_SIZE,
-    OP_ATTACHMENT,
     OP_ATTACHMENT_INDEX,
     OP_CHANNEL,
     OP_CHUNK,
     OP_CHUNK_INDEX,
-    OP_DATA_END,
-    OP_FOOTER,
-    OP_HEADER,
     OP_MESSAGE,
     OP_MESSAGE_INDEX,
-    OP_METADATA,
     OP_METADATA_INDEX,
     OP_SCHEMA,
     OP_STATISTICS,
-    OP_SUMMARY_OFFSET,
 )
 
 DEFAULT_CHUNK_SIZE = 4 << 20  # bytes of uncompressed records per chunk
@@ -49,17 +64,15 @@ def _s(text: str) -> bytes:
     return struct.pack("<I", len(raw)) + raw
 
 
-def _b(raw: bytes) -> bytes:
-    return struct.pack("<I", len(raw)) + raw
-
-
 def _record(op: int, content: bytes) -> bytes:
     return struct.pack("<BQ", op, len(content)) + content
 
 
-def _string_map(d: dict[str, str]) -> bytes:
-    body = b"".join(_s(k) + _s(v) for k, v in d.items())
-    return _b(body)
+def _bytes(record: McapRecord) -> bytes:
+    """The bytes of one record (opcode, length, content) as the mcap library writes it."""
+    builder = RecordBuilder()
+    record.write(builder)
+    return builder.end()
 
 
 def message_records(
@@ -179,7 +192,7 @@ class McapWriter:
         self.end_time: int | None = None
         self.message_count = 0
         self._write(MAGIC)
-        self._write(_record(OP_HEADER, _s(profile) + _s(library)))
+        self._write(_bytes(Header(profile=profile, library=library)))
 
     def _write(self, data: bytes | memoryview) -> None:
         self.f.write(data)
@@ -187,7 +200,7 @@ class McapWriter:
         self.pos += len(data)
 
     def add_schema(self, sid: int, name: str, encoding: str, data: str) -> int:
-        rec = _record(OP_SCHEMA, struct.pack("<H", sid) + _s(name) + _s(encoding) + _s(data))
+        rec = _bytes(Schema(id=sid, name=name, encoding=encoding, data=data.encode("utf-8")))
         self.schemas.append(rec)
         self._write(rec)
         return sid
@@ -195,12 +208,14 @@ class McapWriter:
     def add_channel(
         self, cid: int, schema_id: int, topic: str, message_encoding: str, metadata: dict[str, str]
     ) -> int:
-        rec = _record(
-            OP_CHANNEL,
-            struct.pack("<HH", cid, schema_id)
-            + _s(topic)
-            + _s(message_encoding)
-            + _string_map(metadata),
+        rec = _bytes(
+            Channel(
+                id=cid,
+                schema_id=schema_id,
+                topic=topic,
+                message_encoding=message_encoding,
+                metadata=metadata,
+            )
         )
         self.channels.append(rec)
         self.channel_counts.setdefault(cid, 0)
@@ -210,11 +225,11 @@ class McapWriter:
     def add_metadata(self, name: str, metadata: dict[str, str]) -> None:
         """Write a Metadata record (a named string map) into the data section and index it in
         the summary (rosbag2 reads its bag metadata from the one named ``rosbag2``)."""
-        rec = _record(OP_METADATA, _s(name) + _string_map(metadata))
+        rec = _bytes(Metadata(name=name, metadata=metadata))
         offset = self.pos
         self._write(rec)
         self.metadata_indexes.append(
-            _record(OP_METADATA_INDEX, struct.pack("<QQ", offset, len(rec)) + _s(name))
+            _bytes(MetadataIndex(offset=offset, length=len(rec), name=name))
         )
 
     def add_attachment(
@@ -223,15 +238,29 @@ class McapWriter:
         """Write an Attachment record (a named file, e.g. ``welds.csv`` of media type
         ``text/csv``; times ns) into the data section, with its CRC, and index it in the
         summary."""
-        body = (struct.pack("<QQ", log_time, create_time) + _s(name) + _s(media_type)
-                + struct.pack("<Q", len(data)) + data)  # fmt: skip
-        rec = _record(OP_ATTACHMENT, body + struct.pack("<I", zlib.crc32(body)))
+        rec = _bytes(
+            Attachment(
+                create_time=create_time,
+                log_time=log_time,
+                name=name,
+                media_type=media_type,
+                data=data,
+            )
+        )
         offset = self.pos
         self._write(rec)
         self.attachment_indexes.append(
-            _record(OP_ATTACHMENT_INDEX,
-                    struct.pack("<QQQQQ", offset, len(rec), log_time, create_time, len(data))
-                    + _s(name) + _s(media_type))  # fmt: skip
+            _bytes(
+                AttachmentIndex(
+                    offset=offset,
+                    length=len(rec),
+                    log_time=log_time,
+                    create_time=create_time,
+                    data_size=len(data),
+                    name=name,
+                    media_type=media_type,
+                )
+            )
         )
 
     def write_streams(self, streams: Sequence[Stream]) -> None:
@@ -321,15 +350,19 @@ class McapWriter:
             self.channel_counts[cid] = self.channel_counts.get(cid, 0) + int(m.sum())
         mi_len = self.pos - mi_start
 
-        mi_map = b"".join(struct.pack("<HQ", c, o) for c, o in index_offsets.items())
         self.chunk_indexes.append(
-            _record(
-                OP_CHUNK_INDEX,
-                struct.pack("<QQQQ", start_t, end_t, chunk_start, chunk_len)
-                + _b(mi_map)
-                + struct.pack("<Q", mi_len)
-                + _s(self.compression)
-                + struct.pack("<QQ", len(data), usize),
+            _bytes(
+                ChunkIndex(
+                    message_start_time=start_t,
+                    message_end_time=end_t,
+                    chunk_start_offset=chunk_start,
+                    chunk_length=chunk_len,
+                    message_index_offsets=index_offsets,
+                    message_index_length=mi_len,
+                    compression=self.compression,
+                    compressed_size=len(data),
+                    uncompressed_size=usize,
+                )
             )
         )
         self.message_count += len(t)
@@ -338,7 +371,7 @@ class McapWriter:
 
     def finish(self) -> None:
         """Write DataEnd, the summary section, the footer and the closing magic."""
-        self._write(_record(OP_DATA_END, struct.pack("<I", self.crc)))
+        self._write(_bytes(DataEnd(data_section_crc=self.crc)))
         summary_start = self.pos
         scrc = 0
         groups: list[tuple[int, int, int]] = []
@@ -355,32 +388,39 @@ class McapWriter:
 
         put(OP_SCHEMA, self.schemas)
         put(OP_CHANNEL, self.channels)
-        counts = b"".join(struct.pack("<HQ", c, n) for c, n in sorted(self.channel_counts.items()))
-        stats = _record(
-            OP_STATISTICS,
-            struct.pack(
-                "<QHIIIIQQ",
-                self.message_count,
-                len(self.schemas),
-                len(self.channels),
-                len(self.attachment_indexes),
-                len(self.metadata_indexes),
-                len(self.chunk_indexes),
-                self.start_time or 0,
-                self.end_time or 0,
+        stats = _bytes(
+            Statistics(
+                message_count=self.message_count,
+                schema_count=len(self.schemas),
+                channel_count=len(self.channels),
+                attachment_count=len(self.attachment_indexes),
+                metadata_count=len(self.metadata_indexes),
+                chunk_count=len(self.chunk_indexes),
+                message_start_time=self.start_time or 0,
+                message_end_time=self.end_time or 0,
+                channel_message_counts=dict(sorted(self.channel_counts.items())),
             )
-            + _b(counts),
         )
         put(OP_STATISTICS, [stats])
         put(OP_CHUNK_INDEX, self.chunk_indexes)
         put(OP_ATTACHMENT_INDEX, self.attachment_indexes)
         put(OP_METADATA_INDEX, self.metadata_indexes)
         summary_offset_start = self.pos
-        offs = [_record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, s, n)) for op, s, n in groups]
+        offs = [
+            _bytes(SummaryOffset(group_opcode=op, group_start=s, group_length=n))
+            for op, s, n in groups
+        ]
         for r in offs:
             self._write(r)
             scrc = zlib.crc32(r, scrc)
-        footer_head = struct.pack("<BQQQ", OP_FOOTER, 20, summary_start, summary_offset_start)
+        # the summary CRC covers the footer up to the CRC field itself
+        footer_head = _bytes(
+            Footer(
+                summary_start=summary_start,
+                summary_offset_start=summary_offset_start,
+                summary_crc=0,
+            )
+        )[:-4]
         scrc = zlib.crc32(footer_head, scrc)
         self._write(footer_head + struct.pack("<I", scrc))
         self._write(MAGIC)
