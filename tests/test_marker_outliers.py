@@ -12,6 +12,7 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
 from pipe_nav_core.pipeline import Outputs, load_log, smooth_bag
 from pipe_nav_core.sim.faults import marker_late, marker_moved
+from pipe_nav_core.types import Marker
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 
@@ -73,3 +74,21 @@ def test_with_two_markers_a_wrong_one_is_warned_about(log, tmp_path: Path):
     result, report = smooth_bag(bag, Outputs(), config=NavConfig())
     assert any("odometer scale of" in w and "2 markers cannot tell" in w for w in report.warnings)
     assert result.summary["quality"]["status"] != "OK"
+
+
+def test_the_suspects_are_the_failing_markers_and_their_neighbours():
+    """A 100 km line has a hundred markers: leaving each out in turn would smooth the run a
+    hundred times (it did: 100 km took hours). A wrong marker bends the run about itself and
+    its neighbours, so those are the suspects, in the given order."""
+    from pipe_nav_core.marker_outliers import NEIGHBOURS, suspects
+
+    markers = [Marker(f"M{i}", float(10 * i), 0.0, 0.0, 0.0, (0.02, 0.02, 0.02)) for i in range(12)]
+    shuffled = markers[6:] + markers[:6]  # passage order decides, not the list's
+    screen = {m.name: 1.0 for m in markers} | {"M5": 99.0, "M11": 50.0}
+    got = [m.name for m in suspects(shuffled, screen, bound=20.0)]
+    want = [f"M{i}" for i in range(5 - NEIGHBOURS, 5 + NEIGHBOURS + 1)] + ["M9", "M10", "M11"]
+    assert sorted(got) == sorted(want)
+    assert got == [m.name for m in shuffled if m.name in want]
+    assert suspects(markers, {m.name: 1.0 for m in markers}, bound=20.0) == []
+    few = markers[:4]
+    assert suspects(few, {"M0": 99.0}, bound=20.0) == few[:3]

@@ -9,8 +9,9 @@ no longer fits. So the test has two steps:
    residual covariance R - P (R: the survey sigmas plus the passage-time sigma times the
    odometer speed along the axis; P: the smoothed position covariance there). A clean run
    ends here.
-2. when a marker fails it, leave-one-out: the run is smoothed without each marker in turn and
-   that marker's position predicted by the others is tested against R + P; of those over the
+2. when a marker fails it, leave-one-out: the run is smoothed without each suspect in turn (the
+   failing markers and their neighbours, :func:`suspects`) and that marker's position
+   predicted by the others is tested against R + P; of those over the
    chi-square bound whose removal makes all the others pass the screening, the one leaving
    them most consistent is left out, and the test repeats on the run without it. When no
    single removal makes the others agree, the fault is not a marker (the IMU or odometer
@@ -39,6 +40,10 @@ from .types import Marker, SensorLog
 OUTLIER_PROBABILITY = 1.0 - 1e-6  # chi-square (3 dof) bound on a marker's normalized residual
 MIN_MARKERS = 3  # fewer cannot tell an outlier from the others
 MAX_FAILING = 3  # more markers failing the screening at once: not one outlier (no leave-one-out)
+# a wrong marker bends the smoothed run about itself and its neighbours (each marker pins the
+# run): the markers left out in turn are those failing the screening and this many on each side
+# of each, in passage order (every marker on a short run; a handful on a 100 km line)
+NEIGHBOURS = 2
 
 
 @dataclass(frozen=True)
@@ -89,15 +94,39 @@ def _nis(r: np.ndarray, cov: np.ndarray, floor: float) -> float:
     return float(r @ ((v / w) @ v.T) @ r)
 
 
-def screening(result: SmoothResult, log: SensorLog, config: NavConfig) -> dict[str, float]:
-    """name -> each marker's smoothed residual normalized by R - P (step 1 of the module)."""
+# R - P is approximate (P from the centreline's sigmas about the passage, without their
+# correlations): where it comes out near zero or negative in some direction, it is taken as
+# this share of R there. Without it a clean 100 km line failed the screening at a marker whose
+# P came out above its R (nis 307), and the leave-one-out smoothed the run again and again.
+SCREEN_FLOOR = 0.1
+
+
+def _screened_nis(r: np.ndarray, R: np.ndarray, P: np.ndarray) -> float:
+    """r^T (R - P)^-1 r with R - P no smaller than SCREEN_FLOOR R in any direction."""
+    w, v = np.linalg.eigh(0.5 * (R + R.T))
+    root = (v / np.sqrt(np.maximum(w, 1e-30))) @ v.T  # R^(-1/2)
+    a, u = np.linalg.eigh(root @ (R - P) @ root)
+    z = u.T @ (root @ r)
+    return float(np.sum(z * z / np.maximum(a, SCREEN_FLOOR)))
+
+
+def screening(
+    result: SmoothResult, log: SensorLog, config: NavConfig, *, floor: bool = True
+) -> dict[str, float]:
+    """name -> each marker's smoothed residual normalized by R - P (step 1 of the module),
+    R - P floored at SCREEN_FLOOR R (``floor=False``: only at a hundredth of R's smallest
+    eigenvalue: sharper, which ranks the candidates of step 2 better, but a clean run with
+    many markers can fail it)."""
     res = marker_residuals(result.centreline, result.markers)
     out: dict[str, float] = {}
     for m in result.markers:
         if m.name in res:
-            cov = marker_covariance(result, log, m, config)
-            floor = 0.01 * float(np.min(np.linalg.eigvalsh(cov)))
-            out[m.name] = _nis(res[m.name], cov - _position_cov(result, m.t), floor)
+            R = marker_covariance(result, log, m, config)
+            P = _position_cov(result, m.t)
+            if floor:
+                out[m.name] = _screened_nis(res[m.name], R, P)
+            else:
+                out[m.name] = _nis(res[m.name], R - P, 0.01 * float(np.linalg.eigvalsh(R)[0]))
     return out
 
 
@@ -121,7 +150,7 @@ def smooth_without_outliers(
         if failing <= MAX_FAILING:
             say("a marker disagrees with the others: testing each against the rest")
         # the marker whose removal leaves the others most consistent, if it fails against them
-        for m in log.markers if failing <= MAX_FAILING else ():
+        for m in suspects(log.markers, screen, bound) if failing <= MAX_FAILING else ():
             if m.name not in screen:
                 continue
             rest = replace(log, markers=[x for x in log.markers if x.name != m.name])
@@ -133,9 +162,9 @@ def smooth_without_outliers(
             value = _nis(r, cov, 1e-12)
             if value <= bound:
                 continue
-            misfit = max(screening(without, rest, config).values(), default=0.0)
-            if misfit > bound:
+            if max(screening(without, rest, config).values(), default=0.0) > bound:
                 continue  # the others still disagree: not this marker alone
+            misfit = max(screening(without, rest, config, floor=False).values(), default=0.0)
             if best is None or misfit < best[0]:
                 along = r / max(float(np.linalg.norm(r)), 1e-12)
                 sigma = math.sqrt(float(along @ cov @ along))
@@ -156,6 +185,20 @@ def smooth_without_outliers(
     if len(log.markers) < MIN_MARKERS:
         warnings += _scale_check(result, config)
     return result, outliers, warnings
+
+
+def suspects(markers: list[Marker], screen: dict[str, float], bound: float) -> list[Marker]:
+    """The markers that may be the wrong one (step 2 of the module): each marker whose
+    screening value (``screen``: name -> normalized residual) is over ``bound``, and its
+    NEIGHBOURS on either side in passage order; in the order of ``markers``."""
+    order = sorted(range(len(markers)), key=lambda i: markers[i].t)
+    rank = {markers[i].name: k for k, i in enumerate(order)}
+    keep: set[int] = set()
+    for name, value in screen.items():
+        if value > bound and name in rank:
+            k = rank[name]
+            keep.update(order[max(0, k - NEIGHBOURS) : k + NEIGHBOURS + 1])
+    return [m for i, m in enumerate(markers) if i in keep]
 
 
 def _scale_check(result: SmoothResult, config: NavConfig) -> list[str]:
