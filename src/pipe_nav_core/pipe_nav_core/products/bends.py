@@ -145,6 +145,7 @@ def find_bends(
     junctions = [_junction(k, d, stretches[i], stretches[i + 1]) for i in range(len(stretches) - 1)]
     bends: list[PipeBend] = []
     n = len(profile)
+    floor = 4.0 * float(np.median(np.diff(track.arc)))  # m: the shortest arc the track resolves
     for idx, (a, b) in enumerate(stretches):
         lo = 0 if idx == 0 else (stretches[idx - 1][1] + a + 1) // 2
         hi = n - 1 if idx == len(stretches) - 1 else (b + stretches[idx + 1][0]) // 2
@@ -158,7 +159,7 @@ def find_bends(
         if idx < len(junctions):
             after = min(after, junctions[idx])
         bend = _measure(profile, track, spec, a, b, (before, after), outer_diameter,
-                        class_limits)  # fmt: skip
+                        class_limits, floor)  # fmt: skip
         if bend is not None and bend.angle >= min_angle - 1e-9:
             bends.append(bend)
     return [replace(b, number=i + 1) for i, b in enumerate(bends)]
@@ -189,12 +190,17 @@ def _measure(
     ends: tuple[float, float],
     outer_diameter: float,
     class_limits: tuple[float, float, float],
+    floor: float,
 ) -> PipeBend | None:
+    """The bend of stretch a..b (rows of profile) between the chainages ``ends`` (m); floor:
+    the shortest arc the track resolves, m (one pass over the whole track, not one a bend)."""
     half_w = 0.5 * profile.window
     (ax0, ax1), (t0, t1) = track.at_arc(track.arc_at(np.array(ends)))
     angle = float(np.arccos(np.clip(ax0 @ ax1, -1.0, 1.0)))
     step = float(profile.distance[1] - profile.distance[0])
-    span = (profile.distance >= ends[0]) & (profile.distance <= ends[1])
+    # the rows within ends (the profile's chainage grid rises): a slice, not a mask of all
+    span = slice(int(np.searchsorted(profile.distance, ends[0], "left")),
+                 int(np.searchsorted(profile.distance, ends[1], "right")))  # fmt: skip
     vert = float(np.sum(profile.vertical[span]) * step)
     horiz = float(np.sum(profile.horizontal[span]) * step)
     # apex and radius on a profile whose window is a quarter of the stretch over half the
@@ -202,7 +208,6 @@ def _measure(
     peak = float(np.max(profile.total[a : b + 1]))
     over = np.flatnonzero(profile.total[a : b + 1] >= 0.5 * peak) + a
     half_len = float(profile.distance[over[-1]] - profile.distance[over[0]]) + step
-    floor = 4.0 * float(np.median(np.diff(track.arc)))
     arc_lo = float(track.arc_at(np.array([profile.distance[a]]))[0]) - half_w
     arc_hi = float(track.arc_at(np.array([profile.distance[b]]))[0]) + half_w
     fine_w = max(0.25 * half_len, floor)
