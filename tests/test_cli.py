@@ -532,3 +532,17 @@ def test_a_simulated_run_with_a_magnetometer_has_a_vendor_tally_to_locate(tmp_pa
     located = list(csv.DictReader(feats.open()))
     assert len(located) == len(rows)
     assert sum(bool(r["matched_weld"]) for r in located) >= 0.9 * len(rows)
+
+
+def test_the_graph_smoother_says_its_iterations(tmp_path: Path, capsys):
+    """--method graph: the summary and the smoothed bag's metadata say how the batch
+    smoother went (Gauss-Newton iterations after the RTS passes, converged or not)."""
+    from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
+
+    assert main(["smooth", str(SAMPLE), "--out", f"{tmp_path}/", "--method", "graph"]) == 0
+    out = capsys.readouterr().out
+    (line,) = [x for x in out.splitlines() if x.strip().startswith("graph ")]
+    assert "Gauss-Newton iteration(s) after 2 RTS pass(es), converged" in line
+    _, _, meta = read_smoothed_bag(tmp_path / "sample_smoothed.mcap")
+    assert meta["method"] == "graph" and meta["graph_converged"] == "true"
+    assert int(meta["graph_iterations"]) >= 1

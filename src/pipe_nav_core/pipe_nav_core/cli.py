@@ -275,6 +275,16 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
             f"{products['max_strain_pct']:.4f} %"
             + "".join(f"; {n}" for n in products.get("notes", []))
         )
+    if "graph_iterations" in s:
+        gated = s.get("graph_factors_gated") or {}
+        down = s.get("graph_markers_downweighted") or []
+        print(
+            f"  graph               {s['graph_iterations']} Gauss-Newton iteration(s) after "
+            f"{s.get('passes_run', '?')} RTS pass(es), "
+            + ("converged" if s.get("graph_converged") else "NOT converged")
+            + f"; markers downweighted: {', '.join(down) or 'none'}; factors gated: "
+            + (", ".join(f"{k} {v}" for k, v in gated.items()) or "none")
+        )
     model = s.get("imu_model") or {}
     if model:
         how = model["reason"] if model.get("auto") else "given"

@@ -398,7 +398,8 @@ def write_products(
 
 def run_metadata(summary: dict[str, object]) -> dict[str, str]:
     """What the smoothed bag records of its run (MCAP metadata ``pipe_nav``): the quality
-    verdict and its reasons, the IMU model and why, the markers used and rejected."""
+    verdict and its reasons, the IMU model and why, the markers used and rejected, and for the
+    graph smoother its iterations and whether it converged."""
     q = summary.get("quality") or {}
     model = summary.get("imu_model") or {}
     return {
@@ -408,6 +409,12 @@ def run_metadata(summary: dict[str, object]) -> dict[str, str]:
         "imu_model_reason": str(model.get("reason", "")),  # type: ignore[union-attr]
         "markers_used": str(summary.get("markers_used", "")),
         "markers_rejected": str(summary.get("markers_rejected", "")),
+        **(
+            {"method": "graph", "graph_iterations": str(summary["graph_iterations"]),
+             "graph_converged": str(bool(summary.get("graph_converged"))).lower()}
+            if "graph_iterations" in summary
+            else {}
+        ),  # fmt: skip
     }
 
 
