@@ -307,9 +307,11 @@ def smooth_log(
             best = (rejected, result)
         step_pos, step_att = step_size(rec, e, layout)
         result.summary["last_step_m"] = step_pos
+        # the slips the next pass leaves out (after the last pass only the graph takes them)
+        wanted = it < n_pass - 1 or method == "graph"
         new_exclude = (
             find_slips(rec, centre, cfg, resolution=nav.odometer_resolution)
-            if layout.has_vel
+            if layout.has_vel and wanted
             else None
         )
         same_slips = new_exclude is None or (
