@@ -73,10 +73,35 @@ def test_smoother_job_reports_failure(bag, tmp_path):
         job.messages()
 
 
-def test_progress_callback_understands_stages_and_fractions():
-    job = SmootherJob({"bag": "b", "output": "o", "method": "rts"}, NavConfig(), TYPES)
-    job.progress("reading bag")
-    assert job.stage == "reading bag" and job.fraction is None
-    job.progress(0.25)
-    job.progress(3, 4)
-    assert job.fraction == 0.75
+def test_the_job_hears_every_stage_and_the_fraction_of_each_pass(bag, tmp_path, monkeypatch):
+    """smooth_bag tells the job (pipe_nav_core.progress.Progress) each stage and how far each
+    filter pass is, so /diagnostics shows a percentage while it runs (it said 'progress ?'
+    until the end: the fraction never reached the job's thread)."""
+    from pipe_nav_ros import smoother_core
+
+    heard: list[tuple[str, object]] = []
+    real_stage, real_fraction = smoother_core._Told.stage, smoother_core._Told.fraction
+
+    def stage(self, text):  # noqa: ANN001, ANN202
+        heard.append(("stage", text))
+        real_stage(self, text)
+        assert self.job.stage == text and self.job.fraction == 0.0
+
+    def fraction(self, done):  # noqa: ANN001, ANN202
+        heard.append(("fraction", done))
+        real_fraction(self, done)
+        assert self.job.fraction == done
+        assert self.job.health()[2]["progress"] == f"{100.0 * done:.1f} %"
+
+    monkeypatch.setattr(smoother_core._Told, "stage", stage)
+    monkeypatch.setattr(smoother_core._Told, "fraction", fraction)
+    path, config = bag
+    settings = smoother_node_settings({"bag": str(path), "output": str(tmp_path / "o.mcap")})
+    job = SmootherJob(settings, config, TYPES)
+    job.run()
+    assert job.state == DONE, job.error
+    stages = [v for k, v in heard if k == "stage"]
+    fractions = [v for k, v in heard if k == "fraction"]
+    assert "reading bag" in stages and any(str(s).startswith("RTS smoother") for s in stages)
+    assert fractions and all(0.0 < f <= 1.0 for f in fractions) and 1.0 in fractions
+    assert job.fraction == 1.0 and job.stage == "done"

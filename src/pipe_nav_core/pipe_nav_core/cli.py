@@ -199,7 +199,6 @@ def _out_is_dir(out: str) -> bool:
 
 def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
     from .pipeline import Outputs, smooth_bag
-    from .smoother import report_fraction, reset_fraction
 
     cfg = _load_config(args)
     out = Path(args.out)
@@ -220,7 +219,6 @@ def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
     outputs = outputs.with_products()
     _warm_kernels()
     bar = _progress(args.quiet)
-    token = report_fraction(bar.fraction if bar else None)
     try:
         result, report = smooth_bag(
             args.input,
@@ -231,12 +229,11 @@ def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
             markers_csv=args.markers,
             spacing=args.spacing,
             topics=_topics(args),
-            progress=bar.stage if bar else None,
+            progress=bar,
             bends_reference=args.bends_reference,
             plotter=plotter,
         )
     finally:
-        reset_fraction(token)
         if bar is not None:
             bar.close()
     for w in report.warnings:

@@ -43,13 +43,14 @@ from .odometer_faults import find_odometer_faults, without_faults
 from .plot_process import PlotProcess
 from .products import IntegrityReport, integrity_report, read_bends_reference
 from .products.welds import Weld, detect_welds
+from .progress import Progress
 from .recording import drop_spare
 from .segments import smooth_segments
 from .sensors import GRADES
-from .smoother import SmoothResult, smooth_log
+from .smoother import SmoothResult, report_fraction, reset_fraction, smooth_log
 from .types import Datum, Marker, SensorLog, Trajectory
 
-Progress = Callable[[str], None]
+Say = Callable[[str], None]  # told each stage as it begins (Progress.stage)
 MAX_BRIDGED_M = 0.5  # m: the filter carries a gap the pig moved less in; else segments
 DEFAULT_TOPICS = TopicNames()
 
@@ -207,11 +208,33 @@ def smooth_bag(
 ) -> tuple[SmoothResult, BagReport]:
     """Smooth a recorded run, compute its integrity products (bends_reference: a CSV of the
     as-built bends' chainage intervals) and write the requested outputs (the plot in
-    ``plotter``'s child process where one is given)."""
+    ``plotter``'s child process where one is given). ``progress`` is told each stage and the
+    fraction of each filter pass done (pipe_nav_core.progress)."""
     inputs = [bag] + [p for p in (markers_csv, bends_reference) if p]
     outputs.check(inputs, spacing)
+    token = report_fraction(progress.fraction if progress is not None else None)
+    try:
+        return _smooth_bag(bag, outputs, config, method, iterations, markers_csv, spacing,
+                           topics, progress, bends_reference, plotter)  # fmt: skip
+    finally:
+        reset_fraction(token)
+
+
+def _smooth_bag(
+    bag: str | os.PathLike[str],
+    outputs: Outputs,
+    config: NavConfig,
+    method: str,
+    iterations: int,
+    markers_csv: str | os.PathLike[str] | None,
+    spacing: float,
+    topics: TopicNames,
+    progress: Progress | None,
+    bends_reference: str | os.PathLike[str] | None,
+    plotter: PlotProcess | None,
+) -> tuple[SmoothResult, BagReport]:
     reference = read_bends_reference(bends_reference) if bends_reference else None
-    say = progress or (lambda _m: None)
+    say: Say = progress.stage if progress is not None else (lambda _m: None)
     say("reading bag")
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
     _require_imu(log, report, bag, topics)
@@ -261,7 +284,7 @@ def _smooth_segments(
     report: BagReport,
     config: NavConfig,
     smooth: Callable[..., SmoothResult],
-    say: Progress,
+    say: Say,
 ) -> SmoothResult:
     """The run smoothed whole, or in segments between its data gaps (named in the report)."""
     gaps = [h for h in find_holes(log, short=True)
@@ -289,7 +312,7 @@ def smooth_with_imu_model(
     declared: dict[str, list[float]] | None = None,
     method: str = "rts",
     iterations: int = 2,
-    progress: Progress | None = None,
+    progress: Say | None = None,
     reverse: bool = False,
 ) -> SmoothResult:
     """smooth_log (``reverse``: of a log in reversed time) with ``imu_grade: auto`` resolved
@@ -380,7 +403,7 @@ def write_products(
     outputs: Outputs,
     *,
     spacing: float = 0.5,
-    progress: Progress | None = None,
+    progress: Say | None = None,
     plotter: PlotProcess | None = None,
     meanwhile: Callable[[], None] | None = None,
 ) -> Trajectory:
@@ -423,7 +446,7 @@ def _write_staged(
     outputs: Outputs,
     rows: Trajectory,
     staged: dict[str, Path],
-    say: Progress,
+    say: Say,
     plotter: PlotProcess | None,
     meanwhile: Callable[[], None] | None,
 ) -> None:

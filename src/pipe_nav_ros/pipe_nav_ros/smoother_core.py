@@ -46,19 +46,9 @@ class SmootherJob:
         self._lock = threading.Lock()
 
     # ------------------------------------------------------------------ running
-    def progress(self, *args: Any, **kwargs: Any) -> None:
-        """Progress callback given to smooth_bag (it reports stage texts); a fraction in [0, 1]
-        or (done, total) is understood too."""
-        values = list(args) + list(kwargs.values())
-        numbers = [v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
-        texts = [v for v in values if isinstance(v, str)]
-        with self._lock:
-            if len(numbers) >= 2 and numbers[1] > 0:
-                self.fraction = min(max(numbers[0] / numbers[1], 0.0), 1.0)
-            elif len(numbers) == 1 and 0.0 <= numbers[0] <= 1.0:
-                self.fraction = float(numbers[0])
-            if texts:
-                self.stage = texts[0]
+    def told(self) -> _Told:
+        """What smooth_bag tells this job as it runs (pipe_nav_core.progress.Progress)."""
+        return _Told(self)
 
     def run(self) -> None:
         """Smooth the bag (blocking); afterwards ``state`` is DONE or FAILED (``error``)."""
@@ -81,7 +71,7 @@ class SmootherJob:
                 iterations=s["iterations"],
                 markers_csv=s["markers_csv"] or None,
                 spacing=s["spacing"],
-                progress=self.progress,
+                progress=self.told(),
             )
             # the path published is the one written to the output bag
             rows = centreline_rows(result, s["spacing"])
@@ -166,3 +156,19 @@ class SmootherJob:
         return rosmsg.diagnostics_to_msg(
             self.types, stamp, DIAGNOSTIC_NAME, level, message, values, hardware_id="pipe_nav"
         )
+
+
+class _Told:
+    """A job's pipe_nav_core.progress.Progress: each stage's text and the fraction of the
+    current filter pass, into the job's ``stage`` and ``fraction`` (for /diagnostics)."""
+
+    def __init__(self, job: SmootherJob) -> None:
+        self.job = job
+
+    def stage(self, text: str) -> None:
+        with self.job._lock:
+            self.job.stage, self.job.fraction = text, 0.0
+
+    def fraction(self, done: float) -> None:
+        with self.job._lock:
+            self.job.fraction = min(max(float(done), 0.0), 1.0)

@@ -1,0 +1,20 @@
+"""How a long job says how far it is: one protocol for every caller (the command line's bar,
+the smoother node's /diagnostics, tests).
+
+:func:`pipe_nav_core.pipeline.smooth_bag` takes a :class:`Progress`: it names each stage as it
+begins and, during each filter pass over the whole log, the fraction of the pass done.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+
+class Progress(Protocol):
+    """What a job tells its caller while it runs (from the thread that runs it)."""
+
+    def stage(self, text: str) -> None:
+        """A new stage begins: one line for people (``RTS smoother (pass 2)``)."""
+
+    def fraction(self, done: float) -> None:
+        """The share of the current filter pass done, 0 to 1 (a new stage starts at 0)."""
