@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pipe_nav_core import aot, jit
 
@@ -76,6 +77,7 @@ def test_only_layout_and_write_flag_are_coerced():
 
 
 def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
+    _skip_without_a_compiler()
     from numba import njit
 
     @njit
@@ -105,8 +107,23 @@ def _aot_built() -> bool:
                        "print(json.dumps(jit.JIT_REASON))")  # fmt: skip
 
 
+def _skip_without_a_compiler() -> None:
+    """Where the warm-up found the AOT module cannot be built (no C compiler: it said so and
+    the kernels stay numba's), the tests of what it builds skip, naming why; CI, which has a
+    compiler, fails on any skip (PIPE_NAV_REQUIRE_ROS, tests/conftest.py)."""
+    from pipe_nav_core import warmup
+
+    try:
+        said = warmup._marker().read_text(encoding="utf-8").partition("\n")[2]
+    except OSError:
+        return
+    if said.startswith("aot: failed"):
+        pytest.skip(f"this install cannot build the AOT module ({said})")
+
+
 def test_the_installed_package_has_its_ahead_of_time_kernels():
     """What .ci/bootstrap leaves: a fresh process runs the AOT exports."""
+    _skip_without_a_compiler()
     assert _aot_built(), "no AOT module for these sources: run python -m pipe_nav_core.warmup"
 
 
@@ -120,6 +137,7 @@ print(json.dumps({{"code": code, "jit": jit.JIT_REASON, "numba": "numba" in sys.
 
 
 def test_the_sample_smooth_runs_without_numba_and_equals_the_jit_kernels(tmp_path):
+    _skip_without_a_compiler()
     aot_out, jit_out = tmp_path / "aot", tmp_path / "jit"
     ran = _python(SMOOTH.format(bag=str(SAMPLE), out=f"{aot_out}/"))
     assert ran == {"code": 0, "jit": None, "numba": False}
@@ -132,9 +150,11 @@ def test_the_sample_smooth_runs_without_numba_and_equals_the_jit_kernels(tmp_pat
 
 
 def test_a_call_no_export_fits_turns_the_process_to_numba():
+    _skip_without_a_compiler()
     code = """
 import json
 import numpy as np
+import pytest
 from pipe_nav_core import jit, earth, attitude
 before = jit.JIT_REASON
 g = float(earth._gravity(0.7, 100.0))        # an exported specialization
