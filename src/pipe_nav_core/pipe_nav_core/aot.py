@@ -38,7 +38,8 @@ Export = tuple[Check, Callable[..., Any], int, list[dict[str, Any]]]  # check, f
 
 
 def _cpu() -> str:
-    """The CPU the exports are built for (llvmlite's name of this host; "" when unknown)."""
+    """The CPU the exports are built for and run on: its model name in /proc/cpuinfo (the
+    platform's name where there is none)."""
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             for line in f:

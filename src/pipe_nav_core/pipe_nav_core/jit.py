@@ -25,6 +25,9 @@ from typing import Any
 from . import aot
 
 _PACKAGE = Path(__file__).resolve().parent
+_PREFIX = __name__.rpartition(".")[0] + "."  # of this package's module names
+# PIPE_NAV_KERNELS=jit: numba's JIT kernels from the start (no AOT module loaded or built)
+FORCED_JIT = os.environ.get("PIPE_NAV_KERNELS") == "jit"
 
 
 def _module_files() -> dict[str, Path]:
@@ -219,9 +222,7 @@ JIT_REASON: str | None = None  # why this process runs numba's JIT kernels (None
 
 
 def _load_exports() -> dict[str, list[aot.Export]] | None:
-    if os.environ.get("PIPE_NAV_KERNELS") == "jit":
-        return None
-    return aot.load(_PACKAGE, _package_stamp())
+    return None if FORCED_JIT else aot.load(_PACKAGE, _package_stamp())
 
 
 _EXPORTS = _load_exports()
@@ -242,9 +243,8 @@ def to_jit(reason: str) -> None:
             print(f"pipe_nav_core: JIT kernels from here on: {reason}", file=sys.stderr)
         for k in _KERNELS:
             k.dispatcher = _compile(k.py_func, k.nogil, _numba_njit)
-        prefix = __name__.rpartition(".")[0] + "."
         for name, module in list(sys.modules.items()):
-            if module is not None and name.startswith(prefix):
+            if module is not None and name.startswith(_PREFIX):
                 for attr, value in list(vars(module).items()):
                     if isinstance(value, AotKernel):
                         setattr(module, attr, value.dispatcher)
@@ -264,7 +264,7 @@ def kernel(func: Callable[..., Any] | None = None, *, nogil: bool = False) -> An
     if func is None:
         return lambda f: kernel(f, nogil=nogil)
     if _EXPORTS is not None:
-        if func.__module__.startswith(__name__.rpartition(".")[0] + "."):
+        if func.__module__.startswith(_PREFIX):
             k = AotKernel(func, nogil, _EXPORTS.get(f"{func.__module__}:{func.__qualname__}", []))
             _KERNELS.append(k)
             return k
@@ -277,10 +277,9 @@ def build_aot() -> int:
     work first: pipe_nav_core.warmup does); returns the number of exports."""
     from numba.core.registry import CPUDispatcher
 
-    prefix = __name__.rpartition(".")[0] + "."
     found = {}
     for name, module in list(sys.modules.items()):
-        if module is None or not name.startswith(prefix):
+        if module is None or not name.startswith(_PREFIX):
             continue
         for value in list(vars(module).values()):
             if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name:

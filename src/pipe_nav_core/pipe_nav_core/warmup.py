@@ -9,7 +9,6 @@ declares itself ready, so it follows a bag from its first message.
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -78,8 +77,7 @@ def is_warm() -> bool:
     if stamp != jit._package_stamp() or not aot.endswith(f"(warm-up {WARM_UP})"):
         return False
     # built, but this process could not load it (its format changed since): build it again
-    forced_jit = os.environ.get("PIPE_NAV_KERNELS") == "jit"
-    return jit.AOT_LOADED or forced_jit or aot.startswith("aot: failed")
+    return jit.AOT_LOADED or jit.FORCED_JIT or aot.startswith("aot: failed")
 
 
 def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
@@ -95,11 +93,10 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
         "them takes about 2 minutes on a 2-core machine)"
     )
     t0 = time.perf_counter()
-    forced_jit = os.environ.get("PIPE_NAV_KERNELS") == "jit"
     jit.to_jit("the warm-up compiles every kernel and builds the AOT module from them")
     warm_live()
     warm_smoothers()
-    aot = "not built (PIPE_NAV_KERNELS=jit)" if forced_jit else _build_aot(jit, tell)
+    aot = "not built (PIPE_NAV_KERNELS=jit)" if jit.FORCED_JIT else _build_aot(jit, tell)
     try:
         marker = _marker()
         marker.parent.mkdir(exist_ok=True)
