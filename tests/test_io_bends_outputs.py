@@ -303,3 +303,22 @@ def test_envelope_keeps_the_peaks():
     assert len(idx) <= 3000 and np.all(np.diff(idx) > 0)
     assert {17, 55_555, 100_002} <= set(idx.tolist())
     np.testing.assert_array_equal(_envelope(y[:2000]), np.arange(2000))
+
+
+@pytest.mark.parametrize("with_strain", [True, False])
+def test_a_prepared_figure_draws_the_same_png(tmp_path, with_strain):
+    """plots.prepare_figure (the plot process makes the empty figure before the data arrives)
+    changes nothing in the PNG, with or without the strain panel; it is used once."""
+    from pipe_nav_core import plots
+
+    traj = make_traj(n=2001, seconds=200.0)
+    bends = _bends(traj, [300, 900, 1500])
+    integrity = _integrity(traj, 400, bends, _features(bends)) if with_strain else None
+    fresh, prepared = tmp_path / "fresh.png", tmp_path / "prepared.png"
+    plots._SPARE.clear()
+    plot_report(fresh, traj, DATUM, title="t", integrity=integrity)
+    plots.prepare_figure(with_strain)
+    assert with_strain in plots._SPARE
+    plot_report(prepared, traj, DATUM, title="t", integrity=integrity)
+    assert not plots._SPARE
+    assert prepared.read_bytes() == fresh.read_bytes()

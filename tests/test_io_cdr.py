@@ -235,3 +235,33 @@ def test_encode_path_matches_rosbags(n, frame):
     )
     ref = bytes(TS.serialize_cdr(msg, "nav_msgs/msg/Path"))
     assert cdr.encode_path(123456789012, stamps, pos, q, frame) == ref
+
+
+@pytest.mark.parametrize("n", [0, 1, 3])
+@pytest.mark.parametrize("frame", ["map", "", "a_longer_frame"])
+def test_encode_pose_array_matches_rosbags(n, frame):
+    types = rosmsg.rosbags_types()
+    pos = RNG.normal(size=(n, 3)) * 100
+    q = RNG.normal(size=(n, 4))
+    msg = types.PoseArray(
+        header=types.Header(stamp=rosmsg.ns_to_stamp(types, -1_700_000_000), frame_id=frame),
+        poses=[
+            types.Pose(position=types.Point(*p.tolist()), orientation=types.Quaternion(*r.tolist()))
+            for p, r in zip(pos, q, strict=True)
+        ],
+    )
+    ref = bytes(TS.serialize_cdr(msg, "geometry_msgs/msg/PoseArray"))
+    assert cdr.encode_pose_array(-1_700_000_000, pos, q, frame) == ref
+
+
+def test_stored_message_definitions_are_jazzys():
+    """io/msgdefs.py holds what rosbags' Jazzy typestore generates for every type we write."""
+    from pipe_nav_core.io import topics
+    from pipe_nav_core.io.msgdefs import DEFINITIONS, HASHES
+
+    written = {topics.IMU_TYPE, topics.ODOMETRY_TYPE, topics.MAG_TYPE, topics.NAVSATFIX_TYPE,
+               topics.PATH_TYPE, topics.POSE_ARRAY_TYPE}  # fmt: skip
+    assert set(DEFINITIONS) == set(HASHES) == written
+    for name in written:
+        assert DEFINITIONS[name] == TS.generate_msgdef(name, ros_version=2)[0], name
+        assert HASHES[name] == TS.hash_rihs01(name), name

@@ -24,3 +24,23 @@ def test_ensure_warm_compiles_once_and_says_so(tmp_path, monkeypatch):
 def test_the_warm_up_run_has_every_kind_of_measurement():
     log, config = warmup._warmup_run()
     assert len(log.markers) >= 2 and len(log.odometer.t) and len(log.mag.t)
+
+
+def test_the_installer_writes_the_package_bytecode(tmp_path, monkeypatch):
+    """compile_bytecode writes every module's .pyc even where PYTHONDONTWRITEBYTECODE keeps
+    Python from writing it (a copy of two modules stands for the package)."""
+    import shutil
+    import sys
+
+    from pipe_nav_core import jit
+
+    pkg = tmp_path / "pkg"
+    (pkg / "io").mkdir(parents=True)
+    shutil.copy(jit._PACKAGE / "errors.py", pkg / "errors.py")
+    shutil.copy(jit._PACKAGE / "io" / "stamps.py", pkg / "io" / "stamps.py")
+    monkeypatch.setattr(jit, "_PACKAGE", pkg)
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    warmup.compile_bytecode()
+    tag = sys.implementation.cache_tag
+    assert (pkg / "__pycache__" / f"errors.{tag}.pyc").is_file()
+    assert (pkg / "io" / "__pycache__" / f"stamps.{tag}.pyc").is_file()

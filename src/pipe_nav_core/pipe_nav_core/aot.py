@@ -130,6 +130,7 @@ def load(package: Path, stamp: str) -> dict[str, list[Export]] | None:
             return None
         module = importlib.util.module_from_spec(spec)
         loader.exec_module(module)
+        _preload_lapack()
         exports: dict[str, list[Export]] = {}
         for e in meta["exports"]:
             fn = getattr(module, e["symbol"])
@@ -139,6 +140,32 @@ def load(package: Path, stamp: str) -> dict[str, list[Export]] | None:
         return exports
     except (OSError, ValueError, KeyError, ImportError, AttributeError, SyntaxError):
         return None
+
+
+def _preload_lapack() -> None:
+    """Load scipy.linalg.cython_blas and cython_lapack alone, where they are not loaded yet.
+
+    numba's compiled linear algebra takes its BLAS and LAPACK from these two modules, importing
+    them on a kernel's first call; imported the usual way, scipy.linalg's ``__init__`` runs
+    first (about 0.2 s, more than a short run's first filter pass). Loaded alone (about 20 ms),
+    they are in ``sys.modules`` when numba asks, and a later ``import scipy.linalg`` uses
+    them."""
+    try:
+        scipy_spec = importlib.util.find_spec("scipy")
+    except (ImportError, ValueError):
+        return
+    if scipy_spec is None or not scipy_spec.submodule_search_locations:
+        return
+    where = [os.path.join(p, "linalg") for p in scipy_spec.submodule_search_locations]
+    for name in ("scipy.linalg.cython_blas", "scipy.linalg.cython_lapack"):
+        if name in sys.modules:
+            continue
+        spec = importlib.machinery.PathFinder.find_spec(name, where)
+        if spec is None or spec.loader is None:
+            return
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules[name] = module
 
 
 # --- building (numba) ------------------------------------------------------------------------

@@ -770,7 +770,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 def run() -> NoReturn:
     """The ``pipe-nav`` command: main(), then out of the process at once. Everything is written
     and closed by then; the interpreter's teardown of numba, numpy and matplotlib would add
-    about 0.4 s to every command (a fifth of smoothing the sample)."""
+    about 0.4 s to every command (a fifth of smoothing the sample).
+
+    BLAS runs on one thread here (OPENBLAS_NUM_THREADS=1 unless the user set it, before numpy
+    is imported): its matrices are small (states of 30, fits of 10 columns), and its spinning
+    helper threads took the core that the plot process, the recording's packing thread and the
+    bag readers use, making a 1 ms least-squares fit take 25 ms."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     code = main()
     sys.stdout.flush()
     sys.stderr.flush()

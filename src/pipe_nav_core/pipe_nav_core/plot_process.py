@@ -36,7 +36,9 @@ def _warm() -> None:
     ax.set_title("0 m")
     ax.legend(fontsize=8)
     fig.savefig(io.BytesIO(), format="png")
-    from . import plots  # noqa: F401  (its imports, before the data arrives)
+    from .plots import prepare_figure
+
+    prepare_figure()  # the report's empty figure, before the data arrives
 
 
 def _serve(conn: Connection, parent_end: Connection) -> None:

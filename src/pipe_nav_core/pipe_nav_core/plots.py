@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 _MAX_POINTS = 3000  # per line: a panel is about 700 pixels wide
 _COLORS = {"e": "tab:blue", "n": "tab:orange", "u": "tab:green"}
 _MAX_BEND_LABELS = 60  # bends numbered in the strain panel (every k-th beyond that)
+_TICKS_AHEAD = 10  # ticks per axis made with a prepared figure (prepare_figure)
 _STRAIN_FLOOR = 1.0 / 25.0  # strain panel bottom, as a fraction of the lowest threshold
 
 
@@ -132,6 +133,41 @@ def _strain_panel(ax: Any, integrity: IntegrityReport, dscale: float, dunit: str
     ax.legend(loc="upper right", fontsize=8, ncol=3)
 
 
+# figures made ahead (prepare_figure), by whether they have the strain panel
+_SPARE: dict[bool, tuple[Any, Any, Any]] = {}
+
+
+def _figure(with_strain: bool) -> tuple[Any, Any, Any]:
+    """(figure, 2x2 array of the four panels' axes, the strain panel's axes or None), with
+    fixed margins (a layout engine would draw the figure twice)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    if not with_strain:
+        fig = Figure(figsize=(14, 10), dpi=100)
+        FigureCanvasAgg(fig)
+        axs = fig.subplots(2, 2, gridspec_kw=dict(left=0.06, right=0.98, bottom=0.08, top=0.92,
+                                                  wspace=0.18, hspace=0.32))  # fmt: skip
+        return fig, axs, None
+    fig = Figure(figsize=(14, 14.5), dpi=100)
+    FigureCanvasAgg(fig)
+    gs = fig.add_gridspec(3, 2, left=0.06, right=0.95, bottom=0.05, top=0.94, wspace=0.18,
+                          hspace=0.32)  # fmt: skip
+    axs = np.array([[fig.add_subplot(gs[r, c]) for c in range(2)] for r in range(2)])
+    return fig, axs, fig.add_subplot(gs[2, :])
+
+
+def prepare_figure(with_strain: bool = True) -> None:
+    """Make the next report's empty figure now (its axes are a tenth of drawing it), for a
+    process that waits for its data (plot_process); the next :func:`plot_report` of that
+    layout uses it."""
+    fig, axs, strain_ax = _figure(with_strain)
+    for ax in [*axs.flat, *([strain_ax] if strain_ax is not None else [])]:
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.get_major_ticks(_TICKS_AHEAD)  # made on the first draw else, a fifth of it
+    _SPARE[with_strain] = fig, axs, strain_ax
+
+
 def marker_residuals_enu(
     traj: Trajectory, datum: Datum, markers: Sequence[Marker]
 ) -> NDArray[np.float64]:
@@ -170,9 +206,6 @@ def plot_report(
     traj when None; integrity: the run's integrity products
     (:class:`~pipe_nav_core.products.integrity.IntegrityReport`), which add the strain panel.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     markers = list(markers)
     n = len(traj.t)
     enu = (
@@ -213,19 +246,9 @@ def plot_report(
     scale, unit = (1000.0, "km") if extent > 5000.0 else (1.0, "m")
     dscale, dunit = (1000.0, "km") if (n and np.nanmax(np.abs(dist)) > 5000.0) else (1.0, "m")
 
-    # fixed margins: a layout engine would draw the figure twice
-    if integrity is None:
-        fig = Figure(figsize=(14, 10), dpi=100)
-        FigureCanvasAgg(fig)
-        axs = fig.subplots(2, 2, gridspec_kw=dict(left=0.06, right=0.98, bottom=0.08, top=0.92,
-                                                  wspace=0.18, hspace=0.32))  # fmt: skip
-    else:
-        fig = Figure(figsize=(14, 14.5), dpi=100)
-        FigureCanvasAgg(fig)
-        gs = fig.add_gridspec(3, 2, left=0.06, right=0.95, bottom=0.05, top=0.94, wspace=0.18,
-                              hspace=0.32)  # fmt: skip
-        axs = np.array([[fig.add_subplot(gs[r, c]) for c in range(2)] for r in range(2)])
-        _strain_panel(fig.add_subplot(gs[2, :]), integrity, dscale, dunit)
+    fig, axs, strain_ax = _SPARE.pop(integrity is not None, None) or _figure(integrity is not None)
+    if integrity is not None:
+        _strain_panel(strain_ax, integrity, dscale, dunit)
     fig.suptitle(title or "PipeNav centreline report", fontsize=14)
 
     # 1. plan view

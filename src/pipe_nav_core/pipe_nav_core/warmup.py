@@ -23,8 +23,8 @@ from .types import SensorLog
 # of the live filter (alignment, odometer, non-holonomic, magnetometer and marker updates).
 _SPAN_S = 70.0
 # what the warm-up runs (its kernels' argument types are what the AOT module exports): a new
-# number builds the module again where an older warm-up made it (2: the graph smoother too)
-WARM_UP = 2
+# number builds the module again where an older warm-up made it (3: the running windows too)
+WARM_UP = 3
 
 
 @lru_cache(maxsize=1)
@@ -55,6 +55,22 @@ def warm_smoothers() -> float:
     log, config = _warmup_run()
     for method in ("rts", "two-filter", "forward", "graph"):
         smooth_log(log, config, method=method, iterations=2)
+    return time.perf_counter() - t0
+
+
+def warm_products() -> float:
+    """Call the products' window kernels (pipe_nav_core.windows) as the weld detector does
+    (s of wall time taken)."""
+    import numpy as np
+
+    from .windows import correlate, running_maximum, running_median
+
+    t0 = time.perf_counter()
+    x = np.linspace(0.0, 1.0, 64)
+    running_median(x, 5)
+    running_median(np.column_stack([x, x]), 5)
+    running_maximum(x, 5)
+    correlate(np.column_stack([x, x]), np.array([-1.0, 2.0, -1.0]))
     return time.perf_counter() - t0
 
 
@@ -96,6 +112,7 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     jit.to_jit("the warm-up compiles every kernel and builds the AOT module from them")
     warm_live()
     warm_smoothers()
+    warm_products()
     aot = "not built (PIPE_NAV_KERNELS=jit)" if jit.FORCED_JIT else _build_aot(jit, tell)
     try:
         marker = _marker()
@@ -119,8 +136,22 @@ def _build_aot(jit: Any, tell: Callable[[str], None]) -> str:
         return f"failed ({why})"
 
 
+def compile_bytecode() -> None:
+    """Write the package's bytecode (``__pycache__/*.pyc``) where it is missing or stale.
+    Python does not write it itself where PYTHONDONTWRITEBYTECODE is set (as on CI and some
+    containers), and every command would then compile the package's sources again on import
+    (0.3 s instead of 0.2 s for ``pipe-nav smooth``'s imports)."""
+    import compileall
+
+    from . import jit
+
+    compileall.compile_dir(jit._PACKAGE, quiet=2)
+
+
 def main() -> int:
-    """``python -m pipe_nav_core.warmup``: :func:`ensure_warm`."""
+    """``python -m pipe_nav_core.warmup`` (the installers): :func:`compile_bytecode` and
+    :func:`ensure_warm`."""
+    compile_bytecode()
     ensure_warm()
     return 0
 

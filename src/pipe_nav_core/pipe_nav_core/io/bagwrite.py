@@ -32,13 +32,15 @@ from . import cdr
 from .atomic import atomic_write, ensure_not_input
 from .centreline import require_finite
 from .mcapwrite import DEFAULT_CHUNK_SIZE, McapWriter, Stream, message_records
+from .msgdefs import DEFINITIONS, HASHES
 from .rosmsg import (
     BASE_FRAME,
+    COVARIANCE_TYPE_UNKNOWN,
     MAP_FRAME,
     ODOM_FRAME,
-    bends_to_msg,
+    SERVICE_GPS,
+    STATUS_FIX,
     body_rates_from_quats,
-    datum_to_msg,
     enu_of,
     jazzy_typestore,
     marker_to_msg,
@@ -228,14 +230,18 @@ def rosbag2_metadata(
 
 @cache
 def message_definition(typename: str) -> str:
-    """Full ros2msg definition text of a type (with its dependencies), from rosbags' Jazzy
-    typestore."""
+    """Full ros2msg definition text of a type (with its dependencies), as Jazzy's: stored for
+    the types PipeNav writes (io/msgdefs.py), else from rosbags' Jazzy typestore."""
+    if typename in DEFINITIONS:
+        return DEFINITIONS[typename]
     return jazzy_typestore().generate_msgdef(typename, ros_version=2)[0]
 
 
 @cache
 def type_hash(typename: str) -> str:
     """RIHS01 type description hash (as ROS 2 Jazzy records it), or '' if unavailable."""
+    if typename in HASHES:
+        return HASHES[typename]
     try:
         return jazzy_typestore().hash_rihs01(typename)
     except Exception:  # pragma: no cover - depends on rosbags version
@@ -517,8 +523,6 @@ def write_output_bag(
         if traj is not None:
             require_finite(traj, f"{os.fspath(bag_path)}: the {what}")
     b = _BagBuilder()
-    ts = jazzy_typestore()
-    types = rosbags_types()
     times = [np.zeros(0)]
     if path is not None:
         times.append(np.asarray(path.t, dtype=np.float64))
@@ -543,17 +547,33 @@ def write_output_bag(
             path_ns, path_t_ns, enu, np.asarray(path.quat_nb, dtype=np.float64).reshape(-1, 4)
         )
         b.streams.append(Stream.variable(cid, [path_ns], [payload]))
-        bmsg = bends_to_msg(types, list(bends), datum, path_stamp)
+        apex = np.array([[x.lat, x.lon, x.alt] for x in bends], dtype=np.float64).reshape(-1, 3)
         cid = b.channel(OUTPUT_BENDS_TOPIC, POSE_ARRAY_TYPE, TOPIC_QOS["bends"])
-        b.streams.append(
-            Stream.variable(cid, [path_ns], [bytes(ts.serialize_cdr(bmsg, POSE_ARRAY_TYPE))])
+        payload = cdr.encode_pose_array(
+            path_ns,
+            enu_of(datum, apex[:, 0], apex[:, 1], apex[:, 2]).reshape(-1, 3),
+            np.array([x.apex_quat_nb for x in bends], dtype=np.float64).reshape(-1, 4),
+            MAP_FRAME,
         )
+        b.streams.append(Stream.variable(cid, [path_ns], [payload]))
 
     cid = b.channel(OUTPUT_DATUM_TOPIC, NAVSATFIX_TYPE, TOPIC_QOS["datum"])
-    dmsg = datum_to_msg(types, datum, datum_stamp)
-    b.streams.append(
-        Stream.variable(cid, [datum_ns], [bytes(ts.serialize_cdr(dmsg, NAVSATFIX_TYPE))])
+    sec, nsec = divmod(datum_ns, NS_PER_S)
+    payload = cdr.encode_one(
+        cdr.NAVSATFIX,
+        {
+            "sec": sec,
+            "nanosec": nsec,
+            "status": STATUS_FIX,
+            "service": SERVICE_GPS,
+            "latitude": math.degrees(datum.lat),
+            "longitude": math.degrees(datum.lon),
+            "altitude": float(datum.alt),
+            "position_covariance_type": COVARIANCE_TYPE_UNKNOWN,
+        },
+        {"frame_id": MAP_FRAME},
     )
+    b.streams.append(Stream.variable(cid, [datum_ns], [payload]))
 
     if odometry is not None and len(odometry.t):
         o_t, order = np.asarray(odometry.t, dtype=np.float64), None

@@ -340,3 +340,30 @@ def encode_path(
         put(pose, position, "<f8")
         put(pose + 24, orientation, "<f8")
     return out.tobytes()
+
+
+def encode_pose_array(
+    header_ns: int,
+    position: NDArray[np.float64],
+    orientation: NDArray[np.float64],
+    frame_id: str = "map",
+) -> bytes:
+    """Serialize a geometry_msgs/PoseArray: header stamp ``header_ns`` (ns) and ``frame_id``,
+    then one Pose per row of position (N, 3) m and orientation (N, 4) [x, y, z, w]. The
+    poses are 8-aligned and 56 bytes each, so they follow one another without padding."""
+    raw = frame_id.encode("utf-8")
+    slen = len(raw) + 1
+    pos = np.asarray(position, dtype="<f8").reshape(-1, 3)
+    quat = np.asarray(orientation, dtype="<f8").reshape(-1, 4)
+    n = len(pos)
+    seq_len_at = _align(12 + slen, 4)
+    first = _align(seq_len_at + 4, 8) if n else seq_len_at + 4
+    body = np.zeros(first + 56 * n, dtype=np.uint8)
+    sec, nsec = divmod(int(header_ns), 1_000_000_000)
+    body[0:4] = np.frombuffer(np.int32(sec).tobytes(), np.uint8)
+    body[4:8] = np.frombuffer(np.uint32(nsec).tobytes(), np.uint8)
+    body[8:12] = np.frombuffer(np.uint32(slen).tobytes(), np.uint8)
+    body[12 : 12 + len(raw)] = np.frombuffer(raw, np.uint8)
+    body[seq_len_at : seq_len_at + 4] = np.frombuffer(np.uint32(n).tobytes(), np.uint8)
+    body[first:] = np.hstack([pos, quat]).view(np.uint8).reshape(-1)
+    return ENCAPSULATION_LE + body.tobytes()

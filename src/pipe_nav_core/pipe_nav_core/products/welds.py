@@ -48,6 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..attitude import dcm_from_quat
 from ..io.centreline import interpolate_trajectory
 from ..types import Datum, SensorLog, Trajectory
+from ..windows import correlate, running_maximum, running_median
 
 FloatArray = NDArray[np.float64]
 
@@ -130,8 +131,6 @@ def mag_residual(
     step 1): (grid chainages m, (G, 3) residual T in ENU), ``GRID_STEP_M`` apart. The samples
     within ``exclude_half`` m of the chainages ``exclude`` (welds found already) are left out
     of the fit, so that their anomalies do not leak into it."""
-    from scipy.ndimage import median_filter  # (scipy.ndimage and .signal: on first use)
-
     t_c = np.asarray(centreline.t, dtype=np.float64)
     mt = np.asarray(log.mag.t, dtype=np.float64)
     keep = (mt >= t_c[0]) & (mt <= t_c[-1]) & np.isfinite(log.mag.field).all(axis=1)
@@ -154,21 +153,19 @@ def mag_residual(
     res_n = np.einsum("kij,kj->ki", c_nb @ r_bi, res_i)
     grid, res = _binned(d, res_n, GRID_STEP_M)
     size = max(3, int(round(BASELINE_M / GRID_STEP_M)) | 1)
-    base = median_filter(res, size=(size, 1), mode="nearest")
+    base = running_median(res, size)
     return grid, res - base
 
 
 def mag_snr(residual: FloatArray, width: float, step: float = GRID_STEP_M) -> FloatArray:
     """The matched-filter statistic (module doc, step 2) of an ENU residual on a chainage grid
     ``step`` m apart, for an anomaly ``width`` m wide (one sigma)."""
-    from scipy.ndimage import correlate1d
-
     half = max(2, int(math.ceil(3.0 * width / step)))
     x = np.arange(-half, half + 1) * step
     g = np.exp(-0.5 * (x / width) ** 2)
     g -= g.mean()
     g /= np.linalg.norm(g)
-    y = correlate1d(residual, g, axis=0, mode="nearest")
+    y = correlate(residual, g)
     z2 = sum((y[:, a] / _robust_sigma(y[:, a])) ** 2 for a in range(y.shape[1]))
     return np.sqrt(z2)
 
@@ -184,8 +181,6 @@ def jolt_chainages(
     robust sigmas of its deviation from a ``JOLT_BASELINE_S`` running median
     (which follows the pig's roll and surges): the wheel on a weld bead. Only while the pig
     moves (a jolt at rest is not a weld)."""
-    from scipy.ndimage import median_filter
-
     imu = log.imu
     t_c, d_c = _monotone_distance(centreline)
     if len(imu.t) < 10 or len(t_c) < 2:
@@ -194,7 +189,7 @@ def jolt_chainages(
     az = np.asarray(imu.accel, dtype=np.float64) @ r_bi[2]
     dt = float(np.median(np.diff(imu.t)))
     size = max(3, int(round(JOLT_BASELINE_S / dt)) | 1)
-    dev = az - median_filter(az, size=size, mode="nearest")
+    dev = az - running_median(az, size)
     d = np.interp(imu.t, t_c, d_c)
     speed = np.gradient(d, imu.t)
     moving = (speed > 0.05) & (imu.t > t_c[0]) & (imu.t < t_c[-1])
@@ -213,11 +208,8 @@ def jolt_chainages(
 def _peaks(x: FloatArray, height: float, distance: int) -> NDArray[np.int64]:
     """Indices of the samples of x at least ``height`` that are the largest within
     +-``distance`` samples (the first of a plateau): scipy.signal.find_peaks(x, height,
-    distance) but for a lower peak beside a removed one, with scipy.ndimage (scipy.signal
-    imports scipy.stats: 0.8 s of every smooth)."""
-    from scipy.ndimage import maximum_filter1d
-
-    top = maximum_filter1d(x, size=2 * distance + 1, mode="nearest")
+    distance) but for a lower peak beside a removed one."""
+    top = running_maximum(x, 2 * distance + 1)
     rising = x > np.r_[-np.inf, x[:-1]]
     return np.flatnonzero((x >= height) & (x == top) & rising)
 
