@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from pipe_nav_core.kalman import _joseph_update, chi2_threshold, predict_k
+from pipe_nav_core.kalman import chi2_threshold, joseph_update, predict_k
 from pipe_nav_core.process import discretize_k
 from pipe_nav_core.state import Layout
 
@@ -61,7 +61,7 @@ def test_joseph_update_equals_dense_formula_and_gates(m):
     H[:, 0] = 1.0
     R = np.diag(rng.random(m) + 0.1)
     z = rng.normal(size=m)
-    nis, dx, x_new, P_new = _joseph_update(P, x, H, R, z, np.inf)
+    nis, dx, x_new, P_new = joseph_update(P, x, H, R, z, np.inf)
     r = z - H @ x
     S = H @ P @ H.T + R
     K = P @ H.T @ np.linalg.inv(S)
@@ -70,7 +70,7 @@ def test_joseph_update_equals_dense_formula_and_gates(m):
     np.testing.assert_allclose(nis, r @ np.linalg.solve(S, r), rtol=1e-10)
     np.testing.assert_allclose(x_new, x + K @ r, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(P_new, 0.5 * (P_ref + P_ref.T), rtol=1e-9, atol=1e-9)
-    gated = _joseph_update(P, x, H, R, z, nis * 0.5)
+    gated = joseph_update(P, x, H, R, z, nis * 0.5)
     assert len(gated[1]) == 0 and gated[0] == pytest.approx(nis)
 
 

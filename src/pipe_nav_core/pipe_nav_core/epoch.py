@@ -15,7 +15,7 @@ Arrays and indices (all float64 unless said):
 - ``ref`` (K, SV_SIZE) the reference trajectory (empty without one) and ``k0`` the epoch number
   of the batch's first epoch;
 - :class:`Inputs`: the batch's IMU samples and per-epoch odometer and magnetometer data;
-- :class:`Outputs` (a :class:`Batch`'s arrays): per epoch, per sample (lat, lon, h, q_nb,
+- :class:`EpochOutputs` (a :class:`Batch`'s arrays): per epoch, per sample (lat, lon, h, q_nb,
   odometer reading) and the update statistics.
 """
 
@@ -31,7 +31,7 @@ from . import earth
 from . import measurements as meas
 from .config import NOISE_EPOCH_S, NavConfig
 from .jit import kernel
-from .kalman import _joseph_update, chi2_threshold, predict_k
+from .kalman import chi2_threshold, joseph_update, predict_k
 from .mechanization import dr_step_k, ins_step_k
 from .process import discretize_k, imu_noise, process_noise_k, system_matrix_k
 from .sensors import ImuSpec
@@ -154,7 +154,7 @@ class Inputs(NamedTuple):
     mag_f: Array
 
 
-class Outputs(NamedTuple):
+class EpochOutputs(NamedTuple):
     """:class:`Batch`'s arrays as the compiled epoch writes them (see Batch)."""
 
     sv: Array
@@ -223,18 +223,18 @@ class Batch:
         for a in (self.counts, self.acc, self.rej, self.nis, self.dof):
             a[:] = 0
 
-    def buffers(self) -> Outputs:
+    def buffers(self) -> EpochOutputs:
         """The arrays, as run_epochs takes them."""
-        return Outputs(*(getattr(self, name) for name in Outputs._fields))
+        return EpochOutputs(*(getattr(self, name) for name in EpochOutputs._fields))
 
 
 @kernel
 def _update(
-    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Array, out: Outputs
+    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Array, out: EpochOutputs
 ) -> None:
     """One gated update of (x, P) in place, counted under kind in out's statistics."""
     m = r.shape[0]
-    nis, dx, x_new, P_new = _joseph_update(P, x, H, R, r, prm[P_CHI2 + m - 1])
+    nis, dx, x_new, P_new = joseph_update(P, x, H, R, r, prm[P_CHI2 + m - 1])
     if dx.shape[0] == 0:
         out.rej[kind] += 1
         return
@@ -254,7 +254,7 @@ def _predict(
     prm: Array,
     ref: Array,
     inp: Inputs,
-    out: Outputs,
+    out: EpochOutputs,
 ) -> None:
     """Epoch e of the batch up to the prediction: mechanization, stop detection, transition,
     process noise, covariance propagation (Navigator's epoch, first half)."""
@@ -385,7 +385,7 @@ def _updates(
     ref: Array,
     inp: Inputs,
     markers: Array,
-    out: Outputs,
+    out: EpochOutputs,
 ) -> None:
     """Epoch e of the batch from the prediction on: the gated updates (odometer and NHC, zero
     velocity and rate at stops, gravity tilt, magnetic heading, the markers given), injection
@@ -509,7 +509,7 @@ def run_epochs(
     ref: Array,
     inp: Inputs,
     markers: Array,
-    out: Outputs,
+    out: EpochOutputs,
 ) -> None:
     """The epochs ending at ``ends`` (see the module docstring); epoch e is the filter's epoch
     number k0 + e. stop: leave the last epoch after its prediction (its results in ws, ws_sv,

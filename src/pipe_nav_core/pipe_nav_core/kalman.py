@@ -83,7 +83,7 @@ class UpdateStats:
 
 
 @kernel
-def _joseph_update(
+def joseph_update(
     P: Array, x: Array, H: Array, R: Array, residual: Array, nis_max: float
 ) -> tuple[float, Array, Array, Array]:
     """One gated update of (x, P) with m rows (m small): returns (nis, dx, x_new, P_new).
@@ -269,7 +269,7 @@ class ErrorStateKF:
         """Apply one measurement (residual evaluated at the linearization point); returns the
         correction added to x, or None if rejected by the innovation gate."""
         dof = len(m.residual)
-        nis, dx, x, P = _joseph_update(
+        nis, dx, x, P = joseph_update(
             np.ascontiguousarray(self.P, dtype=np.float64),
             np.ascontiguousarray(self.x, dtype=np.float64),
             np.ascontiguousarray(m.H, dtype=np.float64),

@@ -309,7 +309,7 @@ def _check_times(t_ns: NDArray[np.int64], what: str) -> None:
 
 def _fixed_stream(
     cid: int,
-    layout: cdr.Layout,
+    layout: cdr.MessageLayout,
     strings: dict[str, str],
     t_ns: NDArray[np.int64],
     arrays: dict[str, NDArray],

@@ -37,7 +37,7 @@ class Field:
 
 
 @dataclass(frozen=True)
-class Layout:
+class MessageLayout:
     """Flattened CDR layout of a message type (strings may only be at the top level)."""
 
     typename: str
@@ -56,7 +56,7 @@ class Layout:
 
 _HEADER = (Field("sec", "i4"), Field("nanosec", "u4"), Field("frame_id", "str"))
 
-IMU = Layout(
+IMU = MessageLayout(
     "sensor_msgs/msg/Imu",
     _HEADER
     + (
@@ -69,7 +69,7 @@ IMU = Layout(
     ),
 )
 
-ODOMETRY = Layout(
+ODOMETRY = MessageLayout(
     "nav_msgs/msg/Odometry",
     _HEADER
     + (
@@ -83,12 +83,12 @@ ODOMETRY = Layout(
     ),
 )
 
-MAGNETIC_FIELD = Layout(
+MAGNETIC_FIELD = MessageLayout(
     "sensor_msgs/msg/MagneticField",
     _HEADER + (Field("magnetic_field", "f8", 3), Field("magnetic_field_covariance", "f8", 9)),
 )
 
-NAVSATFIX = Layout(
+NAVSATFIX = MessageLayout(
     "sensor_msgs/msg/NavSatFix",
     _HEADER
     + (
@@ -111,7 +111,7 @@ def _align(pos, a: int):
 
 
 def layout_offsets(
-    layout: Layout, string_lengths: Mapping[str, object]
+    layout: MessageLayout, string_lengths: Mapping[str, object]
 ) -> tuple[dict[str, object], object]:
     """Offsets of every field relative to the first byte after the encapsulation header.
 
@@ -139,7 +139,7 @@ def _gather(buf: NDArray[np.uint8], pos: NDArray[np.int64], nbytes: int) -> NDAr
 
 
 def decode_batch(
-    layout: Layout,
+    layout: MessageLayout,
     buf: NDArray[np.uint8],
     starts: NDArray[np.int64],
     sizes: NDArray[np.int64],
@@ -218,7 +218,7 @@ def _empty(f: Field) -> object:
 
 
 def record_dtype(
-    layout: Layout, strings: Mapping[str, str], prefix: int = 0
+    layout: MessageLayout, strings: Mapping[str, str], prefix: int = 0
 ) -> tuple[np.dtype, int]:
     """Structured dtype of one serialized message with constant strings.
 
@@ -253,7 +253,7 @@ def record_dtype(
 
 
 def encode_batch(
-    layout: Layout,
+    layout: MessageLayout,
     n: int,
     values: Mapping[str, object],
     strings: Mapping[str, str],
@@ -277,7 +277,9 @@ def encode_batch(
     return rec
 
 
-def encode_one(layout: Layout, values: Mapping[str, object], strings: Mapping[str, str]) -> bytes:
+def encode_one(
+    layout: MessageLayout, values: Mapping[str, object], strings: Mapping[str, str]
+) -> bytes:
     """Serialize a single message (convenience wrapper of :func:`encode_batch`)."""
     return encode_batch(layout, 1, values, strings).tobytes()
 
