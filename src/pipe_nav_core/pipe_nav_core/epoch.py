@@ -282,14 +282,15 @@ def _predict(
         step = dr_step_k(
             s0, t, g, inp.imu_a[i0:i1], ds, carry, prm[P_LEVER : P_LEVER + 3], earth_sign
         )
-    s1, q, lat, lon, h, _vel, T, path, sums, means, carry_new = step
-    sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, dp, dp_dk, dp_dbore = sums
-    omega_b, f_mean_n, mean_vel_b, w_in = means
-    carry[:] = carry_new
-    out.lat[i0:i1] = lat
-    out.lon[i0:i1] = lon
-    out.h[i0:i1] = h
-    out.q[i0:i1] = q
+    s1, T, path = step.state, step.T, step.path
+    sum_c_dt, sum_c_w_dt, sum_c_f_dt = step.sum_c_dt, step.sum_c_w_dt, step.sum_c_f_dt
+    dv_f, dp, dp_dk, dp_dbore = step.dv_f, step.dp, step.dp_dk, step.dp_dbore
+    omega_b, f_mean_n, mean_vel_b, w_in = step.omega_b, step.f_mean_n, step.mean_vel_b, step.w_in
+    carry[:] = step.carry
+    out.lat[i0:i1] = step.lat
+    out.lon[i0:i1] = step.lon
+    out.h[i0:i1] = step.h
+    out.q[i0:i1] = step.q_nb
     speed = ds.sum() / T
     w_yz = np.hypot(omega_b[1], omega_b[2])
     lever_known = prm[P_LEVER_KNOWN] != 0.0

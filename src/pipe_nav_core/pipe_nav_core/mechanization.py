@@ -21,6 +21,7 @@ loads them (or compiles them once, a few seconds, when the cache is cold or not 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,11 +48,32 @@ from .state import (
 )
 
 Array = NDArray[np.float64]
-# what ins_step_k and dr_step_k return: the flat state at the block end; per sample q_nb (M, 4),
-# lat, lon (M,) rad, h (M,) m, vel (M, 3) m/s ENU; T s; path m; the sums (sum_c_dt, sum_c_w_dt,
-# sum_c_f_dt, dv_f, dp, dp_dk, dp_dbore) and means (omega_b, f_mean_n, mean_vel_b, w_in) of
-# BlockResult; the carry (6,) for the next block
-Step = tuple
+
+
+class Step(NamedTuple):
+    """What :func:`ins_step_k` and :func:`dr_step_k` return for one block of M samples (the
+    fields of :class:`BlockResult` they feed, in its units), compiled code's named record."""
+
+    state: Array  # the flat state at the block end
+    q_nb: Array  # (M, 4) attitude per sample
+    lat: Array  # (M,) rad
+    lon: Array  # (M,) rad
+    h: Array  # (M,) m
+    vel_n: Array  # (M, 3) m/s ENU
+    T: float  # s, the block's length
+    path: float  # m
+    sum_c_dt: Array
+    sum_c_w_dt: Array
+    sum_c_f_dt: Array
+    dv_f: Array
+    dp: Array
+    dp_dk: Array
+    dp_dbore: Array
+    omega_b: Array
+    f_mean_n: Array
+    mean_vel_b: Array
+    w_in: Array
+    carry: Array  # (6,) the block's last dtheta (rad) and dvel (m/s), for the next block
 
 
 @dataclass
@@ -424,10 +446,12 @@ def ins_step_k(
     out[I_ODOQ], out[I_ODOQ + 1] = sv[I_ODOQ + 1], 0.0  # this epoch's end starts the next one
     out[I_VEL : I_VEL + 3] = vel[-1]
     T = t[-1] - sv[SV_T]
-    carry_new = np.concatenate((dtheta[-1], dvel[-1]))
-    sums = (sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, p[-1].copy(), np.zeros(3), np.zeros((3, 2)))
-    means = (dtheta.sum(axis=0) / T, dv_f / T, vel_b_dt / T, w_in)
-    return out, q, lat, lon, h, vel, T, path, sums, means, carry_new
+    return Step(
+        out, q, lat, lon, h, vel, T, path,
+        sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, p[-1].copy(), np.zeros(3), np.zeros((3, 2)),
+        dtheta.sum(axis=0) / T, dv_f / T, vel_b_dt / T, w_in,
+        np.concatenate((dtheta[-1], dvel[-1])),
+    )  # fmt: skip
 
 
 @kernel
@@ -454,39 +478,39 @@ def dr_step_k(
     lat, lon, h, out = _end_state(sv, t, q, p, rm, rn)
     T = t[-1] - sv[SV_T]
     out[I_VEL : I_VEL + 3] = p[-1] / T
-    carry_new = np.concatenate((dtheta[-1], dvel[-1]))
-    sums = (sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, p[-1].copy(), dp_dk, dp_dbore)
-    means = (dtheta.sum(axis=0) / T, dv_f / T, u * (ds_c_sum / T), w_in)
-    return out, q, lat, lon, h, vel, T, path, sums, means, carry_new
+    return Step(
+        out, q, lat, lon, h, vel, T, path,
+        sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, p[-1].copy(), dp_dk, dp_dbore,
+        dtheta.sum(axis=0) / T, dv_f / T, u * (ds_c_sum / T), w_in,
+        np.concatenate((dtheta[-1], dvel[-1])),
+    )  # fmt: skip
 
 
-def _block(s: NavState, t: Array, step: tuple) -> tuple[NavState, BlockResult, Carry]:  # type: ignore[type-arg]
-    out, q, lat, lon, h, vel, T, path, sums, means, carry = step
-    sum_c_dt, sum_c_w_dt, sum_c_f_dt, dv_f, dp, dp_dk, dp_dbore = sums
-    omega_b, f_mean_n, mean_vel_b, w_in = means
-    new = NavState.from_vector(out)
+def _block(s: NavState, t: Array, step: Step) -> tuple[NavState, BlockResult, Carry]:
+    new = NavState.from_vector(step.state)
     new.distance = s.distance
     res = BlockResult(
         t=t,
-        q_nb=q,
-        lat=lat,
-        lon=lon,
-        h=h,
-        vel_n=vel,
-        T=float(T),
-        sum_c_dt=sum_c_dt,
-        dv_f=dv_f,
-        dp=dp,
-        omega_b=omega_b,
-        f_mean_n=f_mean_n,
-        mean_vel_b=mean_vel_b,
-        w_in=w_in,
-        dp_dk=dp_dk,
-        dp_dbore=dp_dbore,
-        path=float(path),
-        sum_c_w_dt=sum_c_w_dt,
-        sum_c_f_dt=sum_c_f_dt,
+        q_nb=step.q_nb,
+        lat=step.lat,
+        lon=step.lon,
+        h=step.h,
+        vel_n=step.vel_n,
+        T=float(step.T),
+        sum_c_dt=step.sum_c_dt,
+        dv_f=step.dv_f,
+        dp=step.dp,
+        omega_b=step.omega_b,
+        f_mean_n=step.f_mean_n,
+        mean_vel_b=step.mean_vel_b,
+        w_in=step.w_in,
+        dp_dk=step.dp_dk,
+        dp_dbore=step.dp_dbore,
+        path=float(step.path),
+        sum_c_w_dt=step.sum_c_w_dt,
+        sum_c_f_dt=step.sum_c_f_dt,
     )
+    carry = step.carry
     return new, res, Carry(carry[:3].copy(), carry[3:].copy())
 
 
