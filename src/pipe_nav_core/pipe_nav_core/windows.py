@@ -19,6 +19,19 @@ from .jit import kernel
 FloatArray = NDArray[np.float64]
 
 
+@kernel
+def _leftmost(win: FloatArray, value: float, hi: int) -> int:  # pragma: no cover - compiled
+    """The first index of sorted win[:hi] whose value is not below ``value`` (hi if none)."""
+    lo = 0
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if win[mid] < value:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 @kernel(nogil=True)
 def _median(x: FloatArray, size: int) -> FloatArray:  # pragma: no cover - compiled
     n = x.shape[0]
@@ -34,23 +47,8 @@ def _median(x: FloatArray, size: int) -> FloatArray:  # pragma: no cover - compi
     for i in range(1, n):
         old = x[min(max(i - 1 - h, 0), n - 1)]
         new = x[min(i + h, n - 1)]
-        # the leftmost place of old, and where new goes (leftmost not below it)
-        lo, hi = 0, size - 1
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if win[mid] < old:
-                lo = mid + 1
-            else:
-                hi = mid
-        p = lo
-        lo, hi = 0, size
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if win[mid] < new:
-                lo = mid + 1
-            else:
-                hi = mid
-        q = lo
+        p = _leftmost(win, old, size - 1)  # where old is (clipped: never past the window)
+        q = _leftmost(win, new, size)  # where new goes
         if q > p:
             for j in range(p, q - 1):
                 win[j] = win[j + 1]

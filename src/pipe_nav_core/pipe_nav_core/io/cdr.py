@@ -284,6 +284,19 @@ def encode_one(
     return encode_batch(layout, 1, values, strings).tobytes()
 
 
+def _put_header(
+    body: NDArray[np.uint8], header_ns: int, raw: bytes, seq_len_at: int, n: int
+) -> None:
+    """Write a std_msgs/Header (stamp ``header_ns`` ns, frame id ``raw`` UTF-8) at the start of
+    a CDR body, and the length n of the sequence that follows it at ``seq_len_at``."""
+    sec, nsec = divmod(int(header_ns), 1_000_000_000)
+    body[0:4] = np.frombuffer(np.int32(sec).tobytes(), np.uint8)
+    body[4:8] = np.frombuffer(np.uint32(nsec).tobytes(), np.uint8)
+    body[8:12] = np.frombuffer(np.uint32(len(raw) + 1).tobytes(), np.uint8)
+    body[12 : 12 + len(raw)] = np.frombuffer(raw, np.uint8)
+    body[seq_len_at : seq_len_at + 4] = np.frombuffer(np.uint32(n).tobytes(), np.uint8)
+
+
 def encode_path(
     header_ns: int,
     stamps_ns: NDArray[np.int64],
@@ -324,12 +337,7 @@ def encode_path(
         nb = a.dtype.itemsize * (a.shape[1] if a.ndim == 2 else 1)
         body[pos[:, None] + np.arange(nb, dtype=np.int64)] = a.view(np.uint8).reshape(len(pos), nb)
 
-    hs, hn = divmod(int(header_ns), 1_000_000_000)
-    body[0:4] = np.frombuffer(np.int32(hs).tobytes(), np.uint8)
-    body[4:8] = np.frombuffer(np.uint32(hn).tobytes(), np.uint8)
-    body[8:12] = np.frombuffer(np.uint32(slen).tobytes(), np.uint8)
-    body[12 : 12 + len(raw)] = np.frombuffer(raw, np.uint8)
-    body[seq_len_at : seq_len_at + 4] = np.frombuffer(np.uint32(n).tobytes(), np.uint8)
+    _put_header(body, header_ns, raw, seq_len_at, n)
     if n:
         sec = np.floor_divide(stamps_ns, 1_000_000_000)
         put(starts, sec, "<i4")
@@ -361,11 +369,6 @@ def encode_pose_array(
     seq_len_at = _align(12 + slen, 4)
     first = _align(seq_len_at + 4, 8) if n else seq_len_at + 4
     body = np.zeros(first + 56 * n, dtype=np.uint8)
-    sec, nsec = divmod(int(header_ns), 1_000_000_000)
-    body[0:4] = np.frombuffer(np.int32(sec).tobytes(), np.uint8)
-    body[4:8] = np.frombuffer(np.uint32(nsec).tobytes(), np.uint8)
-    body[8:12] = np.frombuffer(np.uint32(slen).tobytes(), np.uint8)
-    body[12 : 12 + len(raw)] = np.frombuffer(raw, np.uint8)
-    body[seq_len_at : seq_len_at + 4] = np.frombuffer(np.uint32(n).tobytes(), np.uint8)
+    _put_header(body, header_ns, raw, seq_len_at, n)
     body[first:] = np.hstack([pos, quat]).view(np.uint8).reshape(-1)
     return ENCAPSULATION_LE + body.tobytes()

@@ -3,197 +3,141 @@
 as ROS 2 Jazzy records them in a bag's schemas and channel metadata.
 
 They are what rosbags' Jazzy typestore generates (``generate_msgdef(t, ros_version=2)[0]``,
-``hash_rihs01(t)``; tests/test_io_support.py checks they still are), stored here because
-building that typestore costs about 0.1 s, a tenth of smoothing a short run. Other types are
-still generated (io/bagwrite.py).
+``hash_rihs01(t)``; tests/test_io_cdr.py checks they still are), stored here because building
+that typestore costs about 0.1 s, a tenth of smoothing a short run. A definition is the type's
+own fields, then each type it uses after a separator line; each type's own fields are stored
+once (``_FIELDS``, a line each). Other types are still generated (io/bagwrite.py).
 """
 
+_SEPARATOR = "=" * 80 + "\nMSG: "
+
 # fmt: off
-DEFINITIONS: dict[str, str] = {
+_FIELDS: dict[str, tuple[str, ...]] = {
+    'sensor_msgs/Imu': (
+        'std_msgs/Header header',
+        'geometry_msgs/Quaternion orientation',
+        'float64[9] orientation_covariance',
+        'geometry_msgs/Vector3 angular_velocity',
+        'float64[9] angular_velocity_covariance',
+        'geometry_msgs/Vector3 linear_acceleration',
+        'float64[9] linear_acceleration_covariance',
+    ),
+    'std_msgs/Header': (
+        'builtin_interfaces/Time stamp',
+        'string frame_id',
+    ),
+    'builtin_interfaces/Time': (
+        'int32 sec',
+        'uint32 nanosec',
+    ),
+    'geometry_msgs/Quaternion': (
+        'float64 x',
+        'float64 y',
+        'float64 z',
+        'float64 w',
+    ),
+    'geometry_msgs/Vector3': (
+        'float64 x',
+        'float64 y',
+        'float64 z',
+    ),
+    'nav_msgs/Odometry': (
+        'std_msgs/Header header',
+        'string child_frame_id',
+        'geometry_msgs/PoseWithCovariance pose',
+        'geometry_msgs/TwistWithCovariance twist',
+    ),
+    'geometry_msgs/PoseWithCovariance': (
+        'geometry_msgs/Pose pose',
+        'float64[36] covariance',
+    ),
+    'geometry_msgs/Pose': (
+        'geometry_msgs/Point position',
+        'geometry_msgs/Quaternion orientation',
+    ),
+    'geometry_msgs/Point': (
+        'float64 x',
+        'float64 y',
+        'float64 z',
+    ),
+    'geometry_msgs/TwistWithCovariance': (
+        'geometry_msgs/Twist twist',
+        'float64[36] covariance',
+    ),
+    'geometry_msgs/Twist': (
+        'geometry_msgs/Vector3 linear',
+        'geometry_msgs/Vector3 angular',
+    ),
+    'sensor_msgs/MagneticField': (
+        'std_msgs/Header header',
+        'geometry_msgs/Vector3 magnetic_field',
+        'float64[9] magnetic_field_covariance',
+    ),
+    'sensor_msgs/NavSatFix': (
+        'uint8 COVARIANCE_TYPE_UNKNOWN=0',
+        'uint8 COVARIANCE_TYPE_APPROXIMATED=1',
+        'uint8 COVARIANCE_TYPE_DIAGONAL_KNOWN=2',
+        'uint8 COVARIANCE_TYPE_KNOWN=3',
+        'std_msgs/Header header',
+        'sensor_msgs/NavSatStatus status',
+        'float64 latitude',
+        'float64 longitude',
+        'float64 altitude',
+        'float64[9] position_covariance',
+        'uint8 position_covariance_type',
+    ),
+    'sensor_msgs/NavSatStatus': (
+        'int8 STATUS_UNKNOWN=-2',
+        'int8 STATUS_NO_FIX=-1',
+        'int8 STATUS_FIX=0',
+        'int8 STATUS_SBAS_FIX=1',
+        'int8 STATUS_GBAS_FIX=2',
+        'uint16 SERVICE_UNKNOWN=0',
+        'uint16 SERVICE_GPS=1',
+        'uint16 SERVICE_GLONASS=2',
+        'uint16 SERVICE_COMPASS=4',
+        'uint16 SERVICE_GALILEO=8',
+        'int8 status',
+        'uint16 service',
+    ),
+    'nav_msgs/Path': (
+        'std_msgs/Header header',
+        'geometry_msgs/PoseStamped[] poses',
+    ),
+    'geometry_msgs/PoseStamped': (
+        'std_msgs/Header header',
+        'geometry_msgs/Pose pose',
+    ),
+    'geometry_msgs/PoseArray': (
+        'std_msgs/Header header',
+        'geometry_msgs/Pose[] poses',
+    ),
+}
+
+# the types each written type uses, in the order its definition lists them
+_USES: dict[str, tuple[str, ...]] = {
     'sensor_msgs/msg/Imu': (
-        'std_msgs/Header header\n'
-        'geometry_msgs/Quaternion orientation\n'
-        'float64[9] orientation_covariance\n'
-        'geometry_msgs/Vector3 angular_velocity\n'
-        'float64[9] angular_velocity_covariance\n'
-        'geometry_msgs/Vector3 linear_acceleration\n'
-        'float64[9] linear_acceleration_covariance\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        'builtin_interfaces/Time stamp\n'
-        'string frame_id\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        'int32 sec\n'
-        'uint32 nanosec\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Quaternion\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        'float64 w\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Vector3\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
+        'std_msgs/Header', 'builtin_interfaces/Time', 'geometry_msgs/Quaternion',
+        'geometry_msgs/Vector3',
     ),
     'nav_msgs/msg/Odometry': (
-        'std_msgs/Header header\n'
-        'string child_frame_id\n'
-        'geometry_msgs/PoseWithCovariance pose\n'
-        'geometry_msgs/TwistWithCovariance twist\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        'builtin_interfaces/Time stamp\n'
-        'string frame_id\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        'int32 sec\n'
-        'uint32 nanosec\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/PoseWithCovariance\n'
-        'geometry_msgs/Pose pose\n'
-        'float64[36] covariance\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Pose\n'
-        'geometry_msgs/Point position\n'
-        'geometry_msgs/Quaternion orientation\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Point\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Quaternion\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        'float64 w\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/TwistWithCovariance\n'
-        'geometry_msgs/Twist twist\n'
-        'float64[36] covariance\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Twist\n'
-        'geometry_msgs/Vector3 linear\n'
-        'geometry_msgs/Vector3 angular\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Vector3\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
+        'std_msgs/Header', 'builtin_interfaces/Time', 'geometry_msgs/PoseWithCovariance',
+        'geometry_msgs/Pose', 'geometry_msgs/Point', 'geometry_msgs/Quaternion',
+        'geometry_msgs/TwistWithCovariance', 'geometry_msgs/Twist', 'geometry_msgs/Vector3',
     ),
     'sensor_msgs/msg/MagneticField': (
-        'std_msgs/Header header\n'
-        'geometry_msgs/Vector3 magnetic_field\n'
-        'float64[9] magnetic_field_covariance\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        'builtin_interfaces/Time stamp\n'
-        'string frame_id\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        'int32 sec\n'
-        'uint32 nanosec\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Vector3\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
+        'std_msgs/Header', 'builtin_interfaces/Time', 'geometry_msgs/Vector3',
     ),
     'sensor_msgs/msg/NavSatFix': (
-        'uint8 COVARIANCE_TYPE_UNKNOWN=0\n'
-        'uint8 COVARIANCE_TYPE_APPROXIMATED=1\n'
-        'uint8 COVARIANCE_TYPE_DIAGONAL_KNOWN=2\n'
-        'uint8 COVARIANCE_TYPE_KNOWN=3\n'
-        'std_msgs/Header header\n'
-        'sensor_msgs/NavSatStatus status\n'
-        'float64 latitude\n'
-        'float64 longitude\n'
-        'float64 altitude\n'
-        'float64[9] position_covariance\n'
-        'uint8 position_covariance_type\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        'builtin_interfaces/Time stamp\n'
-        'string frame_id\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        'int32 sec\n'
-        'uint32 nanosec\n'
-        '================================================================================\n'
-        'MSG: sensor_msgs/NavSatStatus\n'
-        'int8 STATUS_UNKNOWN=-2\n'
-        'int8 STATUS_NO_FIX=-1\n'
-        'int8 STATUS_FIX=0\n'
-        'int8 STATUS_SBAS_FIX=1\n'
-        'int8 STATUS_GBAS_FIX=2\n'
-        'uint16 SERVICE_UNKNOWN=0\n'
-        'uint16 SERVICE_GPS=1\n'
-        'uint16 SERVICE_GLONASS=2\n'
-        'uint16 SERVICE_COMPASS=4\n'
-        'uint16 SERVICE_GALILEO=8\n'
-        'int8 status\n'
-        'uint16 service\n'
+        'std_msgs/Header', 'builtin_interfaces/Time', 'sensor_msgs/NavSatStatus',
     ),
     'nav_msgs/msg/Path': (
-        'std_msgs/Header header\n'
-        'geometry_msgs/PoseStamped[] poses\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        'builtin_interfaces/Time stamp\n'
-        'string frame_id\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        'int32 sec\n'
-        'uint32 nanosec\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/PoseStamped\n'
-        'std_msgs/Header header\n'
-        'geometry_msgs/Pose pose\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Pose\n'
-        'geometry_msgs/Point position\n'
-        'geometry_msgs/Quaternion orientation\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Point\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Quaternion\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        'float64 w\n'
+        'std_msgs/Header', 'builtin_interfaces/Time', 'geometry_msgs/PoseStamped',
+        'geometry_msgs/Pose', 'geometry_msgs/Point', 'geometry_msgs/Quaternion',
     ),
     'geometry_msgs/msg/PoseArray': (
-        'std_msgs/Header header\n'
-        'geometry_msgs/Pose[] poses\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        'builtin_interfaces/Time stamp\n'
-        'string frame_id\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        'int32 sec\n'
-        'uint32 nanosec\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Pose\n'
-        'geometry_msgs/Point position\n'
-        'geometry_msgs/Quaternion orientation\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Point\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Quaternion\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        'float64 w\n'
+        'std_msgs/Header', 'builtin_interfaces/Time', 'geometry_msgs/Pose', 'geometry_msgs/Point',
+        'geometry_msgs/Quaternion',
     ),
 }
 
@@ -212,3 +156,11 @@ HASHES: dict[str, str] = {
         'RIHS01_af0cc36d190e104d546d168d6b39df04fa4b4ccecf59cb4c9ed328d3d5004aa0',
 }
 # fmt: on
+
+
+DEFINITIONS: dict[str, str] = {
+    name: "\n".join(_FIELDS[name.replace("/msg/", "/")])
+    + "".join(f"\n{_SEPARATOR}{used}\n" + "\n".join(_FIELDS[used]) for used in uses)
+    + "\n"
+    for name, uses in _USES.items()
+}
