@@ -132,7 +132,9 @@ import json, sys
 from pipe_nav_core import cli, jit
 code = cli.main(["smooth", sys.argv[1] if len(sys.argv) > 1 else {bag!r}, "--out", {out!r},
                  "--quiet"])
-print(json.dumps({{"code": code, "jit": jit.JIT_REASON, "numba": "numba" in sys.modules}}))
+print(json.dumps({{"code": code, "jit": jit.JIT_REASON, "numba": "numba" in sys.modules,
+                  "scipy.linalg": "scipy.linalg" in sys.modules,
+                  "lapack": "scipy.linalg.cython_lapack" in sys.modules}}))
 """
 
 
@@ -140,7 +142,8 @@ def test_the_sample_smooth_runs_without_numba_and_equals_the_jit_kernels(tmp_pat
     _skip_without_a_compiler()
     aot_out, jit_out = tmp_path / "aot", tmp_path / "jit"
     ran = _python(SMOOTH.format(bag=str(SAMPLE), out=f"{aot_out}/"))
-    assert ran == {"code": 0, "jit": None, "numba": False}
+    # numba's LAPACK module preloaded on its own: scipy.linalg's package never imported
+    assert ran == {"code": 0, "jit": None, "numba": False, "scipy.linalg": False, "lapack": True}
     ran = _python(SMOOTH.format(bag=str(SAMPLE), out=f"{jit_out}/"), PIPE_NAV_KERNELS="jit")
     assert ran["code"] == 0 and ran["numba"] and ran["jit"]
     names = sorted(p.name for p in aot_out.iterdir())

@@ -160,11 +160,14 @@ def _preload_lapack() -> None:
     for name in ("scipy.linalg.cython_blas", "scipy.linalg.cython_lapack"):
         if name in sys.modules:
             continue
-        spec = importlib.machinery.PathFinder.find_spec(name, where)
-        if spec is None or spec.loader is None:
+        try:
+            spec = importlib.machinery.PathFinder.find_spec(name, where)
+            if spec is None or spec.loader is None:
+                return
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        except (ImportError, OSError):  # numba then imports it the usual way
             return
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
         sys.modules[name] = module
 
 
