@@ -23,8 +23,8 @@ def test_every_public_name_is_its_modules_object():
 
 
 def test_an_unknown_name_is_an_attribute_error():
-    with pytest.raises(AttributeError, match="no attribute 'smooth'"):
-        pipe_nav_core.smooth  # noqa: B018
+    with pytest.raises(AttributeError, match="no attribute 'smooth_run'"):
+        pipe_nav_core.smooth_run  # noqa: B018
 
 
 def test_importing_the_package_imports_nothing_heavy():

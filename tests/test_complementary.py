@@ -8,7 +8,7 @@ from pipe_nav_core.complementary import complementary_trajectory
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.sim import simulate
-from pipe_nav_core.smoother import smooth_log
+from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.types import Datum
 
 from pipe_nav_core import attitude as att

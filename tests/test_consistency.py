@@ -7,7 +7,8 @@ from dataclasses import replace
 import numpy as np
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.sim import get_scenario, simulate
-from pipe_nav_core.smoother import interpolate_enu, smooth_log
+from pipe_nav_core.smooth.centreline import interpolate_enu
+from pipe_nav_core.smooth.passes import smooth_log
 from scipy.stats import chi2
 
 CHECKPOINTS = np.linspace(0.15, 0.85, 15)  # fractions of the time in motion

@@ -15,7 +15,8 @@ from pipe_nav_core.process import accel_bias_allowance
 from pipe_nav_core.sensors import INDUSTRIAL
 from pipe_nav_core.sim import get_scenario, simulate
 from pipe_nav_core.sim.geometry import Bend
-from pipe_nav_core.smoother import interpolate_enu, smooth_log
+from pipe_nav_core.smooth.centreline import interpolate_enu
+from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.state import SV_Q
 from pipe_nav_core.types import ImuSamples, Marker, OdometerSamples, SensorLog
 from scipy.stats import chi2
@@ -164,22 +165,6 @@ def test_marker_errors_bounded_by_their_sigma():
         assert abs(err[2]) < 3 * m.sigma_enu[2] + 0.01, m.name
 
 
-def _ideal(name: str, **changes):
-    """The scenario with an error-free IMU and odometer and near-perfect markers."""
-    sc = get_scenario(name)
-    return dataclasses.replace(
-        sc,
-        imu_spec=sc.imu_error_spec().scaled(0.0),
-        odo_scale_sigma=0.0,
-        odo_slip_interval=0.0,
-        odo_tick=1e-5,
-        survey_sigma_h=1e-3,
-        survey_sigma_v=1e-3,
-        marker_time_sigma=1e-4,
-        **changes,
-    )
-
-
 def test_heading_is_not_learnt_from_zero_velocity_or_odometer_noise():
     """Between markers nothing observes a rotation of the whole solution about the vertical
     (a consumer gyro cannot see the Earth rate). Jacobians evaluated at noisy or freshly
@@ -205,22 +190,6 @@ def test_heading_is_not_learnt_from_zero_velocity_or_odometer_noise():
         _, _, az = att.euler_from_dcm(att.dcm_from_quat(rec.states[k, SV_Q]))
         assert math.sqrt(rec.P_upd(k)[2, 2]) > min_ratio * sig0, t_check
         assert abs(np.angle(np.exp(1j * (az - az_true)))) < math.radians(1.0), t_check
-
-
-@pytest.mark.parametrize(("name", "mode"), [("drag180", "ins"), ("demo", "dr")])
-def test_iterated_smoother_reaches_the_ideal_solution(name, mode):
-    """With error-free sensors the smoothed centreline is the truth to millimetres, however
-    far the initial heading (the bearing between the first two markers) is from the pipe's:
-    80 deg on drag180. Before the smoother relinearized the whole trajectory (it moved only
-    the initial state, with the prior re-centred on each pass) and the heading re-anchoring
-    was iterated, drag180 (INS) ended 0.4 m off and demo in DR mode 0.25-0.7 m."""
-    sc = _ideal(name)
-    run = simulate(sc, seed=1)
-    cfg = NavConfig.from_dict({**sc.estimator_settings(), "mode": mode})
-    r = smooth_log(run.log, cfg, method="rts")
-    s = score(r.centreline, run.truth, run.log.markers, datum=r.datum)
-    assert s.max_h < 0.01 and s.max_v < 0.01, s.summary()
-    assert r.summary["last_step_m"] < 1e-3  # converged
 
 
 def test_dead_reckoning_mode_with_realistic_sensors():
@@ -281,33 +250,6 @@ def test_live_filter_after_the_heading_is_anchored():
     assert err[anchored].max() < 0.8, err[anchored].max()
     diag = nav.diagnostics()
     assert diag["accepted_marker"] == len(run.log.markers) and diag["rejected_marker"] == 0
-
-
-def test_progress_slices_give_identical_results(monkeypatch):
-    """A forward pass feeds the log in time slices (and reports its progress): the estimates
-    are those of the whole log at once."""
-    from pipe_nav_core.smoother import report_fraction, reset_fraction, run_forward
-
-    from pipe_nav_core import smoother
-
-    monkeypatch.setattr(smoother, "SLICE_MIN_S", 5.0)  # slices of 5 s of data: many
-
-    run = simulate("sag104", seed=6)
-    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    nav = Navigator(cfg, survey=run.log.markers, record=True)
-    nav.run(run.log)
-    whole = nav.recording
-    seen: list[float] = []
-    token = report_fraction(seen.append)
-    try:
-        sliced = run_forward(run.log, cfg).recording
-    finally:
-        reset_fraction(token)
-    assert seen[-1] == 1.0 and len(seen) > 10 and seen == sorted(seen)
-    np.testing.assert_array_equal(whole.states, sliced.states)
-    np.testing.assert_array_equal(
-        whole.covariances(np.arange(len(whole))), sliced.covariances(np.arange(len(sliced)))
-    )
 
 
 def test_free_heading_direction_is_a_rotation_about_the_pivot():
@@ -454,21 +396,3 @@ def test_accel_bias_allowance_covers_the_second_order_tilt_term():
     assert accel_bias_allowance(INDUSTRIAL) == pytest.approx(
         math.hypot(INDUSTRIAL.accel_bias_instability, allowed)
     )
-
-
-def test_two_filter_keeps_each_marker_at_the_epoch_before_it():
-    """The two-filter smoother fuses the forward estimate at t_k with the backward estimate
-    after its updates (the measurements after t_k). Fused with the backward prediction, the
-    epoch before each marker had the marker in neither filter: a jump of the fused sigma
-    there (demo: 3.0 against 2.3 cm) and of the error (field10k_sparse: 0.86 m)."""
-    run = simulate("demo", seed=1)
-    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    r = smooth_log(run.log, cfg, method="two-filter", iterations=1)
-    t = r.centreline.t
-    sig = np.hypot(r.centreline.sigma_enu[:, 0], r.centreline.sigma_enu[:, 1])
-    inner = sorted(m.t for m in run.log.markers)[1:-1]
-    assert inner
-    for tm in inner:
-        near = np.abs(t - tm) <= 0.3
-        before = np.argmin(np.abs(t - (tm - 2.0)))
-        assert sig[near].max() <= 1.02 * sig[before], (tm, sig[near].max(), sig[before])

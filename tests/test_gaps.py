@@ -17,7 +17,8 @@ from pipe_nav_core.pipeline import Outputs, load_log, replay_log, smooth_bag
 from pipe_nav_core.segments import _reversed
 from pipe_nav_core.sim import simulate
 from pipe_nav_core.sim.faults import clock_step, data_gap, imu_dropped, imu_shock
-from pipe_nav_core.smoother import reverse_log, smooth_log
+from pipe_nav_core.smooth.logs import reverse_log
+from pipe_nav_core.smooth.passes import smooth_log
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 

@@ -17,13 +17,18 @@ from pipe_nav_core.graph.batch import StreamingSolve, factor_weights
 from pipe_nav_core.graph.linearize import FactorRecorder, linearize
 from pipe_nav_core.graph.rotation import rotate_about
 from pipe_nav_core.sim import get_scenario, simulate
-from pipe_nav_core.smoothing import rts_packed
+from pipe_nav_core.smooth.centreline import smoothed_centreline
+from pipe_nav_core.smooth.forward import run_forward
+from pipe_nav_core.smooth.heading import smoothing_config
+from pipe_nav_core.smooth.logs import reverse_log
+from pipe_nav_core.smooth.passes import smooth_log, smoothed_states
+from pipe_nav_core.smooth.rts import rts_packed
+from pipe_nav_core.smooth.slips import find_slips
 from pipe_nav_core.state import SV_H, SV_LAT, SV_LON, SV_Q, inject_many, layout_for
 from pipe_nav_core.types import SensorLog, markers_sorted
 
 from pipe_nav_core import attitude as att
 from pipe_nav_core import earth
-from pipe_nav_core import smoother as sm
 
 
 @pytest.fixture(scope="module")
@@ -33,18 +38,16 @@ def converged():
     run = simulate("sag104", seed=1)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
     log = run.log
-    mk = markers_sorted(log.markers)
-    head = sm.run_forward(sm._truncate(log, mk[1].t + 1.0), cfg, record=False)
-    cfg = sm.anchored_config(log, cfg, head)
+    cfg = smoothing_config(log, cfg)
     lay = layout_for(cfg)
     X, ex = None, None
     for _ in range(3):
-        nav = sm.run_forward(log, cfg, reference=X, odometer_exclude=ex)
+        nav = run_forward(log, cfg, reference=X, odometer_exclude=ex)
         rec = nav.recording
         e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
-        ex = sm.find_slips(rec, sm._centreline(rec, e, var, lay), cfg,
-                           resolution=nav.odometer_resolution)  # fmt: skip
-        X = sm.smoothed_states(rec, e, lay)
+        ex = find_slips(rec, smoothed_centreline(rec, e, var, lay), cfg,
+                        resolution=nav.odometer_resolution)  # fmt: skip
+        X = smoothed_states(rec, e, lay)
     return run, log, cfg, lay, X, ex
 
 
@@ -53,7 +56,7 @@ def test_linear_problem_is_the_filters(converged) -> None:
     filter pass linearized there: same prior, transitions, process noise, offsets and
     measurements (residual, Jacobian, noise) to round-off."""
     _, log, cfg, lay, X, ex = converged
-    nav = sm.run_forward(log, cfg, reference=X, odometer_exclude=ex)
+    nav = run_forward(log, cfg, reference=X, odometer_exclude=ex)
     diag = nav.diagnostics()
     assert not any(v for k, v in diag.items() if k.startswith("rejected_"))  # same factor set
     rec = nav.recording
@@ -143,8 +146,8 @@ def test_graph_is_as_accurate_as_rts_with_covering_sigmas(scenario: str, exact: 
         scn = replace(scn, survey_sigma_h=0.0, survey_sigma_v=0.0)
     run = simulate(scn, seed=1)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    rts = _scored(run, sm.smooth_log(run.log, cfg, method="rts"))
-    res = sm.smooth_log(run.log, cfg, method="graph")
+    rts = _scored(run, smooth_log(run.log, cfg, method="rts"))
+    res = smooth_log(run.log, cfg, method="graph")
     g = _scored(run, res)
     assert res.summary["method"] == "graph" and res.summary["graph_converged"]
     assert res.summary["graph_iterations"] >= 1
@@ -199,11 +202,11 @@ def test_robust_loss_bounds_a_wrong_marker() -> None:
     wrong = replace(mid, lat=float(lat), lon=float(lon), alt=float(h))
     log = SensorLog(run.log.imu, run.log.odometer, run.log.mag, [first, wrong, last])
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    res = sm.smooth_log(log, cfg, method="graph")
+    res = smooth_log(log, cfg, method="graph")
     g = score(res.centreline, run.truth, log.markers, datum=res.datum)
     assert res.summary["graph_markers_downweighted"] == [mid.name]
     assert g.max_h < 0.06 and g.max_v < 0.04  # m
-    rts = sm.smooth_log(log, cfg, method="rts")
+    rts = smooth_log(log, cfg, method="rts")
     r = score(rts.centreline, run.truth, log.markers, datum=rts.datum)
     assert r.max_h > 5.0 * g.max_h
 
@@ -213,9 +216,9 @@ def test_graph_in_reversed_time() -> None:
     Earth turning the other way in every pass) smooths to the RTS solution."""
     run = simulate("sag104", seed=1)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    rlog = sm.reverse_log(run.log)
-    a = sm.smooth_log(rlog, cfg, method="rts", reverse=True).centreline
-    res = sm.smooth_log(rlog, cfg, method="graph", reverse=True)
+    rlog = reverse_log(run.log)
+    a = smooth_log(rlog, cfg, method="rts", reverse=True).centreline
+    res = smooth_log(rlog, cfg, method="graph", reverse=True)
     b = res.centreline
     assert res.summary["graph_converged"]
     ea = earth.geodetic_to_enu(a.lat, a.lon, a.h, a.lat[0], a.lon[0], a.h[0])
@@ -228,8 +231,8 @@ def test_graph_in_dead_reckoning_mode() -> None:
     mechanization): the graph converges to the RTS solution."""
     run = simulate("sag104", seed=1)
     cfg = replace(NavConfig.from_dict(run.scenario.estimator_settings()), mode="dr")
-    a = sm.smooth_log(run.log, cfg, method="rts")
-    res = sm.smooth_log(run.log, cfg, method="graph")
+    a = smooth_log(run.log, cfg, method="rts")
+    res = smooth_log(run.log, cfg, method="graph")
     assert res.summary["graph_converged"]
     g, r = _scored(run, res), _scored(run, a)
     assert g.max_h <= r.max_h + 0.002 and g.max_v <= r.max_v + 0.002

@@ -8,7 +8,7 @@ import pytest
 from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior, whitener
 from pipe_nav_core.graph.robust import cauchy_weight, huber_cost, huber_weight
 from pipe_nav_core.graph.solver import solve_chain, whiten
-from pipe_nav_core.smoothing import rts
+from pipe_nav_core.smooth.rts import rts
 
 
 def _no_model(sv, L):  # noqa: ANN001, ANN202
@@ -51,7 +51,7 @@ def _toy(seed: int, K: int = 60, tiny: float | None = None):
 
 
 def _kalman_rts(chain: LinearChain):
-    """Forward Kalman filter over the chain, then smoothing.rts: (mean, covariances)."""
+    """Forward Kalman filter over the chain, then smooth.rts.rts: (mean, covariances)."""
     n = chain.n
     groups = chain.by_epoch()
     x, P = chain.prior.x0.copy(), chain.prior.P0.copy()

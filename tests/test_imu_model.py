@@ -11,7 +11,7 @@ from pipe_nav_core.evaluation import score
 from pipe_nav_core.pipeline import smooth_with_imu_model
 from pipe_nav_core.sensors import GRADES
 from pipe_nav_core.sim import get_scenario, simulate
-from pipe_nav_core.smoother import smooth_log
+from pipe_nav_core.smooth.passes import smooth_log
 
 from pipe_nav_core import imu_model
 
@@ -75,7 +75,15 @@ def test_a_model_that_does_not_fit_is_refitted_and_said(monkeypatch):
     wrong = imu_model.ImuModelChoice(NavConfig(imu_grade="tactical"), "tactical", "forced")
     monkeypatch.setattr(imu_model, "choose", lambda *a, **k: wrong)
     said: list[str] = []
-    result = smooth_with_imu_model(run.log, NavConfig(), progress=said.append)
+
+    class Told:  # a Progress that keeps the stages
+        def stage(self, text: str) -> None:
+            said.append(text)
+
+        def fraction(self, done: float) -> None:
+            pass
+
+    result = smooth_with_imu_model(run.log, NavConfig(), progress=Told())
     model = result.summary["imu_model"]
     assert model["grade"] == "consumer" and "did not fit" in model["reason"]
     assert any("refitted with industrial" in m for m in said)

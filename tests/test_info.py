@@ -16,7 +16,7 @@ from pipe_nav_core.info import describe_bag, format_info
 from pipe_nav_core.io import write_sensor_bag
 from pipe_nav_core.sensors import GRADES
 from pipe_nav_core.sim import simulate
-from pipe_nav_core.smoother import slice_log
+from pipe_nav_core.smooth.logs import slice_log
 from pipe_nav_core.types import SensorLog
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"

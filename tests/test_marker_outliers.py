@@ -59,7 +59,7 @@ def test_a_wrong_marker_is_left_out_and_the_run_equals_the_run_without_it(
 
 def test_a_clean_run_keeps_every_marker(log):
     from pipe_nav_core.marker_outliers import screening
-    from pipe_nav_core.smoother import smooth_log
+    from pipe_nav_core.smooth.passes import smooth_log
 
     cfg = NavConfig(imu_grade="industrial")
     result = smooth_log(log, cfg)

@@ -7,7 +7,7 @@ import pytest
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.sim import get_scenario, simulate
-from pipe_nav_core.smoother import smooth_log
+from pipe_nav_core.smooth.passes import smooth_log
 
 
 def test_imu_mount_rotation_is_applied():

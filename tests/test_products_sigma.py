@@ -13,7 +13,7 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.products import integrity_report
 from pipe_nav_core.sim import simulate
 from pipe_nav_core.sim.scenarios import get_scenario
-from pipe_nav_core.smoother import smooth_log
+from pipe_nav_core.smooth.passes import smooth_log
 
 
 def z_scores(name: str, grade: str, seeds: range) -> np.ndarray:

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 from pipe_nav_core.recording import Recording, phi_rows
-from pipe_nav_core.smoothing import rts, rts_packed
+from pipe_nav_core.smooth.rts import rts, rts_packed
 from pipe_nav_core.state import SV_SIZE, Layout
 
 from pipe_nav_core import recording

@@ -34,7 +34,7 @@ from pipe_nav_core.evaluation import trajectory_enu  # noqa: E402
 from pipe_nav_core.io import write_sensor_bag  # noqa: E402
 from pipe_nav_core.io.rosmsg import datum_from_msg, jazzy_typestore, stamp_to_ns  # noqa: E402
 from pipe_nav_core.sim import get_scenario, simulate  # noqa: E402
-from pipe_nav_core.smoother import slice_log  # noqa: E402
+from pipe_nav_core.smooth.logs import slice_log  # noqa: E402
 from pipe_nav_core.types import Datum, SensorLog, Trajectory  # noqa: E402
 from pipe_nav_ros.params import nav_params_from_config, yaml_scalar  # noqa: E402
 from ros_graph import LoggedProcess, ros2_with_workspace  # noqa: E402

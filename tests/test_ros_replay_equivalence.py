@@ -24,7 +24,7 @@ bagwrite = pytest.importorskip(
 highlevel = pytest.importorskip("rosbags.highlevel")
 
 from pipe_nav_core.config import NavConfig  # noqa: E402
-from pipe_nav_core.smoother import slice_log  # noqa: E402
+from pipe_nav_core.smooth.logs import slice_log  # noqa: E402
 from pipe_nav_core.types import SensorLog  # noqa: E402
 from pipe_nav_ros.ekf_core import EkfCore  # noqa: E402
 

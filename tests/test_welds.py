@@ -22,7 +22,7 @@ from pipe_nav_core.products.welds import align_sequences, detect_welds, jolt_cha
 from pipe_nav_core.sim import get_scenario, simulate
 from pipe_nav_core.sim.kinematics import evaluate
 from pipe_nav_core.sim.magnetometer import WeldField
-from pipe_nav_core.smoother import smooth_log
+from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.types import MagSamples, SensorLog
 
 UT = 1e-6

@@ -31,7 +31,8 @@ from .engine import mount_rotation
 from .evaluation import sag_depth, score
 from .io.atomic import atomic_write
 from .sim import SimRun, get_scenario, simulate
-from .smoother import METHODS, interpolate_enu, smooth_log
+from .smooth.centreline import interpolate_enu
+from .smooth.passes import METHODS, smooth_log
 from .types import Datum, Trajectory, markers_sorted
 
 Array = NDArray[np.float64]

@@ -40,7 +40,7 @@ from .products.welds import detect_welds
 from .sim import SimRun, get_scenario, simulate
 from .sim.movement import GroundMovement, moved_scenario, true_displacement
 from .sim.scenarios import Scenario
-from .smoother import smooth_log
+from .smooth.passes import smooth_log
 
 FloatArray = NDArray[np.float64]
 

@@ -252,7 +252,7 @@ class Navigator:
     measurement residual is linearized instead of about the filter's own estimate; the prior
     stays the static alignment's and the filter carries its mean error relative to the
     reference. Smoothing such a pass and feeding the result back as the next reference is one
-    Gauss-Newton step of the batch problem (iterated smoother, :mod:`pipe_nav_core.smoother`);
+    Gauss-Newton step of the batch problem (iterated smoother, :mod:`pipe_nav_core.smooth.passes`);
     initial_azimuth: rad, replaces the initial heading of the configured source (the smoother
     iterates the re-anchoring at the second marker with it); free_heading: keep the initial
     heading's prior outside the filter until the next marker after the first (:class:`FreeHeading`);

@@ -32,7 +32,7 @@ rotation is large, everything it estimated on the way is wrong in a way the rota
 undo (the Earth rate compensated about the wrong axes: on a 3 km tactical line 75 degrees off,
 the heading then drifted 15 mrad in 100 s, and the next markers looked like outliers). So at
 the re-anchoring the guard finds the initial heading as the smoother does
-(smoother.anchored_config: dead reckoning to the second marker, secant) and **runs the filter
+(smooth.heading.anchored_config: dead reckoning to the second marker, secant) and **runs the filter
 again** from the alignment over the inputs it kept, with that heading, leaving out the
 readings of a stuck or spiking wheel found in them as offline (``odometer_fault_<kind>``); the
 estimates already published stay, the later ones come from the new run (``heading_rerun``).
@@ -251,9 +251,9 @@ class GuardedNavigator(Navigator):
 
     def _rerun(self, out: list[NavEstimate]) -> list[NavEstimate]:
         """Once anchored: the filter run again from the start with the initial heading found
-        by smoother.anchored_config (see the module), when the re-anchoring turned it; the
+        by smooth.heading.anchored_config (see the module), when the re-anchoring turned it; the
         estimates up to the anchoring (out) are returned as they are."""
-        from .smoother import anchored_config
+        from .smooth.heading import anchored_config
 
         kept, self._kept = self._kept or [], None
         if self.reanchor_rad == 0.0 or len(self._markers_seen) < 2:

@@ -34,7 +34,8 @@ import numpy as np
 from .attitude import dcm_from_quat
 from .config import NavConfig
 from .kalman import chi2_threshold
-from .smoother import SmoothResult, marker_residuals
+from .progress import QUIET, Progress
+from .smooth.centreline import SmoothResult, marker_residuals
 from .types import Marker, SensorLog
 
 OUTLIER_PROBABILITY = 1.0 - 1e-6  # chi-square (3 dof) bound on a marker's normalized residual
@@ -134,10 +135,12 @@ def smooth_without_outliers(
     log: SensorLog,
     config: NavConfig,
     smooth: Callable[[SensorLog], SmoothResult],
-    say: Callable[[str], None] = lambda _m: None,
+    progress: Progress = QUIET,
 ) -> tuple[SmoothResult, list[MarkerOutlier], list[str]]:
     """``smooth(log)``, and again without each marker that fails the test of the module (while
-    at least three are left); returns the result, the markers left out and warnings."""
+    at least three are left); returns the result, the markers left out and warnings.
+    ``progress`` is told when the leave-one-out starts and what it leaves out (``smooth``
+    tells it of its own passes)."""
     bound = chi2_threshold(OUTLIER_PROBABILITY, 3)
     result = smooth(log)
     outliers: list[MarkerOutlier] = []
@@ -148,7 +151,7 @@ def smooth_without_outliers(
         failing = sum(v > bound for v in screen.values())
         best: tuple[float, MarkerOutlier, SmoothResult, SensorLog] | None = None
         if failing <= MAX_FAILING:
-            say("a marker disagrees with the others: testing each against the rest")
+            progress.stage("a marker disagrees with the others: testing each against the rest")
         # the marker whose removal leaves the others most consistent, if it fails against them
         for m in suspects(log.markers, screen, bound) if failing <= MAX_FAILING else ():
             if m.name not in screen:
@@ -180,7 +183,7 @@ def smooth_without_outliers(
             break
         outliers.append(best[1])
         result, log = best[2], best[3]
-        say(best[1].describe())
+        progress.stage(best[1].describe())
     warnings = [o.describe() for o in outliers]
     if len(log.markers) < MIN_MARKERS:
         warnings += _scale_check(result, config)

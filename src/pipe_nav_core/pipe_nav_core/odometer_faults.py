@@ -15,7 +15,7 @@ fault of the wheel, not motion. Between the breaks:
 
 Slips (the wheel reading slow or fast, or standing still for under ``MIN_STUCK_S``, over a
 few readings) are not faults here: pigs slip often, and the smoother finds and leaves out
-those epochs itself (smoother.find_slips).
+those epochs itself (smooth.slips.find_slips).
 
 Times s of the header-stamp clock, distances m.
 """
@@ -194,7 +194,7 @@ def bridged_for_dead_reckoning(log: SensorLog) -> SensorLog:
     """The log with each odometer silence over BRIDGE_MIN_S (the readings of a stuck wheel left
     out) filled at the mean of the speeds either side, and the readings after it moved on by
     what that speed covers, as if the wheel had kept turning. Only for the dead reckoning that
-    finds the initial heading (smoother.anchored_config), where the distance is the only
+    finds the initial heading (smooth.heading.anchored_config), where the distance is the only
     motion there is: an error of the assumed speed lengthens the path, it barely turns the
     bearing the heading is anchored on. The filter itself keeps the IMU across the hole."""
     odo = log.odometer

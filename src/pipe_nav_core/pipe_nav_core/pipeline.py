@@ -43,11 +43,12 @@ from .odometer_faults import find_odometer_faults, without_faults
 from .plot_process import PlotProcess
 from .products import IntegrityReport, integrity_report, read_bends_reference
 from .products.welds import Weld, detect_welds
-from .progress import Progress
+from .progress import QUIET, Progress
 from .recording import drop_spare
 from .segments import smooth_segments
 from .sensors import GRADES
-from .smoother import SmoothResult, report_fraction, reset_fraction, smooth_log
+from .smooth.centreline import SmoothResult
+from .smooth.passes import smooth_log
 from .types import Datum, Marker, SensorLog, Trajectory
 
 Say = Callable[[str], None]  # told each stage as it begins (Progress.stage)
@@ -212,29 +213,9 @@ def smooth_bag(
     fraction of each filter pass done (pipe_nav_core.progress)."""
     inputs = [bag] + [p for p in (markers_csv, bends_reference) if p]
     outputs.check(inputs, spacing)
-    token = report_fraction(progress.fraction if progress is not None else None)
-    try:
-        return _smooth_bag(bag, outputs, config, method, iterations, markers_csv, spacing,
-                           topics, progress, bends_reference, plotter)  # fmt: skip
-    finally:
-        reset_fraction(token)
-
-
-def _smooth_bag(
-    bag: str | os.PathLike[str],
-    outputs: Outputs,
-    config: NavConfig,
-    method: str,
-    iterations: int,
-    markers_csv: str | os.PathLike[str] | None,
-    spacing: float,
-    topics: TopicNames,
-    progress: Progress | None,
-    bends_reference: str | os.PathLike[str] | None,
-    plotter: PlotProcess | None,
-) -> tuple[SmoothResult, BagReport]:
+    told = QUIET if progress is None else progress
     reference = read_bends_reference(bends_reference) if bends_reference else None
-    say: Say = progress.stage if progress is not None else (lambda _m: None)
+    say = told.stage
     say("reading bag")
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
     _require_imu(log, report, bag, topics)
@@ -249,7 +230,7 @@ def _smooth_bag(
     def smooth(part: SensorLog, reverse: bool = False) -> SmoothResult:
         return smooth_with_imu_model(
             part, config, declared=report.imu_noise_declared, method=method,
-            iterations=iterations, progress=say, reverse=reverse,
+            iterations=iterations, progress=told, reverse=reverse,
         )  # fmt: skip
 
     try:
@@ -312,7 +293,7 @@ def smooth_with_imu_model(
     declared: dict[str, list[float]] | None = None,
     method: str = "rts",
     iterations: int = 2,
-    progress: Say | None = None,
+    progress: Progress = QUIET,
     reverse: bool = False,
 ) -> SmoothResult:
     """smooth_log (``reverse``: of a log in reversed time) with ``imu_grade: auto`` resolved
@@ -320,9 +301,9 @@ def smooth_with_imu_model(
     messages declare: BagReport's imu_noise_declared) and, while the smoothed run still shows
     that the model does not fit (Navigator.model_warnings), refitted with the next noisier
     grade. The summary's ``imu_model`` says which model was used and why; a named grade is used
-    as given
-    (its misfit warnings stay)."""
-    say = progress or (lambda _m: None)
+    as given (its misfit warnings stay). ``progress`` is told each stage and the fraction of
+    each filter pass done, of every smoothing run (the marker outliers' too)."""
+    say = progress.stage
     choice = imu_model.choose(log, config, declared if config.imu_grade == AUTO_GRADE else None)
     auto = config.imu_grade == AUTO_GRADE
     if auto:
@@ -332,9 +313,9 @@ def smooth_with_imu_model(
         result, outliers, warnings = smooth_without_outliers(
             log,
             cfg,
-            lambda lg: smooth_log(lg, cfg, method=method, iterations=iterations, progress=say,
-                                  reverse=reverse),  # fmt: skip
-            say,
+            lambda lg: smooth_log(lg, cfg, method=method, iterations=iterations,
+                                  progress=progress, reverse=reverse),  # fmt: skip
+            progress,
         )
         s = result.summary
         for key in ("markers_rejected", "markers_total"):

@@ -1,8 +1,11 @@
 """How a long job says how far it is: one protocol for every caller (the command line's bar,
 the smoother node's /diagnostics, tests).
 
-:func:`pipe_nav_core.pipeline.smooth_bag` takes a :class:`Progress`: it names each stage as it
-begins and, during each filter pass over the whole log, the fraction of the pass done.
+:func:`pipe_nav_core.pipeline.smooth_bag` takes a :class:`Progress` and hands it down, as an
+argument, to the smoothing passes (:func:`pipe_nav_core.smooth.passes.smooth_log`) and every filter
+pass over the log (:func:`pipe_nav_core.smooth.forward.run_forward`): each stage is named as it
+begins and, during each filter pass, the fraction of the pass done is told. :data:`QUIET` is
+the default where no one listens.
 """
 
 from __future__ import annotations
@@ -18,3 +21,16 @@ class Progress(Protocol):
 
     def fraction(self, done: float) -> None:
         """The share of the current filter pass done, 0 to 1 (a new stage starts at 0)."""
+
+
+class Quiet:
+    """The Progress of a caller that does not listen."""
+
+    def stage(self, text: str) -> None:
+        pass
+
+    def fraction(self, done: float) -> None:
+        pass
+
+
+QUIET = Quiet()

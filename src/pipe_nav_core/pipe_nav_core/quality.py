@@ -41,8 +41,8 @@ def judge(
     warnings: Sequence[str] = (),
     failures: Sequence[str] = (),
 ) -> Verdict:
-    """The verdict of a smoothing summary (smoother.summarize), its centreline, the warnings
-    of reading the bag and of the model check, and faults known to spoil the answer."""
+    """The verdict of a smoothing summary (smooth.centreline.summarize), its centreline, the
+    warnings of reading the bag and of the model check, and faults known to spoil the answer."""
     failed: list[str] = list(failures)
     degraded: list[str] = []
     scale = float(summary.get("odometer_scale", 1.0))  # type: ignore[arg-type]

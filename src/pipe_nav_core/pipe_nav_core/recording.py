@@ -2,7 +2,7 @@
 
 Per epoch (k = 0 is the alignment): the filter's estimate and its linearization point as flat
 state vectors (:data:`pipe_nav_core.state.SV_SIZE`), the mean error state, and one packed row
-of covariances and transition for the RTS smoother (:class:`pipe_nav_core.smoothing.EpochRows`).
+of covariances and transition for the RTS smoother (:class:`pipe_nav_core.smooth.rts.EpochRows`).
 Per IMU sample: the nominal trajectory the corrections are applied to.
 
 The packed rows are the bulk (some 15 kB per epoch with 38 error states): they are kept in
@@ -24,7 +24,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 from numpy.typing import NDArray
 
-from .smoothing import EpochRows
+from .smooth.rts import EpochRows
 from .state import SV_SIZE, Layout
 
 Array = NDArray[np.float64]
@@ -113,7 +113,7 @@ class _Chunks:
     memory the oldest full chunks are written to a temporary directory (in a background
     thread: the array stays in use until its file is complete, then serves a later chunk).
     Chunks read back from disk go into READ_BUFFERS buffers in turn: a caller holds at most the
-    rows of the last ones it asked for (:func:`~pipe_nav_core.smoothing.rts_packed` reads one
+    rows of the last ones it asked for (:func:`~pipe_nav_core.smooth.rts.rts_packed` reads one
     chunk ahead while the gains of the one before take the first row of the one after)."""
 
     def __init__(self, width: int, budget: int) -> None:
@@ -409,7 +409,7 @@ class Recording:
 
     def rts_chunks(self) -> Iterator[tuple[int, Array]]:
         """(first epoch, packed rows (C, format.width)) from the last chunk to the first, as
-        :func:`pipe_nav_core.smoothing.rts_packed` reads them."""
+        :func:`pipe_nav_core.smooth.rts.rts_packed` reads them."""
         for i in range(self._rows.n_chunks - 1, -1, -1):
             yield i * CHUNK_EPOCHS, self._rows.chunk(i)
 

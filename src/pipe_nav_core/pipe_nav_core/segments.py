@@ -3,7 +3,7 @@
 Across a gap the pig moved with nothing recorded, so no filter can carry its attitude over:
 each segment between gaps is smoothed on its own, tied to the ground by its own markers. A
 segment that starts at rest (the launch trap) is smoothed forward; one that ends at rest (the
-receive trap) is smoothed in reversed time (smoother.reverse_log, the Earth turning backwards),
+receive trap) is smoothed in reversed time (smooth.logs.reverse_log, the Earth turning backwards),
 aligning at its end; one with neither (between two gaps, the pig moving at both ends) cannot
 be aligned, and one whose markers disagree with its solution is not trusted: both are left
 unmapped, named. The
@@ -23,7 +23,8 @@ from .config import NavConfig
 from .earth import geodetic_to_enu
 from .gaps import TimeHole
 from .io.centreline import concat
-from .smoother import SmoothResult, arc_chainage, reverse_log
+from .smooth.centreline import SmoothResult, arc_chainage
+from .smooth.logs import reverse_log
 from .types import SensorLog, Trajectory
 
 

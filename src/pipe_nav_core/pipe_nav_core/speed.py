@@ -28,7 +28,8 @@ from .io.bagread import READ_WORKERS_ENV, read_workers
 from .io.topics import DEFAULT_TOPICS
 from .pipeline import Outputs, replay_log, write_products
 from .sim import get_scenario, simulate
-from .smoother import run_forward, smooth_log
+from .smooth.forward import run_forward
+from .smooth.passes import smooth_log
 from .types import empty_mag
 
 

@@ -30,7 +30,7 @@ WARM_UP = 3
 @lru_cache(maxsize=1)
 def _warmup_run() -> tuple[SensorLog, NavConfig]:
     from .sim import simulate
-    from .smoother import slice_log
+    from .smooth.logs import slice_log
 
     run = simulate("demo", 0)
     log = slice_log(run.log, float(run.log.imu.t[0]), float(run.log.imu.t[0]) + _SPAN_S)
@@ -49,7 +49,7 @@ def warm_live() -> float:
 
 def warm_smoothers() -> float:
     """Smooth the warm-up run with every method (s of wall time taken)."""
-    from .smoother import smooth_log
+    from .smooth.passes import smooth_log
 
     t0 = time.perf_counter()
     log, config = _warmup_run()

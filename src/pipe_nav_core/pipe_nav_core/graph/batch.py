@@ -38,7 +38,7 @@ Array = NDArray[np.float64]
 MAX_ITERATIONS = 10  # Gauss-Newton iterations (linearizations) at most
 MAX_HALVINGS = 4  # step halvings of one iteration at most when the robust cost rises
 # a step below these ends the iterations (the iterated smoother's thresholds,
-# pipe_nav_core.smoother; the step is applied: what remains is of second order in it)
+# pipe_nav_core.smooth.passes; the step is applied: what remains is of second order in it)
 CONVERGED_POS_M = 0.01  # m: largest position step of a converged iteration
 CONVERGED_RAD = 1e-4  # rad: largest attitude step of a converged iteration
 
@@ -176,8 +176,9 @@ class GraphResult:
     weighing: Weighing
 
     def corrections(self) -> Array:
-        """The smoothed corrections in the form pipe_nav_core.smoother._centreline takes:
-        relative to the pass's filter estimate (its x_upd), (K, n)."""
+        """The smoothed corrections in the form
+        :func:`pipe_nav_core.smooth.centreline.smoothed_centreline` takes: relative to the
+        pass's filter estimate (its x_upd), (K, n)."""
         rec = self.nav.recording
         assert rec is not None
         return self.solution.delta - rec.x_upd

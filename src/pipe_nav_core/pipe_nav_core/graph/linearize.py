@@ -149,8 +149,8 @@ class FactorRecorder(Navigator):
     earlier pass over the same data) that records the batch problem linearized about it:
     :meth:`problem` after :meth:`Navigator.run`, or, with a ``sink``, hands it over epoch by
     epoch and keeps none of it. Its recording (``recording``) is the pass's, for the centreline
-    at the IMU rate (:func:`pipe_nav_core.smoother._centreline`); with a sink its covariances
-    are spilled to disk beyond SINK_RAM_BUDGET (nothing here reads them)."""
+    at the IMU rate (:func:`pipe_nav_core.smooth.centreline.smoothed_centreline`); with a sink
+    its covariances are spilled to disk beyond SINK_RAM_BUDGET (nothing here reads them)."""
 
     def __init__(
         self,

@@ -1,0 +1,184 @@
+"""What a smoothing run gives: the smoothed centreline at the IMU rate, its chainage, the
+forward filter's estimates, the markers' residuals and the summary, in a :class:`SmoothResult`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import attitude as att
+from .. import earth
+from ..config import NavConfig
+from ..engine import FreeHeading, Navigator
+from ..recording import Recording
+from ..state import SV_DIST, SV_H, SV_LAT, SV_LON, SV_Q, SV_T, SV_VEL, Layout
+from ..types import Datum, Marker, Trajectory
+
+if TYPE_CHECKING:
+    from ..products import IntegrityReport
+    from ..products.welds import Weld
+
+Array = NDArray[np.float64]
+SAMPLE_BATCH = 1 << 18  # samples corrected at once by smoothed_centreline (bounds temporaries)
+
+
+@dataclass
+class SmoothResult:
+    """Result of :func:`pipe_nav_core.smooth.passes.smooth_log`.
+
+    centreline: smoothed trajectory at the IMU sample times (sigma_enu filled);
+    forward: forward-filter estimates per epoch (what /pipe_nav/odometry carries);
+    datum: origin of map (first marker); markers: the markers used;
+    marker_residuals: name -> (3,) ENU m, smoothed position minus survey at the passage;
+    summary: figures for people (see :func:`summarize`); config: the settings the run was
+    smoothed with (the IMU model chosen for it); products: its integrity products, when the
+    pipeline computed them (products.integrity_report); welds: its girth welds
+    (products.welds.detect_welds), None when the pipeline did not look (no magnetometer).
+    """
+
+    centreline: Trajectory
+    forward: Trajectory
+    datum: Datum
+    markers: list[Marker]
+    marker_residuals: dict[str, Array]
+    summary: dict[str, object] = field(default_factory=dict)
+    config: NavConfig | None = None
+    products: IntegrityReport | None = None
+    welds: list[Weld] | None = None
+
+
+def smoothed_centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Trajectory:
+    """The smoothed corrections applied to the recorded per-sample nominal trajectory.
+
+    e (K, n): smoothed corrections to the filter's estimates, var (K, n) their variances; the
+    correction relative to the linearization point of epoch k is x_upd[k] + e[k]; a block's
+    nominal starts on lin[k - 1] and ends end_offset[k] short of lin[k]; in between the
+    correction is interpolated in time.
+    """
+    cols = np.r_[layout.pos, layout.att]  # the corrections the centreline needs
+    P, A = slice(0, 3), slice(3, 6)
+    d_lin = rec.x_upd[:, cols] + e[:, cols]
+    d_end = d_lin + rec.end_offset[:, cols]
+    var_c = var[:, cols]
+    t_ep = rec.t
+    t = rec.s_t.copy()
+    N = len(t)
+    lat, lon, h = np.empty(N), np.empty(N), np.empty(N)
+    q = np.empty((N, 4))
+    sig_p, sig_a = np.empty((N, 3)), np.empty((N, 3))
+    for b in range(0, N, SAMPLE_BATCH):
+        s = slice(b, b + SAMPLE_BATCH)
+        k = rec.s_epoch[s]
+        frac = (t[s] - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
+        w0, w1 = (1.0 - frac)[:, None], frac[:, None]
+        corr = w0 * d_lin[k - 1] + w1 * d_end[k]
+        dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, P], rec.s_lat[s], rec.s_h[s])
+        lat[s], lon[s], h[s] = rec.s_lat[s] + dlat, rec.s_lon[s] + dlon, rec.s_h[s] + dh
+        q[s] = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(corr[:, A]), rec.s_q[s]))
+        var_s = w0 * var_c[k - 1] + w1 * var_c[k]
+        sig_p[s] = np.sqrt(np.maximum(var_s[:, P], 0.0))
+        sig_a[s] = np.sqrt(np.maximum(var_s[:, A], 0.0))
+    distance = arc_chainage(lat, lon, h, q)
+    enu = earth.geodetic_to_enu(lat, lon, h, lat[0], lon[0], h[0])
+    vel = np.gradient(enu, t, axis=0) if N > 1 else np.zeros((N, 3))
+    return Trajectory(t, lat, lon, h, vel, q, distance, sig_p, sig_a)
+
+
+def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
+    """Chainage (m, 0 at the first sample) as the smoothed path's length, signed along the
+    body axis (backing up counts down): a slipping, stuck or spiking wheel does not corrupt
+    it. Steps in the local ENU of each sample (lat, lon rad, h m; quat_nb base_link->ENU)."""
+    if len(lat) < 2:
+        return np.zeros(len(lat))
+    rm, rn = earth.radii(lat[1:])
+    step = np.stack([np.diff(np.unwrap(lon)) * (rn + h[1:]) * np.cos(lat[1:]),
+                     np.diff(lat) * (rm + h[1:]), np.diff(h)], axis=1)  # fmt: skip
+    axis = att.dcm_from_quat(quat_nb[1:])[:, :, 0]
+    return np.r_[0.0, np.cumsum(np.einsum("ij,ij->i", step, axis))]
+
+
+def forward_trajectory(rec: Recording) -> Trajectory:
+    """The forward filter's estimates, one per epoch (copies: the recording may go)."""
+    st = rec.states
+    var = rec.variances()
+    lay = rec.layout
+    return Trajectory(
+        t=st[:, SV_T].copy(),
+        lat=st[:, SV_LAT].copy(),
+        lon=st[:, SV_LON].copy(),
+        h=st[:, SV_H].copy(),
+        vel_n=st[:, SV_VEL].copy(),
+        quat_nb=st[:, SV_Q].copy(),
+        distance=st[:, SV_DIST].copy(),
+        sigma_enu=np.sqrt(var[:, lay.pos]),
+        sigma_att=np.sqrt(var[:, lay.att]),
+    )
+
+
+def with_free_heading(traj: Trajectory, free: FreeHeading | None) -> Trajectory:
+    """traj with the uncertainty of the heading the filter left unanchored (FreeHeading)
+    added to its horizontal position and azimuth sigmas (in place; returned)."""
+    if free is None or traj.sigma_enu is None or traj.sigma_att is None:
+        return traj
+    extra = free.variances(traj.t, traj.lat, traj.lon, traj.h)
+    traj.sigma_enu[:, :2] = np.sqrt(traj.sigma_enu[:, :2] ** 2 + extra[:, :2])
+    traj.sigma_att[:, 2] = np.sqrt(traj.sigma_att[:, 2] ** 2 + extra[:, 2])
+    return traj
+
+
+def interpolate_enu(traj: Trajectory, times: Array, datum: Datum) -> Array:
+    """ENU positions (m) of a trajectory at the given times (linear interpolation)."""
+    enu = earth.geodetic_to_enu(traj.lat, traj.lon, traj.h, datum.lat, datum.lon, datum.alt)
+    return np.stack([np.interp(times, traj.t, enu[:, i]) for i in range(3)], axis=-1)
+
+
+def marker_residuals(traj: Trajectory, markers: list[Marker]) -> dict[str, Array]:
+    """name -> estimate minus survey, ENU m, at each marker passage inside the trajectory."""
+    out: dict[str, Array] = {}
+    if not len(traj):
+        return out
+    for m in markers:
+        if traj.t[0] <= m.t <= traj.t[-1]:
+            i = int(np.searchsorted(traj.t, m.t))
+            s = slice(max(i - 1, 0), i + 1)  # the samples around the passage
+            enu = earth.geodetic_to_enu(traj.lat[s], traj.lon[s], traj.h[s], m.lat, m.lon, m.alt)
+            out[m.name] = np.array([np.interp(m.t, traj.t[s], enu[:, c]) for c in range(3)])
+    return out
+
+
+def summarize(result: SmoothResult, nav: Navigator) -> dict[str, object]:
+    """Figures for people: distance, duration, markers, rejected updates, calibration."""
+    c = result.centreline
+    diag = nav.diagnostics()
+    s = nav.state
+    inside = (
+        (c.t >= result.markers[0].t) & (c.t <= result.markers[-1].t)
+        if result.markers
+        else np.ones(len(c), bool)
+    )
+    sig_h = (
+        np.hypot(c.sigma_enu[:, 0], c.sigma_enu[:, 1])
+        if c.sigma_enu is not None
+        else np.zeros(len(c))
+    )
+    out: dict[str, object] = {
+        "distance_m": float(c.distance[-1]) if len(c) else 0.0,
+        "duration_s": float(c.t[-1] - c.t[0]) if len(c) else 0.0,
+        "markers_total": len(result.markers),
+        "markers_used": int(diag.get("accepted_marker", 0)),
+        "markers_rejected": int(diag.get("rejected_marker", 0)),
+        "rejected_updates": {k[9:]: v for k, v in diag.items() if k.startswith("rejected_") and v},
+        "odometer_scale": float(1.0 + s.k) if s else 1.0,
+        "gyro_bias_deg_h": [float(x) for x in np.degrees(s.bg) * 3600] if s else [],
+        "accel_bias_mg": [float(x) for x in s.ba / 9.80665 * 1e3] if s else [],
+        "max_sigma_h_between_markers_m": float(sig_h[inside].max()) if inside.any() else 0.0,
+        "max_marker_residual_m": float(
+            max((np.linalg.norm(v) for v in result.marker_residuals.values()), default=0.0)
+        ),
+        "warnings": nav.model_warnings(),
+    }
+    return out

@@ -1,0 +1,71 @@
+"""One filter pass over a whole time-sorted log, as every smoothing pass runs it.
+
+The Navigator is fed the log in up to PROGRESS_SLICES time slices, each at least SLICE_MIN_S
+long, with results identical to feeding it whole: it then holds its input buffers for one
+slice at a time, and after each slice the caller's Progress hears the fraction of the pass
+done (a slice costs about a millisecond of Python).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import NavConfig
+from ..engine import Navigator
+from ..progress import QUIET, Progress
+from ..state import NavState
+from ..types import SensorLog
+from .logs import slice_log
+
+Array = NDArray[np.float64]
+PROGRESS_SLICES = 40  # at most this many slices a pass
+SLICE_MIN_S = 60.0  # s of data: the shortest slice
+
+
+def run_forward(
+    log: SensorLog,
+    config: NavConfig,
+    *,
+    initial: NavState | None = None,
+    reverse: bool = False,
+    epoch_times: Array | None = None,
+    odometer_exclude: Array | None = None,
+    reference: Array | None = None,
+    initial_azimuth: float | None = None,
+    record: bool = True,
+    free_heading: bool | None = None,
+    progress: Progress = QUIET,
+) -> Navigator:
+    """One filter pass over a time-sorted log, recorded for the smoothers unless record=False;
+    the other arguments are :class:`~pipe_nav_core.engine.Navigator`'s (reference: flat states
+    (K, SV_SIZE) to linearize about). ``progress`` hears the fraction of the pass done.
+    ValueError when the log gives no navigation solution."""
+    nav = Navigator(
+        config,
+        survey=log.markers,
+        record=record,
+        emit=False,
+        reverse=reverse,
+        initial=initial,
+        epoch_times=epoch_times,
+        odometer_exclude=odometer_exclude,
+        reference=reference,
+        initial_azimuth=initial_azimuth,
+        free_heading=free_heading,
+    )
+    if len(log.imu) < 2:
+        nav.run(log)
+    else:
+        span = float(log.imu.t[-1] - log.imu.t[0])
+        slices = int(np.clip(math.ceil(span / SLICE_MIN_S), 1, PROGRESS_SLICES))
+        edges = np.linspace(log.imu.t[0], log.imu.t[-1], slices + 1)
+        for i in range(slices):
+            last = i == slices - 1
+            nav.run(slice_log(log, edges[i], math.inf if last else edges[i + 1]), final=last)
+            progress.fraction((i + 1) / slices)
+    if nav.state is None:
+        raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
+    return nav

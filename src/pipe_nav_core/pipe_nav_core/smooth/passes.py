@@ -1,0 +1,227 @@
+"""Offline smoothing of a whole run: the passes over the log and the method that smooths each.
+
+Methods (``method``):
+- ``forward``: the forward filter alone (what the live node sees);
+- ``rts``: Rauch-Tung-Striebel over the recorded forward filter (:mod:`.rts`);
+- ``two-filter``: the forward filter fused with a filter run on the time-reversed data
+  (:mod:`.two_filter`);
+- ``graph``: the batch (factor-graph) smoother (:mod:`pipe_nav_core.graph`): Gauss-Newton over
+  the whole run with a robust loss on the markers, started from the ``rts`` result.
+
+Passes:
+1. with the heading from the markers, the live filter up to the second marker and the
+   dead-reckoned initial heading found from it (:mod:`.heading`);
+2. a filter pass over the whole log from that heading (else the live filter's configuration):
+   its estimates are ``forward`` of the result;
+3. Gauss-Newton: each following pass is linearized about the previous pass's smoothed
+   trajectory, every epoch of it (:class:`pipe_nav_core.engine.Navigator` ``reference``), with
+   the same prior, so that the smoother converges to the optimum of the whole batch problem
+   (a factor graph of the prior, the IMU transitions between epochs and every update) instead
+   of the optimum of a linearization about a drifting forward filter; it stops when a pass's
+   step is below CONVERGED_POS_M and CONVERGED_RAD. Odometer epochs that disagree with the
+   previous pass's smoothed path (wheel slip, :mod:`.slips`) are left out of the next pass.
+
+Every filter pass tells the caller's Progress the fraction of it done (:mod:`.forward`), and
+each stage is named as it begins.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import NavConfig
+from ..engine import Navigator
+from ..progress import QUIET, Progress
+from ..recording import Recording
+from ..state import SV_H, SV_LAT, SV_LON, Layout, inject_many, layout_for
+from ..types import Datum, SensorLog, Trajectory, markers_sorted
+from .centreline import (
+    SmoothResult,
+    forward_trajectory,
+    marker_residuals,
+    smoothed_centreline,
+    summarize,
+    with_free_heading,
+)
+from .forward import run_forward
+from .heading import smoothing_config
+from .rts import rts_packed
+from .slips import find_slips
+from .two_filter import two_filter
+
+Array = NDArray[np.float64]
+METHODS = ("forward", "rts", "two-filter", "graph")
+# A pass linearized within these of its smoothed result has converged: Gauss-Newton converges
+# quadratically here (a 0.1 m step is followed by about 2 mm, a 2 mm one by microns), so the
+# result of such a pass is the optimum to well below a millimetre.
+CONVERGED_RAD = 1e-4  # rad: largest attitude step of a converged pass
+CONVERGED_POS_M = 0.01  # m: largest position step of a converged pass
+
+
+def smooth_log(
+    log: SensorLog,
+    config: NavConfig,
+    *,
+    method: str = "rts",
+    iterations: int = 5,
+    progress: Progress = QUIET,
+    reverse: bool = False,
+) -> SmoothResult:
+    """Smooth a whole time-sorted log (IMU in imu_link as recorded) and return the centreline.
+    ``reverse``: the log is a run in reversed time (:func:`.logs.reverse_log`: a segment that
+    ends at rest, aligned at its end); every pass then turns the Earth the other way
+    (Navigator reverse). ``progress`` is told each stage and the fraction of each filter pass
+    done.
+
+    Passes (see the module docstring): with the heading from the markers, the live filter up
+    to the second marker and the search for the dead-reckoned initial heading; a filter pass
+    over the whole log (from that heading, else the live filter: its estimates are
+    ``forward``); then up to ``iterations`` smoothing passes, each linearized
+    about the previous smoothed trajectory (Gauss-Newton), until the step is below
+    CONVERGED_POS_M and CONVERGED_RAD and the excluded odometer epochs do not change.
+    ``graph``: those passes with RTS, then the batch smoother from their last smoothed
+    trajectory, with their odometer exclusions (:func:`_graph_result`).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if reverse and method == "two-filter":
+        method = "rts"  # its backward filter would run forward in time: the same as rts here
+    if len(log.imu) < 10:
+        raise ValueError("the log has fewer than 10 IMU samples")
+    say = progress.stage
+    layout = layout_for(config)
+    markers = markers_sorted(log.markers)
+    cfg = config
+    if method != "forward":
+        cfg = smoothing_config(log, config, progress, reverse=reverse)
+    say("forward filter" if cfg is config else "forward filter (re-anchored heading)")
+    nav = run_forward(log, cfg, reverse=reverse, progress=progress)
+    assert nav.recording is not None
+    forward = with_free_heading(forward_trajectory(nav.recording), nav.free_heading)
+    first = nav.recording.states[0]
+    datum = nav.datum or Datum(float(first[SV_LAT]), float(first[SV_LON]), float(first[SV_H]))
+
+    def result_of(nav: Navigator, centre: Trajectory) -> SmoothResult:
+        centre = with_free_heading(centre, nav.free_heading)
+        result = SmoothResult(
+            centre, forward, datum, markers, marker_residuals(centre, markers),
+            config=config,
+        )
+        result.summary = summarize(result, nav)
+        return result
+
+    if method == "forward":
+        rec = nav.recording
+        e = np.zeros((len(rec), layout.n))
+        result = result_of(nav, smoothed_centreline(rec, e, rec.variances(), layout))
+        result.summary.update(passes=1, passes_run=1)
+        return result
+    exclude: Array | None = None
+    reference: Array | None = None
+    best: tuple[int, SmoothResult] | None = None
+    n_pass = max(1, iterations)
+    for it in range(n_pass):
+        if it:
+            say(f"forward filter about the smoothed trajectory (pass {it + 1})")
+            nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude,
+                              reverse=reverse, progress=progress)  # fmt: skip
+        rec = nav.recording
+        assert rec is not None
+        if method in ("rts", "graph"):
+            say(f"RTS smoother (pass {it + 1})")
+            e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
+        else:
+            say(f"backward filter (pass {it + 1})")
+            e, var = two_filter(log, cfg, rec, layout, exclude, progress)
+        rec.close()  # the covariances are no longer needed
+        centre = smoothed_centreline(rec, e, var, layout)
+        result = result_of(nav, centre)
+        result.summary["passes"] = it + 1
+        # a pass that rejects more markers than an earlier one is not taken
+        rejected = int(result.summary["markers_rejected"])
+        if best is None or rejected <= best[0]:
+            best = (rejected, result)
+        step_pos, step_att = step_size(rec, e, layout)
+        result.summary["last_step_m"] = step_pos
+        # the slips the next pass leaves out (after the last pass only the graph takes them)
+        wanted = it < n_pass - 1 or method == "graph"
+        new_exclude = (
+            find_slips(rec, centre, cfg, resolution=nav.odometer_resolution)
+            if layout.has_vel and wanted
+            else None
+        )
+        same_slips = new_exclude is None or (
+            exclude is not None and np.array_equal(exclude, new_exclude)
+        )
+        converged = (
+            reference is not None
+            and step_pos < CONVERGED_POS_M
+            and step_att < CONVERGED_RAD
+            and same_slips
+        )
+        if converged or it == n_pass - 1:
+            if method == "graph":  # the batch smoother, from this pass's smoothed trajectory
+                start = smoothed_states(rec, e, layout)
+                slips = new_exclude if new_exclude is not None else exclude
+                del nav, rec, e, var, centre, result, best  # the RTS passes' memory first
+                return _graph_result(log, cfg, start, slips, it + 1, progress, reverse, result_of)
+            break
+        reference = smoothed_states(rec, e, layout)
+        exclude = new_exclude
+        del nav, rec, e, var, centre, result  # free this pass before the next
+    assert best is not None
+    best[1].summary["passes_run"] = it + 1
+    return best[1]
+
+
+def _graph_result(
+    log: SensorLog,
+    cfg: NavConfig,
+    start: Array,
+    exclude: Array | None,
+    rts_passes: int,
+    progress: Progress,
+    reverse: bool,
+    result_of: Callable[[Navigator, Trajectory], SmoothResult],
+) -> SmoothResult:
+    """The batch smoother (pipe_nav_core.graph) from the RTS passes' last smoothed trajectory
+    (flat states start (K, SV_SIZE)) with their odometer exclusions; the summary says the
+    method, the RTS passes and the graph's iterations, markers downweighted by its robust
+    loss and factors left out by its gate. ``progress`` hears its stages."""
+    from ..graph import graph_smooth
+
+    g = graph_smooth(log, cfg, start, odometer_exclude=exclude, reverse=reverse,
+                     say=progress.stage)  # fmt: skip
+    rec = g.nav.recording
+    assert rec is not None
+    centre = smoothed_centreline(rec, g.corrections(), g.solution.var, layout_for(cfg))
+    rec.close()
+    result = result_of(g.nav, centre)
+    result.summary.update(
+        method="graph",
+        passes=rts_passes,
+        passes_run=rts_passes,
+        graph_iterations=g.iterations,
+        graph_converged=g.converged,
+        graph_cost=g.history[-1],
+        graph_markers_downweighted=list(g.weighing.downweighted),
+        graph_factors_gated=dict(g.weighing.gated),
+    )
+    return result
+
+
+def smoothed_states(rec: Recording, e: Array, layout: Layout) -> Array:
+    """The smoothed state of every epoch, flat (K, SV_SIZE): lin[k] (+) (x_upd[k] + e[k])."""
+    return inject_many(rec.lin, rec.x_upd + e, layout)
+
+
+def step_size(rec: Recording, e: Array, layout: Layout) -> tuple[float, float]:
+    """Largest smoothed correction of the position (m) and attitude (rad) relative to the
+    pass's linearization points: the Gauss-Newton step of that pass."""
+    d = rec.x_upd + e
+    pos = float(np.max(np.linalg.norm(d[:, layout.pos], axis=1)))
+    att_ = float(np.max(np.linalg.norm(d[:, layout.att], axis=1)))
+    return pos, att_

@@ -1,0 +1,117 @@
+"""The two-filter smoother (seed 001 RTS-FC, seed 004): the forward filter's estimates fused, by
+inverse-covariance weighting (:func:`fuse`), with those of the same engine run in covariance
+form over the time-reversed data (:func:`two_filter`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import attitude as att
+from ..config import NavConfig
+from ..progress import QUIET, Progress
+from ..recording import Recording
+from ..state import SV_BG, SV_H, SV_LAT, SV_LON, SV_VEL, Layout, NavState, difference_many
+from ..types import SensorLog
+from .forward import run_forward
+from .logs import reverse_log
+
+Array = NDArray[np.float64]
+FUSE_BATCH = 1024  # epochs fused at once (bounds the (B, n, n) temporaries)
+
+
+def fuse(P_f: Array, P_b: Array, d: Array) -> tuple[Array, Array]:
+    """Inverse-covariance weighting (seed 001 eq. 29-30) of B pairs of independent estimates
+    of the same error state: forward covariances P_f (B, n, n), backward ones P_b (B, n, n),
+    d (B, n) the backward estimate minus the forward one. Returns the corrections to the
+    forward estimates K d (B, n) and the variances (B, n) of the fused covariances
+    P_f - K P_f, where K = P_f (P_f + P_b)^-1."""
+    gain = np.linalg.solve(P_f + P_b, P_f).transpose(0, 2, 1)
+    return (gain @ d[:, :, None])[:, :, 0], np.diagonal(P_f - gain @ P_f, axis1=1, axis2=2)
+
+
+def two_filter(
+    log: SensorLog,
+    config: NavConfig,
+    rec: Recording,
+    layout: Layout,
+    exclude: Array | None = None,
+    progress: Progress = QUIET,
+) -> tuple[Array, Array]:
+    """Fuse the forward pass recorded in ``rec`` with a filter run over the time-reversed log.
+
+    The backward filter starts at the receive trap with the forward estimate's azimuth there as
+    its initial heading (with the configured sigma: a prior, not the forward's information)
+    and leaves out the same odometer epochs (``exclude``, (N, 2) s); its heading prior stays
+    outside it until its second marker (:class:`~pipe_nav_core.engine.FreeHeading`) and is
+    added to its covariance here. Returns the corrections (K, n) to the forward estimates and
+    the variances (K, n) of the fused covariances; ``progress`` hears the backward pass.
+    """
+    t_f = rec.t
+    _, _, az_end = att.euler_from_dcm(NavState.from_vector(rec.states[-1]).c_nb)
+    cfg_b = replace(config, heading_source="fixed", initial_azimuth=float(az_end))
+    ex_b = None if exclude is None else -np.asarray(exclude)[::-1, ::-1]
+    back = run_forward(
+        reverse_log(log),
+        cfg_b,
+        reverse=True,
+        epoch_times=-t_f[::-1],
+        odometer_exclude=ex_b,
+        free_heading=True,
+        progress=progress,
+    )
+    rb = back.recording
+    assert rb is not None
+    # the backward epoch j at the time of forward epoch k (to the microsecond; the backward
+    # epochs run backwards in time), where there is one other than its alignment
+    key_b = np.round(-rb.t * 1e6)[::-1]
+    key_f = np.round(t_f * 1e6)
+    i = np.minimum(np.searchsorted(key_b, key_f), len(key_b) - 1)
+    j = len(key_b) - 1 - i
+    ks = np.flatnonzero((key_b[i] == key_f) & (j > 0))
+    js = j[ks]
+    # the backward estimate after its updates, in forward terms (velocity and gyro bias
+    # negate): at the time of forward epoch k it holds the measurements after t_k (the backward
+    # epoch ending there applies those of the block (t_k, t_k+1]), the forward filter those up
+    # to t_k, so that no measurement is in both or in neither (the backward prediction would
+    # lack the block (t_k, t_k+1], at a marker the marker itself)
+    xb = rb.states[js].copy()
+    xb[:, SV_VEL] *= -1.0
+    xb[:, SV_BG] *= -1.0
+    d = difference_many(xb, rec.states[ks], layout)
+    flip = _flip(layout)
+    free = back.free_heading
+    if free is not None:  # its heading prior, kept outside until its second marker
+        on = rb.t[js] < free.until
+        g = free.direction(xb[:, SV_LAT], xb[:, SV_LON], xb[:, SV_H], xb[:, SV_VEL], layout)
+        g *= np.sqrt(free.variance) * on[:, None]
+    e = np.zeros((len(t_f), layout.n))
+    var = rec.variances()
+    for b in range(0, len(ks), FUSE_BATCH):
+        sel = slice(b, b + FUSE_BATCH)
+        P_f = rec.covariances(ks[sel], "upd")
+        P_b = rb.covariances(js[sel], "upd") * np.outer(flip, flip)
+        if free is not None:
+            P_b += g[sel, :, None] * g[sel, None, :]
+        d_b = d[sel]
+        if layout.odoq is not None:
+            # its reading error at the start of a reversed epoch is a later reading's: unknown
+            q = layout.odoq.start
+            P_b[:, q, :] = 0.0
+            P_b[:, :, q] = 0.0
+            P_b[:, q, q] = 1.0
+            d_b[:, q] = 0.0
+        e[ks[sel]], var[ks[sel]] = fuse(P_f, P_b, d_b)
+    rb.close()
+    return e, var
+
+
+def _flip(layout: Layout) -> Array:
+    """Signs mapping reversed-time error states to forward ones (velocity, gyro bias negate)."""
+    s = np.ones(layout.n)
+    if layout.vel is not None:
+        s[layout.vel] = -1.0
+    s[layout.bg] = -1.0
+    return s
