@@ -137,11 +137,14 @@ def smooth_log(
             say(f"backward filter (pass {it + 1})")
             e, var = two_filter(log, cfg, rec, layout, exclude, progress)
         rec.close()  # the covariances are no longer needed
+        # a pass that rejects more markers than an earlier one is not taken; the one it
+        # replaces is let go before its centreline is built, so that two are never held
+        rejected = int(nav.diagnostics().get("rejected_marker", 0))
+        if best is not None and rejected <= best[0]:
+            best = None
         centre = smoothed_centreline(rec, e, var, layout)
         result = result_of(nav, centre)
         result.summary["passes"] = it + 1
-        # a pass that rejects more markers than an earlier one is not taken
-        rejected = int(result.summary["markers_rejected"])
         if best is None or rejected <= best[0]:
             best = (rejected, result)
         step_pos, step_att = step_size(rec, e, layout)
