@@ -36,7 +36,7 @@ from pipe_nav_core.io.rosmsg import datum_from_msg, jazzy_typestore, stamp_to_ns
 from pipe_nav_core.sim import get_scenario, simulate  # noqa: E402
 from pipe_nav_core.smooth.logs import slice_log  # noqa: E402
 from pipe_nav_core.types import Datum, SensorLog, Trajectory  # noqa: E402
-from pipe_nav_ros.params import nav_params_from_config, yaml_scalar  # noqa: E402
+from pipe_nav_ros.params import nav_params_from_config, params_yaml  # noqa: E402
 from ros_graph import LoggedProcess, ros2_with_workspace  # noqa: E402
 from ruamel.yaml import YAML  # noqa: E402
 
@@ -105,9 +105,7 @@ def ros_params_file(config: Path, out: Path) -> Path:
     values = YAML(typ="safe", pure=True).load(config.read_text())
     params = nav_params_from_config(NavConfig.from_dict(values))
     params["use_sim_time"] = True
-    lines = ["ekf_node:", "  ros__parameters:"]
-    lines += [f"    {k}: {yaml_scalar(v)}" for k, v in params.items() if v is not None]
-    out.write_text("\n".join(lines) + "\n")
+    out.write_text(params_yaml("ekf_node", params))
     return out
 
 

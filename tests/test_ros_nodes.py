@@ -28,7 +28,7 @@ from pipe_nav_core.sim import simulate  # noqa: E402
 from pipe_nav_ros.driver_node import SensorDriverNode  # noqa: E402
 from pipe_nav_ros.ekf_node import EkfNode  # noqa: E402
 from pipe_nav_ros.msg_types import rclpy_types  # noqa: E402
-from pipe_nav_ros.params import nav_params_from_config  # noqa: E402
+from pipe_nav_ros.params import nav_param_specs, nav_params_from_config, params_yaml  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import (  # noqa: E402
     DurabilityPolicy,
@@ -37,7 +37,7 @@ from rclpy.qos import (  # noqa: E402
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
-from ros_graph import spin_until  # noqa: E402
+from ros_graph import own_domain, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -190,6 +190,12 @@ def test_ekf_node_reset_service_and_parameter_changes(ctx, graph, run):
     ekf = add(graph, EkfNode(context=ctx, parameter_overrides=scenario_overrides(run)))
     result = ekf.set_parameters([Parameter("zupt_sigma", value=-1.0)])[0]
     assert not result.successful and "zupt_sigma" in result.reason
+    result = ekf.set_parameters([Parameter("zupt_sigma", value=0.0)])[0]  # in the ROS range
+    assert not result.successful and "zupt_sigma must be a positive number" in result.reason
+    ranges = ekf.describe_parameters(["filter_rate_hz", "gate_probability", "mode"])
+    assert [(r.from_value, r.to_value) for r in ranges[0].floating_point_range] == [(0.0, 1000.0)]
+    assert [(r.from_value, r.to_value) for r in ranges[1].floating_point_range] == [(0.5, 1.0)]
+    assert not ranges[2].floating_point_range
     result = ekf.set_parameters([Parameter("filter_rate_hz", value=20)])[0]  # int for a double
     assert result.successful
     assert ekf.core.config.filter_rate_hz != 20.0  # applied at the reset
@@ -219,8 +225,11 @@ def test_ekf_node_survives_malformed_messages(ctx, graph, run):
 
 
 def test_invalid_parameters_refuse_the_node(ctx):
-    with pytest.raises(ConfigError, match="filter_rate_hz"):
+    # outside the declared ROS range: still refused with the settings' own message
+    with pytest.raises(ConfigError, match="filter_rate_hz must be a positive number, not -5.0"):
         EkfNode(context=ctx, parameter_overrides=[Parameter("filter_rate_hz", value=-5.0)])
+    with pytest.raises(ConfigError, match="gate_probability must be in"):
+        EkfNode(context=ctx, parameter_overrides=[Parameter("gate_probability", value=2.0)])
     with pytest.raises(ConfigError, match="mode"):
         EkfNode(context=ctx, parameter_overrides=[Parameter("mode", value="magic")])
     with pytest.raises(ConfigError, match="survey"):
@@ -246,6 +255,32 @@ def test_ekf_node_exits_nonzero_on_invalid_parameters():
 
 
 # ------------------------------------------------------------------------------ drivers
+
+
+def test_rcl_reads_parameter_files_back_the_same(tmp_path):
+    """A file of params_yaml given to a node by ``--params-file`` (rcl's own YAML parser) gives
+    every NavConfig default and awkward values back with their type ('on' a string)."""
+    values = {s.name: s.default for s in nav_param_specs() if s.default is not None}
+    values.update(small=1e-5, big=1e20, tenth=0.1, negative_zero=-0.0, int_as_float=1e16,
+                  on_string="on", number_string="1e-05", floats=[1e-5, 1e20, -0.0])  # fmt: skip
+    path = tmp_path / "params.yaml"
+    path.write_text(params_yaml("yaml_check", values))
+    context = rclpy.context.Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], context=context,
+               domain_id=own_domain())  # fmt: skip
+    try:
+        node = rclpy.create_node(
+            "yaml_check", context=context, automatically_declare_parameters_from_overrides=True
+        )
+        got = {name: p.value for name, p in node.get_parameters_by_prefix("").items()}
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    for name, value in values.items():
+        v = list(got[name]) if isinstance(value, list) else got[name]
+        assert v == value and type(v) is type(value), (name, got[name])
+        if isinstance(value, float) and value == 0.0:
+            assert math.copysign(1.0, v) == math.copysign(1.0, value), name
 
 
 def test_sim_drivers_publish_the_simulated_run(ctx, graph, run):

@@ -15,7 +15,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from pipe_nav_core.config import ANGLE_FIELDS, ConfigError, NavConfig
+from pipe_nav_core.config import ANGLE_FIELDS, SETTINGS, ConfigError, NavConfig
 from pipe_nav_core.io import rosmsg
 from pipe_nav_core.sensors import ImuSpec
 from pipe_nav_ros.msg_types import ROS_MESSAGES
@@ -31,8 +31,8 @@ from pipe_nav_ros.params import (
     nav_config_from_params,
     nav_param_specs,
     nav_params_from_config,
+    params_yaml,
     smoother_node_settings,
-    yaml_scalar,
 )
 
 PKG = Path(__file__).resolve().parents[1] / "src" / "pipe_nav_ros"
@@ -184,9 +184,93 @@ def test_smoother_settings_derive_the_output(tmp_path):
     assert len(names) == len(set(names))
 
 
-def test_yaml_scalars_keep_their_type():
-    for value in (1e-6, 2.5e20, -3.0, 0.1, 7, True, "x y", [1.0, 0.0], 1e-300):
-        assert load_yaml(f"v: {yaml_scalar(value)}")["v"] == value
+def test_nav_parameter_descriptions_and_ranges_come_from_the_settings():
+    """Each NavConfig parameter's description is its Setting.doc, and a double's range is its
+    rule's bounds (degrees for angles, the largest double for no bound): it holds the default,
+    and a value outside it is refused by the validation too."""
+    big = 1.7976931348623157e308
+    ranges = {}
+    for spec in nav_param_specs():
+        if spec.name.startswith(IMU_OVERRIDES_PREFIX):
+            continue
+        name = spec.name.removesuffix("_deg") if spec.name.endswith("_deg") else spec.name
+        assert (name in ANGLE_FIELDS) == spec.name.endswith("_deg"), spec.name
+        assert spec.description == SETTINGS[name].doc, spec.name
+        bounded = spec.kind == "float" and SETTINGS[name].rule.bounds() is not None
+        assert (spec.range is not None) == bounded, spec.name
+        ranges[spec.name] = spec.range
+        if spec.range is None:
+            continue
+        low, high = spec.range
+        assert low <= spec.default <= high, spec.name
+        for outside in (low - 1.0, high * 2.0 if high < big else None):
+            if outside is not None:
+                with pytest.raises(ConfigError, match=re.escape(name)):
+                    nav_config_from_params({spec.name: outside})
+    assert ranges["filter_rate_hz"] == (0.0, 1000.0)
+    assert ranges["gate_probability"] == (0.5, 1.0)
+    assert ranges["zupt_sigma"] == ranges["bend_min_angle_deg"] == (0.0, big)
+    assert ranges["odometer_resolution"] == (0.0, big)
+    assert ranges["initial_azimuth_deg"] is None and ranges["mag_declination_deg"] is None
+
+
+def _both_yaml_readers():
+    """PyYAML (YAML 1.1, as `ros2 param load` reads files) and ruamel (YAML 1.2) loaders."""
+    import yaml  # PyYAML
+    from ruamel.yaml import YAML
+
+    return [yaml.safe_load, YAML(typ="safe", pure=True).load]
+
+
+AWKWARD = {
+    "small": 1e-5,
+    "big": 1e20,
+    "tenth": 0.1,
+    "negative_zero": -0.0,
+    "large_int_as_float": 1e16,
+    "huge_int_as_float": 123456789012345678.0,
+    "tiny": 5e-324,
+    "negative_small": -2.5e-7,
+    "ten": 10.0,
+    "integer": 7,
+    "flag": False,
+    "on_string": "on",
+    "number_string": "1e-05",
+    "empty": "",
+    "quotes": 'say "x" \\ y',
+    "floats": [1e-5, 1e20, -0.0, 0.1],
+}
+
+
+def test_parameter_files_read_back_the_same_under_yaml_1_1_and_1_2():
+    """params_yaml's files give every default of every node and awkward values back with
+    their type under both YAML versions (where the float representer is needed: YAML 1.1 reads
+    ``1e-05`` as a string)."""
+    specs = nav_param_specs() + EKF_NODE_SPECS + SMOOTHER_NODE_SPECS
+    specs += [s for kind in DRIVER_NODE_NAMES for s in driver_param_specs(kind)]
+    cases = [{s.name: s.default for s in specs if s.default is not None}, AWKWARD]
+    cases.append(nav_params_from_config(NavConfig.from_dict({"imu_mount_rpy_deg": [0, 5, 90]})))
+    for values in cases:
+        text = params_yaml("node", values)
+        for load in _both_yaml_readers():
+            got = load(text)["node"]["ros__parameters"]
+            assert list(got) == list(values)
+            for name, value in values.items():
+                assert got[name] == value and type(got[name]) is type(value), (name, got[name])
+                if isinstance(value, float) and value == 0.0:
+                    assert math.copysign(1.0, got[name]) == math.copysign(1.0, value), name
+    assert _both_yaml_readers()[0]("v: 1e-05")["v"] == "1e-05"  # the YAML 1.1 trap
+
+
+def test_config_files_are_commented_by_the_descriptions():
+    """In config/ekf.yaml each parameter's line follows its description's: for the NavConfig
+    parameters the field's Setting.doc."""
+    lines = (PKG / "config" / "ekf.yaml").read_text().splitlines()
+    for spec in nav_param_specs() + EKF_NODE_SPECS:
+        if spec.default is None:
+            continue
+        i = lines.index(next(line for line in lines if line.startswith(f"    {spec.name}: ")))
+        assert lines[i - 1] == f"    # {spec.description}", spec.name
 
 
 # ------------------------------------------------------------------------------ config files
@@ -322,6 +406,7 @@ def test_every_ros_import_is_a_declared_dependency():
     provided_by = {"tf2_ros": "tf2_ros_py", "yaml": "python3-yaml", "serial": "python3-serial"}
     files = list((PKG / "pipe_nav_ros").glob("*.py")) + list((PKG / "launch").glob("*.py"))
     stdlib_or_local = {"pipe_nav_ros", "pipe_nav_core", "numpy", "__future__"}
+    stdlib_or_local.add("ruamel")  # a dependency of pipe_nav_core, installed with it (pip)
     for path in files:
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:

@@ -7,8 +7,9 @@ import re
 
 import pytest
 from pipe_nav_core.cli import _load_config, main
-from pipe_nav_core.config import NavConfig
+from pipe_nav_core.config import SETTINGS, NavConfig
 from pipe_nav_core.sensors import GRADES
+from pipe_nav_core.settings_template import TOOL_FIELDS
 
 
 def _config_of(path) -> NavConfig:
@@ -55,3 +56,13 @@ def test_the_settings_in_effect_round_trip(tmp_path, capsys):
 
 def _numeric(value) -> bool:
     return isinstance(value, float) or (isinstance(value, tuple) and bool(value))
+
+
+def test_the_template_describes_each_setting_by_its_metadata(capsys):
+    """Each key's comment line is its field's Setting.doc; an angle's key ends in _deg."""
+    assert main(["config", "--template"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    for name in TOOL_FIELDS:
+        key = f"{name}_deg" if SETTINGS[name].angle else name
+        i = next(i for i, line in enumerate(lines) if line.startswith(f"{key}: "))
+        assert lines[i - 1] == f"# {SETTINGS[name].doc}", key

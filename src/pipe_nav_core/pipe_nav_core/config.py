@@ -2,6 +2,11 @@
 
 Fields are SI with radians. In dicts, any angle field may instead be given in degrees by
 appending ``_deg`` to its name (``initial_azimuth_deg: 45``); that is how people write them.
+
+Each field carries its :class:`Setting` as dataclass metadata (``SETTINGS[name]``): a one-line
+description with the unit, the :class:`Rule` its values obey, and whether it is an angle.
+validate(), ANGLE_FIELDS, ``pipe-nav config --template`` and the ROS parameters (their
+descriptions and ranges, config/ekf.yaml: pipe_nav_ros.params) are all made from it.
 """
 
 from __future__ import annotations
@@ -15,166 +20,291 @@ from .errors import ConfigError
 from .sensors import GRADES, ImuSpec, imu_grade
 
 NOISE_EPOCH_S = 0.1  # s, averaging time of odometer_speed_sigma and nhc_sigma
-
-ANGLE_FIELDS = {
-    "imu_mount_rpy",
-    "initial_azimuth",
-    "initial_heading_sigma",
-    "initial_tilt_sigma",
-    "boresight_sigma",
-    "mag_declination",
-    "mag_heading_sigma",
-    "mag_dip_gate",
-    "stop_gyro_threshold",
-    "bend_min_angle",
-}
-
-
-# One line per NavConfig field with its unit, for people: the ROS parameter descriptions and
-# ekf.yaml's comments, and the comments of `pipe-nav config --template`. Angles are described in
-# degrees, as people give them (``<name>_deg``).
-FIELD_DOCS: dict[str, str] = {
-    "mode": "ins (strapdown INS aided by the odometer) or dr (odometer dead reckoning)",
-    "imu_grade": "IMU noise model: auto (measured from the run) | consumer | industrial | tactical",
-    "imu_mount_rpy": "roll, pitch, yaw of imu_link in base_link (imu_link->base_link), deg",
-    "gyro_error_states": "estimate gyro scale factors and misalignments (9 more error states)",
-    "accel_error_states": "estimate accelerometer scale factors and misalignments (9 more)",
-    "filter_rate_hz": "covariance propagation and update rate, Hz",
-    "reorder_window_s": "samples wait this long to be put in stamp order; later ones dropped, s",
-    "odometer_speed_sigma": "odometer speed white noise averaged over 0.1 s, m/s",
-    "nhc_sigma": "NHC: lateral and vertical body velocity noise averaged over 0.1 s, m/s",
-    "odometer_resolution": "m per encoder count; 0 = the smallest step seen in the readings",
-    "odometer_scale_sigma": "initial one-sigma odometer scale-factor error (fraction)",
-    "odometer_scale_rw": "odometer scale-factor random walk, 1/sqrt(s)",
-    "boresight_sigma": "initial one-sigma odometer/IMU misalignment, deg",
-    "odometer_lever_arm": "wheel contact point in base_link, m",
-    "pipe_diameter": "pipe diameter, m (wall-vs-centreline distance noise in bends)",
-    "odometer_distance_sigma": "dr mode along-track distance noise, m/sqrt(m)",
-    "dr_lateral_sigma": "dr mode lateral/vertical path noise, m/sqrt(m)",
-    "stop_speed_threshold": "odometer speed below which the pig may be stopped, m/s",
-    "stop_gyro_threshold": "|gyro| (bias removed) below which the pig may be stopped, deg/s",
-    "zupt_sigma": "zero-velocity update noise, m/s",
-    "zaru_sigma": "zero-angular-rate update noise, rad/s",
-    "tilt_update": "gravity tilt update: auto (on in dr, off in ins) | on | off",
-    "tilt_gate": "tilt update motion-test threshold on |C [0,0,g] x f|, m/s^2",
-    "tilt_sigma": "tilt update noise, m/s^2",
-    "mag_update": "use the magnetometer heading update",
-    "mag_declination": "magnetic declination, east of true north positive, deg",
-    "mag_attenuation": "in-pipe relative permeability mu; 0 = estimate at the start",
-    "mag_heading_sigma": "magnetic heading noise, deg",
-    "mag_magnitude_gate": "reject when | |m| / (mu |B|) - 1 | exceeds this",
-    "mag_dip_gate": "reject when the dip angle differs more than this from the reference, deg",
-    "mag_hard_iron": "magnetometer hard iron, T in imu_link (keep 0 if the driver corrects it)",
-    "marker_time_sigma": "marker passage-time error, s",
-    "static_alignment_s": "seconds of rest needed for the coarse alignment at the start, s",
-    "heading_source": "initial heading from markers | magnetometer | fixed",
-    "initial_azimuth": "initial azimuth for heading_source fixed, deg from north (with markers"
-    " and fewer than two surveyed, the start value; the heading is reported unknown)",
-    "initial_heading_sigma": "initial heading one-sigma before the second marker, deg",
-    "initial_tilt_sigma": "initial roll/pitch one-sigma after static levelling, deg",
-    "initial_position_sigma": "initial position one-sigma at the first marker, m",
-    "gate_probability": "chi-square acceptance probability of every update, in (0.5, 1)",
-    "pipe_outer_diameter": "pipe outer diameter for bending strain, m; 0 = pipe_diameter",
-    "curvature_window": "chainage window of the curvature profile, m; 0 = 3 outer diameters",
-    "bend_min_angle": "smallest bend listed (3-D angle between its end tangents), deg",
-    "bend_threshold_radius": "a bend is where the radius of curvature is below this, m",
-    "bend_class_limits": "bend class by radius, outer diameters: elbow < a <= induction < b"
-    " <= field < c <= elastic",
-    "strain_thresholds": "strain features: bending strain over these levels, percent",
-}
-
-
 AUTO_GRADE = "auto"  # imu_grade: the noise model measured from the run (imu_model)
+
+
+def _number(value: Any) -> bool:
+    """A finite int or float (a bool counts as an int, as in Python)."""
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+class Rule:
+    """The values a setting takes: ``problem`` is validate()'s message for an invalid value
+    (None: valid); ``bounds`` the closed interval, SI units, holding every valid value of a
+    number setting (None: no such interval), declared as the ROS parameter's range."""
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        return None
+
+    def bounds(self) -> tuple[float, float] | None:
+        return None
+
+
+class Flag(Rule):
+    """true or false; not checked, so that ``--set mag_update=1`` (an int) works."""
+
+
+class Finite(Rule):
+    """Any finite number."""
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        return None if _number(value) else f"{name} must be a finite number, not {value!r}"
+
+
+@dataclass(frozen=True)
+class Positive(Rule):
+    """A finite number > 0 and <= at_most."""
+
+    at_most: float = math.inf
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        if not _number(value) or value <= 0:
+            return f"{name} must be a positive number, not {value!r}"
+        if value > self.at_most:
+            return f"{name} must be at most {self.at_most}"
+        return None
+
+    def bounds(self) -> tuple[float, float] | None:
+        return (0.0, float(self.at_most))
+
+
+class NonNegative(Rule):
+    """A finite number >= 0 (0 often means: work it out)."""
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        if _number(value) and value >= 0:
+            return None
+        return f"{name} must be a number >= 0, not {value!r}"
+
+    def bounds(self) -> tuple[float, float] | None:
+        return (0.0, math.inf)
+
+
+@dataclass(frozen=True)
+class Between(Rule):
+    """A number in the open interval (low, high)."""
+
+    low: float
+    high: float
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        if _number(value) and self.low < value < self.high:
+            return None
+        return f"{name} must be in ({self.low}, {self.high}), not {value}"
+
+    def bounds(self) -> tuple[float, float] | None:
+        return (float(self.low), float(self.high))
+
+
+@dataclass(frozen=True)
+class OneOf(Rule):
+    """One of the choices; the message lists them (quoted or not) with ``last`` before the last."""
+
+    choices: tuple[str, ...]
+    quote: bool = False
+    last: str = " or "
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        if value in self.choices:
+            return None
+        said = [repr(c) if self.quote else c for c in self.choices]
+        return f"{name} must be {', '.join(said[:-1])}{self.last}{said[-1]}, not {value!r}"
+
+
+class Triple(Rule):
+    """Three finite numbers: a vector, or roll, pitch, yaw."""
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        try:
+            ok = len(value) == 3 and all(math.isfinite(float(x)) for x in value)
+        except (TypeError, ValueError):
+            ok = False
+        return None if ok else f"{name} must be three finite numbers, not {value!r}"
+
+
+@dataclass(frozen=True)
+class Increasing(Rule):
+    """At least one positive number, none smaller than the one before; ``count`` of them
+    (0 = any count)."""
+
+    count: int = 0
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        try:
+            ok = all(math.isfinite(float(x)) and float(x) > 0 for x in value)
+            ok = ok and list(value) == sorted(value)
+        except (TypeError, ValueError):
+            ok = False
+        if ok and value and (not self.count or len(value) == self.count):
+            return None
+        what = f"{self.count} " if self.count else ""
+        return f"{name} must be {what}positive numbers in increasing order, not {value!r}"
+
+
+class ImuOverrides(Rule):
+    """ImuSpec fields replacing the grade's figures: checked together with imu_grade (which
+    comes before it), by building the model (NavConfig.imu_spec)."""
+
+    def problem(self, name: str, value: Any, config: NavConfig) -> str | None:
+        try:
+            config.imu_spec()
+        except (ValueError, TypeError) as exc:
+            return f"imu_grade/imu_overrides: {exc}"
+        return None
+
+
+FLAG, FINITE, POSITIVE, NON_NEGATIVE, TRIPLE = Flag(), Finite(), Positive(), NonNegative(), Triple()
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One NavConfig field described for people and for checks.
+
+    doc: one line with the unit, for the ROS parameter descriptions, ekf.yaml's comments and
+      ``pipe-nav config --template``; an angle's unit there is degrees, as people give it.
+    rule: the values it takes (validate()'s check and message, the ROS parameter's range).
+    angle: radians in NavConfig, given in degrees under ``<name>_deg``.
+    """
+
+    doc: str
+    rule: Rule
+    angle: bool = False
+
+
+def _field(default: Any, rule: Rule, doc: str, angle: bool = False) -> Any:
+    """A NavConfig field with its Setting as metadata (a dict default is made per instance)."""
+    meta = {"setting": Setting(doc, rule, angle)}
+    if isinstance(default, dict):
+        return field(default_factory=dict, metadata=meta)
+    return field(default=default, metadata=meta)
 
 
 @dataclass(frozen=True)
 class NavConfig:
-    """All settings of the navigation engine.
+    """All settings of the navigation engine; each field's description, unit and rule are its
+    :class:`Setting` (``SETTINGS``).
 
-    mode: "ins" (strapdown INS aided by the odometer) or "dr" (odometer dead reckoning, seed 001).
-    imu_grade: auto | consumer | industrial | tactical: the noise model used for process noise;
-      ``imu_overrides`` replaces single ImuSpec fields (SI units, see sensors.ImuSpec). ``auto``
-      (default): chosen from the run's own data by imu_model.choose before filtering; until
-      then (and where nothing measures it) the industrial figures.
-    imu_mount_rpy: (roll, pitch, yaw) rad of imu_link in base_link (rotation imu_link -> base_link,
-      applied as Rz(yaw) Ry(pitch) Rx(roll)); zeros = aligned.
-    filter_rate_hz: rate of covariance propagation and measurement updates (IMU integrates at its
-      own rate in between).
-    reorder_window_s: samples are held this long to put topics in stamp order; later ones are
-      counted as late and dropped.
+    imu_grade ``auto`` chooses the noise model from the run's own data (imu_model.choose) before
+    filtering; until then, and where nothing measures it, the industrial figures.
+    ``imu_overrides`` replaces single ImuSpec fields (SI units, see sensors.ImuSpec).
+    imu_mount_rpy is the rotation imu_link -> base_link, applied as Rz(yaw) Ry(pitch) Rx(roll).
+    The IMU integrates at its own rate between the filter_rate_hz epochs.
     """
 
-    mode: str = "ins"
-    imu_grade: str = "auto"
-    imu_overrides: Mapping[str, float] = field(default_factory=dict)
-    imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gyro_error_states: bool = True  # estimate gyro scale factors and misalignments (9 states)
-    accel_error_states: bool = True  # the same for the accelerometers (9 states)
-    filter_rate_hz: float = 10.0
-    reorder_window_s: float = 0.5
+    mode: str = _field("ins", OneOf(("ins", "dr"), quote=True),
+                       "ins (strapdown INS aided by the odometer) or dr (odometer dead reckoning)")
+    imu_grade: str = _field(AUTO_GRADE, OneOf((AUTO_GRADE, *sorted(GRADES)), last=", "),
+                            "IMU noise model: auto (measured from the run) | consumer | industrial"
+                            " | tactical")
+    imu_overrides: Mapping[str, float] = _field({}, ImuOverrides(),
+                                                "ImuSpec fields replacing the grade's, SI units")
+    imu_mount_rpy: tuple[float, float, float] = _field(
+        (0.0, 0.0, 0.0), TRIPLE,
+        "roll, pitch, yaw of imu_link in base_link (imu_link->base_link), deg", angle=True)
+    gyro_error_states: bool = _field(
+        True, FLAG, "estimate gyro scale factors and misalignments (9 more error states)")
+    accel_error_states: bool = _field(
+        True, FLAG, "estimate accelerometer scale factors and misalignments (9 more)")
+    filter_rate_hz: float = _field(10.0, Positive(at_most=1000),
+                                   "covariance propagation and update rate, Hz")
+    reorder_window_s: float = _field(
+        0.5, NON_NEGATIVE, "samples wait this long to be put in stamp order; later ones dropped, s")
 
-    # Odometer (wheel on the pipe wall)
-    # m/s, white noise of the speed averaged over NOISE_EPOCH_S (an epoch of T s: see over_epoch)
-    odometer_speed_sigma: float = 0.005
-    nhc_sigma: float = 0.005  # m/s, the same for the lateral and vertical body velocity (NHC)
-    # m per count of the wheel encoder; 0 = the smallest step seen in the readings. The reading
-    # errors at both ends of an epoch are states (quantization does not accumulate).
-    odometer_resolution: float = 0.0
-    odometer_scale_sigma: float = 0.02  # initial one-sigma of the scale-factor error (fraction)
-    odometer_scale_rw: float = 1e-6  # 1/sqrt(s), random walk of the scale factor
-    boresight_sigma: float = 0.01  # rad, initial one-sigma of odometer/IMU misalignment
-    odometer_lever_arm: tuple[float, float, float] = (
-        0.0,
-        0.0,
-        0.0,
-    )  # m, wheel contact in base_link
-    pipe_diameter: float = 0.2  # m; wall-vs-centreline distance noise in bends when no lever arm
-    odometer_distance_sigma: float = 2e-3  # m/sqrt(m), DR-mode along-track distance noise
-    dr_lateral_sigma: float = 1e-3  # m/sqrt(m), DR-mode lateral/vertical path noise
+    # Odometer (wheel on the pipe wall). Speed noises are over NOISE_EPOCH_S (see over_epoch).
+    odometer_speed_sigma: float = _field(
+        0.005, POSITIVE, "odometer speed white noise averaged over 0.1 s, m/s")
+    nhc_sigma: float = _field(
+        0.005, POSITIVE, "NHC: lateral and vertical body velocity noise averaged over 0.1 s, m/s")
+    # The reading errors at both ends of an epoch are states (quantization does not accumulate).
+    odometer_resolution: float = _field(
+        0.0, NON_NEGATIVE, "m per encoder count; 0 = the smallest step seen in the readings")
+    odometer_scale_sigma: float = _field(
+        0.02, POSITIVE, "initial one-sigma odometer scale-factor error (fraction)")
+    odometer_scale_rw: float = _field(
+        1e-6, NON_NEGATIVE, "odometer scale-factor random walk, 1/sqrt(s)")
+    boresight_sigma: float = _field(
+        0.01, POSITIVE, "initial one-sigma odometer/IMU misalignment, deg", angle=True)
+    odometer_lever_arm: tuple[float, float, float] = _field(
+        (0.0, 0.0, 0.0), TRIPLE, "wheel contact point in base_link, m")
+    pipe_diameter: float = _field(
+        0.2, POSITIVE, "pipe diameter, m (wall-vs-centreline distance noise in bends)")
+    odometer_distance_sigma: float = _field(
+        2e-3, POSITIVE, "dr mode along-track distance noise, m/sqrt(m)")
+    dr_lateral_sigma: float = _field(
+        1e-3, POSITIVE, "dr mode lateral/vertical path noise, m/sqrt(m)")
 
     # Stops: zero velocity and zero angular rate
-    stop_speed_threshold: float = 0.002  # m/s, odometer speed below which the pig may be stopped
-    stop_gyro_threshold: float = 0.02  # rad/s, |gyro| (bias removed) below which it may be stopped
-    zupt_sigma: float = 0.002  # m/s
-    zaru_sigma: float = 1e-4  # rad/s, extra noise of the zero-angular-rate update
+    stop_speed_threshold: float = _field(
+        0.002, NON_NEGATIVE, "odometer speed below which the pig may be stopped, m/s")
+    stop_gyro_threshold: float = _field(
+        0.02, NON_NEGATIVE, "|gyro| (bias removed) below which the pig may be stopped, deg/s",
+        angle=True)
+    zupt_sigma: float = _field(0.002, POSITIVE, "zero-velocity update noise, m/s")
+    zaru_sigma: float = _field(1e-4, POSITIVE, "zero-angular-rate update noise, rad/s")
 
-    # Gravity tilt (seed 001 eq. 11-13)
-    tilt_update: str = "auto"  # auto (on in dr mode, off in ins mode) | on | off
-    tilt_gate: float = 0.05  # m/s^2, seed 001 eq. 13 threshold xi_g on |C [0,0,g] x f|
-    tilt_sigma: float = 0.02  # m/s^2
+    # Gravity tilt (seed 001 eq. 11-13; tilt_gate is eq. 13's threshold xi_g)
+    tilt_update: str = _field("auto", OneOf(("auto", "on", "off")),
+                              "gravity tilt update: auto (on in dr, off in ins) | on | off")
+    tilt_gate: float = _field(
+        0.05, POSITIVE, "tilt update motion-test threshold on |C [0,0,g] x f|, m/s^2")
+    tilt_sigma: float = _field(0.02, POSITIVE, "tilt update noise, m/s^2")
 
     # Magnetometer (seed 001 eq. 10, 31)
-    mag_update: bool = False
-    mag_declination: float = 0.0  # rad, east of true north positive
-    mag_attenuation: float = 0.0  # in-pipe relative permeability mu; 0 = estimate at the start
-    mag_heading_sigma: float = 0.05  # rad
-    mag_magnitude_gate: float = 0.15  # reject when | |m| / (mu |B|) - 1 | exceeds this
-    mag_dip_gate: float = 0.2  # rad, reject when the dip angle differs more from the reference
-    mag_hard_iron: tuple[float, float, float] = (0.0, 0.0, 0.0)  # T, in imu_link
+    mag_update: bool = _field(False, FLAG, "use the magnetometer heading update")
+    mag_declination: float = _field(
+        0.0, FINITE, "magnetic declination, east of true north positive, deg", angle=True)
+    mag_attenuation: float = _field(
+        0.0, NON_NEGATIVE, "in-pipe relative permeability mu; 0 = estimate at the start")
+    mag_heading_sigma: float = _field(0.05, POSITIVE, "magnetic heading noise, deg", angle=True)
+    mag_magnitude_gate: float = _field(
+        0.15, POSITIVE, "reject when | |m| / (mu |B|) - 1 | exceeds this")
+    mag_dip_gate: float = _field(
+        0.2, POSITIVE, "reject when the dip angle differs more than this from the reference, deg",
+        angle=True)
+    mag_hard_iron: tuple[float, float, float] = _field(
+        (0.0, 0.0, 0.0), TRIPLE,
+        "magnetometer hard iron, T in imu_link (keep 0 if the driver corrects it)")
 
-    # Markers
-    marker_time_sigma: float = 0.03  # s, passage-time error; adds speed * sigma along track
+    # Markers (the passage-time error adds speed * sigma along track)
+    marker_time_sigma: float = _field(0.03, NON_NEGATIVE, "marker passage-time error, s")
 
     # Alignment and initial uncertainty
-    static_alignment_s: float = 2.0  # s of rest needed for coarse alignment at the start
-    heading_source: str = "markers"  # markers | magnetometer | fixed
-    # rad, used with heading_source "fixed"; with "markers" and fewer than two surveyed markers
-    # the live filter starts on it and reports the heading unknown until the second marker
-    initial_azimuth: float = 0.0
-    initial_heading_sigma: float = math.radians(20.0)  # rad, before the second marker
-    initial_tilt_sigma: float = math.radians(0.5)  # rad, after static levelling
-    initial_position_sigma: float = 0.05  # m, when starting at the first marker
+    static_alignment_s: float = _field(
+        2.0, POSITIVE, "seconds of rest needed for the coarse alignment at the start, s")
+    heading_source: str = _field("markers", OneOf(("markers", "magnetometer", "fixed")),
+                                 "initial heading from markers | magnetometer | fixed")
+    initial_azimuth: float = _field(
+        0.0, FINITE, "initial azimuth for heading_source fixed, deg from north (with markers"
+        " and fewer than two surveyed, the start value; the heading is reported unknown)",
+        angle=True)
+    initial_heading_sigma: float = _field(
+        math.radians(20.0), POSITIVE, "initial heading one-sigma before the second marker, deg",
+        angle=True)
+    initial_tilt_sigma: float = _field(
+        math.radians(0.5), POSITIVE, "initial roll/pitch one-sigma after static levelling, deg",
+        angle=True)
+    initial_position_sigma: float = _field(
+        0.05, POSITIVE, "initial position one-sigma at the first marker, m")
 
     # Innovation gating
-    gate_probability: float = 0.9999  # chi-square acceptance probability of every update
+    gate_probability: float = _field(
+        0.9999, Between(0.5, 1), "chi-square acceptance probability of every update, in (0.5, 1)")
 
     # Integrity products, computed from the smoothed solution (products/)
-    pipe_outer_diameter: float = 0.0  # m, for bending strain; 0 = pipe_diameter
-    curvature_window: float = 0.0  # m of chainage; 0 = 3 outer diameters, at least 0.5 m
-    bend_min_angle: float = math.radians(1.0)  # rad, 3-D angle between a bend's end tangents
-    bend_threshold_radius: float = 2000.0  # m: curvature over 1/this is part of a bend
-    bend_class_limits: tuple[float, float, float] = (2.5, 12.0, 150.0)  # outer diameters
-    strain_thresholds: tuple[float, ...] = (0.125, 0.2)  # percent bending strain
+    pipe_outer_diameter: float = _field(
+        0.0, NON_NEGATIVE, "pipe outer diameter for bending strain, m; 0 = pipe_diameter")
+    curvature_window: float = _field(  # at least 0.5 m when derived
+        0.0, NON_NEGATIVE, "chainage window of the curvature profile, m; 0 = 3 outer diameters")
+    bend_min_angle: float = _field(
+        math.radians(1.0), POSITIVE,
+        "smallest bend listed (3-D angle between its end tangents), deg", angle=True)
+    bend_threshold_radius: float = _field(
+        2000.0, POSITIVE, "a bend is where the radius of curvature is below this, m")
+    bend_class_limits: tuple[float, float, float] = _field(
+        (2.5, 12.0, 150.0), Increasing(3), "bend class by radius, outer diameters: elbow < a <="
+        " induction < b <= field < c <= elastic")
+    strain_thresholds: tuple[float, ...] = _field(
+        (0.125, 0.2), Increasing(), "strain features: bending strain over these levels, percent")
 
     def over_epoch(self, sigma: float, epoch_s: float) -> float:
         """Sigma of a white velocity noise averaged over epoch_s (s), given its sigma over
@@ -202,14 +332,13 @@ class NavConfig:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> NavConfig:
         """Build and validate from a flat mapping; ``*_deg`` keys are converted to radians."""
-        known = {f.name: f for f in fields(cls)}
         kwargs: dict[str, Any] = {}
         for key, value in values.items():
             name = key
             if key.endswith("_deg") and key[:-4] in ANGLE_FIELDS:
                 name = key[:-4]
                 value = _to_rad(value, key)
-            if name not in known:
+            if name not in SETTINGS:
                 raise ConfigError(f"unknown setting {key!r}")
             kwargs[name] = tuple(value) if isinstance(value, list) else value
         cfg = cls(**kwargs)
@@ -220,87 +349,18 @@ class NavConfig:
         return asdict(self)
 
     def validate(self) -> None:
-        """Raise ConfigError naming the first invalid setting."""
-        if self.mode not in ("ins", "dr"):
-            raise ConfigError(f"mode must be 'ins' or 'dr', not {self.mode!r}")
-        if self.imu_grade != AUTO_GRADE and self.imu_grade not in GRADES:
-            raise ConfigError(
-                f"imu_grade must be auto, {', '.join(sorted(GRADES))}, not {self.imu_grade!r}"
-            )
-        try:
-            self.imu_spec()
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f"imu_grade/imu_overrides: {exc}") from None
-        if self.tilt_update not in ("auto", "on", "off"):
-            raise ConfigError(f"tilt_update must be auto, on or off, not {self.tilt_update!r}")
-        if self.heading_source not in ("markers", "magnetometer", "fixed"):
-            raise ConfigError(
-                f"heading_source must be markers, magnetometer or fixed, "
-                f"not {self.heading_source!r}"
-            )
-        for name in ("imu_mount_rpy", "odometer_lever_arm", "mag_hard_iron"):
-            v = getattr(self, name)
-            if len(v) != 3 or not all(math.isfinite(float(x)) for x in v):
-                raise ConfigError(f"{name} must be three finite numbers, not {v!r}")
-        positive = (
-            "filter_rate_hz",
-            "odometer_speed_sigma",
-            "nhc_sigma",
-            "odometer_scale_sigma",
-            "boresight_sigma",
-            "pipe_diameter",
-            "odometer_distance_sigma",
-            "dr_lateral_sigma",
-            "zupt_sigma",
-            "zaru_sigma",
-            "tilt_gate",
-            "tilt_sigma",
-            "mag_heading_sigma",
-            "mag_magnitude_gate",
-            "mag_dip_gate",
-            "static_alignment_s",
-            "initial_heading_sigma",
-            "initial_tilt_sigma",
-            "initial_position_sigma",
-            "bend_min_angle",
-            "bend_threshold_radius",
-        )
-        for name in positive:
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ConfigError(f"{name} must be a positive number, not {v!r}")
-        non_negative = (
-            "reorder_window_s",
-            "odometer_resolution",
-            "odometer_scale_rw",
-            "stop_speed_threshold",
-            "stop_gyro_threshold",
-            "mag_attenuation",
-            "marker_time_sigma",
-            "pipe_outer_diameter",
-            "curvature_window",
-        )
-        for name in non_negative:
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ConfigError(f"{name} must be a number >= 0, not {v!r}")
-        for name, count in (("bend_class_limits", 3), ("strain_thresholds", 0)):
-            v = getattr(self, name)
-            try:
-                ok = all(math.isfinite(float(x)) and float(x) > 0 for x in v) and list(v) == sorted(
-                    v
-                )
-            except (TypeError, ValueError):
-                ok = False
-            if not ok or (count and len(v) != count) or not v:
-                what = f"{count} " if count else ""
-                raise ConfigError(
-                    f"{name} must be {what}positive numbers in increasing order, not {v!r}"
-                )
-        if not 0.5 < self.gate_probability < 1.0:
-            raise ConfigError(f"gate_probability must be in (0.5, 1), not {self.gate_probability}")
-        if self.filter_rate_hz > 1000:
-            raise ConfigError("filter_rate_hz must be at most 1000")
+        """Raise ConfigError with the message of the first field, in field order, whose value
+        its Setting's rule refuses."""
+        for name, setting in SETTINGS.items():
+            problem = setting.rule.problem(name, getattr(self, name), self)
+            if problem:
+                raise ConfigError(problem)
+
+
+# Every field's Setting, in field order, and the angle fields (radians here, ``<name>_deg`` for
+# people).
+SETTINGS: dict[str, Setting] = {f.name: f.metadata["setting"] for f in fields(NavConfig)}
+ANGLE_FIELDS = frozenset(name for name, setting in SETTINGS.items() if setting.angle)
 
 
 def _to_rad(value: Any, key: str) -> Any:

@@ -1,7 +1,7 @@
 """The settings file of one pig (``pipe-nav config --template > pig.yaml``).
 
 Lists what a user knows about their tool, each with its description and unit from
-config.FIELD_DOCS and its default: the IMU noise model (a grade, or datasheet figures as
+its config.SETTINGS entry and its default: the IMU noise model (a grade, or datasheet figures as
 overrides), the IMU mounting, the odometer wheel, the pipe bore, the magnetometer and the marker
 timing. ``pipe-nav smooth RUN.mcap --config pig.yaml`` reads it back (angles under ``*_deg``).
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .config import ANGLE_FIELDS, FIELD_DOCS, NavConfig
+from .config import ANGLE_FIELDS, SETTINGS, NavConfig
 from .sensors import GRADES
 
 # NavConfig fields a user knows about the tool, in the order of the file
@@ -73,13 +73,8 @@ def template_text() -> str:
         value = getattr(defaults, name)
         key = name
         if name in ANGLE_FIELDS:
-            key = f"{name}_deg"
-            value = (
-                [math.degrees(v) for v in value]
-                if isinstance(value, tuple)
-                else math.degrees(value)
-            )
-        lines += ["", f"# {FIELD_DOCS[name]}", f"{key}: {yaml_value(value)}"]
+            key, value = f"{name}_deg", degrees_of(value)
+        lines += ["", f"# {SETTINGS[name].doc}", f"{key}: {yaml_value(value)}"]
         if name == "imu_grade":
             example = GRADES["industrial"]
             lines += [

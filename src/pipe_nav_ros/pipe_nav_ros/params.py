@@ -5,20 +5,27 @@ settings from their values with the functions here, so a wrong value is refused 
 clear :class:`~pipe_nav_core.config.ConfigError` in the node and in the unit tests.
 
 Estimator settings: one ROS parameter per :class:`~pipe_nav_core.config.NavConfig` field, with
-the field's default. Angle fields are given in degrees under ``<field>_deg`` (as in
-``config/ekf.yaml``); triples are double arrays; ``imu_overrides`` becomes one optional parameter
-per :class:`~pipe_nav_core.sensors.ImuSpec` number, ``imu_overrides.<field>`` (SI units, unset =
-the grade's value). Integers are accepted where a double is expected (``10`` for ``10.0``).
+the field's default, and its description and range from the field's
+:class:`~pipe_nav_core.config.Setting`. Angle fields are given in degrees under ``<field>_deg``
+(as in ``config/ekf.yaml``); triples are double arrays; ``imu_overrides`` becomes one optional
+parameter per :class:`~pipe_nav_core.sensors.ImuSpec` number, ``imu_overrides.<field>`` (SI
+units, unset = the grade's value). Integers are accepted where a double is expected (``10`` for
+``10.0``).
+
+Over 400 lines: the parameters of all five nodes, their checks and the parameter files written
+from them (config/*.yaml) are one table and its uses, kept together.
 """
 
 from __future__ import annotations
 
+import io
 import math
+import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import MISSING, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import Any
 
-from pipe_nav_core.config import ANGLE_FIELDS, FIELD_DOCS, ConfigError, NavConfig
+from pipe_nav_core.config import ANGLE_FIELDS, SETTINGS, ConfigError, NavConfig, Setting
 from pipe_nav_core.sensors import ImuSpec
 
 # kinds of parameter value
@@ -29,7 +36,9 @@ FLOAT, INT, BOOL, STR, FLOATS = "float", "int", "bool", "str", "floats"
 class ParamSpec:
     """One ROS parameter: name, default (None = optional, unset), kind, description.
 
-    ``length`` fixes the number of elements of a FLOATS parameter (0 = any).
+    ``length`` fixes the number of elements of a FLOATS parameter (0 = any). ``range`` is the
+    inclusive (from, to) a FLOAT parameter is declared with (rclpy refuses a double outside it;
+    the checks here stay the rule), None = none.
     """
 
     name: str
@@ -37,6 +46,7 @@ class ParamSpec:
     kind: str
     description: str = ""
     length: int = 0
+    range: tuple[float, float] | None = None
 
     def coerce(self, value: Any) -> Any:
         """The value converted to the Python type of this parameter; ConfigError if impossible."""
@@ -102,16 +112,6 @@ def values_from(specs: Sequence[ParamSpec], values: Mapping[str, Any]) -> dict[s
 IMU_OVERRIDES_PREFIX = "imu_overrides."
 
 
-def _nav_defaults() -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for f in fields(NavConfig):
-        if f.default is not MISSING:
-            out[f.name] = f.default
-        elif f.default_factory is not MISSING:
-            out[f.name] = f.default_factory()
-    return out
-
-
 def _ros_default(value: Any, in_degrees: bool, digits: int | None = 12) -> Any:
     """A NavConfig value as a ROS parameter value: tuples as lists of floats, angles in degrees
     (rounded to ``digits`` decimals for people, None = exact)."""
@@ -123,29 +123,42 @@ def _ros_default(value: Any, in_degrees: bool, digits: int | None = 12) -> Any:
     return value
 
 
+def _ros_range(setting: Setting) -> tuple[float, float] | None:
+    """The bounds of a setting's rule as a ROS parameter range (degrees for an angle), or None.
+
+    The range is inclusive, so an edge the rule excludes (0 of a positive setting) passes it
+    and is refused by the validation; an infinite bound is given as the largest double, as
+    rqt_reconfigure cannot show a parameter with an infinite limit.
+    """
+    bounds = setting.rule.bounds()
+    if bounds is None:
+        return None
+    low, high = (math.degrees(b) if setting.angle else b for b in bounds)
+    return max(low, -sys.float_info.max), min(high, sys.float_info.max)
+
+
 def nav_param_specs() -> list[ParamSpec]:
-    """One spec per NavConfig field (angles as ``<name>_deg``) and per ImuSpec override."""
+    """One spec per NavConfig field (angles as ``<name>_deg``) and per ImuSpec override; the
+    description and range come from the field's Setting."""
     specs: list[ParamSpec] = []
-    for name, default in _nav_defaults().items():
+    for name, default in NavConfig().to_dict().items():
         if name == "imu_overrides":
             continue
-        deg = name in ANGLE_FIELDS
-        pname = f"{name}_deg" if deg else name
-        desc = FIELD_DOCS.get(name, f"NavConfig.{name}")
-        if isinstance(default, bool):
-            kind = BOOL
-        elif isinstance(default, str):
-            kind = STR
-        elif isinstance(default, tuple):
-            specs.append(ParamSpec(pname, _ros_default(default, deg), FLOATS, desc, len(default)))
-            continue
-        elif isinstance(default, int):
-            kind = INT
-        elif isinstance(default, float):
-            kind = FLOAT
-        else:  # a field type this module does not know: fail loudly in the tests
+        setting = SETTINGS[name]
+        deg = setting.angle
+        kind = {bool: BOOL, str: STR, int: INT, float: FLOAT, tuple: FLOATS}.get(type(default))
+        if kind is None:  # a field type this module does not know: fail loudly in the tests
             raise TypeError(f"NavConfig.{name}: no ROS parameter type for {default!r}")
-        specs.append(ParamSpec(pname, _ros_default(default, deg), kind, desc))
+        specs.append(
+            ParamSpec(
+                f"{name}_deg" if deg else name,
+                _ros_default(default, deg),
+                kind,
+                setting.doc,
+                length=len(default) if kind == FLOATS else 0,
+                range=_ros_range(setting) if kind == FLOAT else None,
+            )
+        )
     for f in fields(ImuSpec):
         if f.name == "name":
             continue
@@ -425,47 +438,73 @@ def smoother_node_settings(values: Mapping[str, Any]) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------------------------
-# YAML of the defaults (config/ekf.yaml is generated with this, then annotated by hand)
+# Parameter files (config/ekf.yaml and config/drivers.yaml are generated with these)
 
 
-def yaml_scalar(value: Any) -> str:
-    """A YAML scalar that YAML 1.1 (PyYAML, rcl) and 1.2 read back as the same type."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        text = repr(value)
-        mantissa, e, exponent = text.partition("e")
-        if e:
-            if "." not in mantissa:
-                mantissa += ".0"
-            if exponent[0] not in "+-":
-                exponent = "+" + exponent
-            text = f"{mantissa}e{exponent}"
-        return text
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(yaml_scalar(v) for v in value) + "]"
-    return '"' + str(value).replace("\\", "\\\\").replace('"', '\\"') + '"'
+def params_yaml(
+    node_name: str, values: Mapping[str, Any], comments: Mapping[str, str] | None = None
+) -> str:
+    """A ROS parameter file of one node: ``node_name: ros__parameters:`` with the values (None:
+    left out), each below its line of ``comments`` where it has one; lists in flow style.
+
+    Written by ruamel.yaml, but so that YAML 1.1 (PyYAML, which ``ros2 param load`` uses), rcl's
+    parser of ``--params-file`` and YAML 1.2 (ruamel) all read back the same values, which
+    ruamel alone does not ensure: a float always has a dot (``1.0e-06``; ruamel writes
+    ``1e-06``, a string to YAML 1.1), and a string is always double-quoted (ruamel writes ``on``
+    plain, which YAML 1.1 and rcl read as true).
+    """
+    from ruamel.yaml import YAML
+    from ruamel.yaml.comments import CommentedMap
+    from ruamel.yaml.representer import RoundTripRepresenter
+    from ruamel.yaml.scalarstring import DoubleQuotedScalarString
+
+    class Representer(RoundTripRepresenter):
+        def represent_float(self, data: float) -> Any:
+            text = repr(data)  # shortest round trip; its exponent is signed, as YAML 1.1 needs
+            if not math.isfinite(data) or "." in text or "e" not in text:
+                return super().represent_float(data)  # .nan and .inf are read by both
+            return self.represent_scalar("tag:yaml.org,2002:float", text.replace("e", ".0e"))
+
+        def represent_list(self, data: list) -> Any:
+            return self.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True)
+
+    Representer.add_representer(float, Representer.represent_float)
+    Representer.add_representer(list, Representer.represent_list)
+    params = CommentedMap()
+    for name, value in values.items():
+        if value is None:
+            continue
+        if isinstance(value, str):
+            value = DoubleQuotedScalarString(value)
+        params[name] = list(value) if isinstance(value, tuple) else value
+        if comments and name in comments:
+            params.yaml_set_comment_before_after_key(name, before=comments[name], indent=4)
+    yaml = YAML()  # round trip: it writes comments
+    yaml.Representer = Representer
+    yaml.width = 1 << 16  # no line folded
+    out = io.StringIO()
+    yaml.dump({node_name: {"ros__parameters": params}}, out)
+    return out.getvalue()
 
 
 def defaults_yaml(node_name: str, specs: Sequence[ParamSpec]) -> str:
-    """``node_name: ros__parameters:`` with every spec's default and description (unset
-    optional parameters are written as comments)."""
-    lines = [f"{node_name}:", "  ros__parameters:"]
-    nested: dict[str, list[ParamSpec]] = {}
+    """The parameter file of ``specs``' defaults, each below its description; the optional
+    parameters of a group (``imu_overrides.<field>``, unset by default) are shown commented
+    out at the end."""
+    text = params_yaml(
+        node_name,
+        {s.name: s.default for s in specs if "." not in s.name},
+        {s.name: s.description for s in specs},
+    )
+    nested: dict[str, list[str]] = {}
     for spec in specs:
         if "." in spec.name:
-            nested.setdefault(spec.name.split(".", 1)[0], []).append(spec)
-            continue
-        lines.append(f"    # {spec.description}")
-        lines.append(f"    {spec.name}: {yaml_scalar(spec.default)}")
+            group, member = spec.name.split(".", 1)
+            nested.setdefault(group, []).append(member)
     for group, members in nested.items():
-        lines.append(f"    # {group}: optional, unset = not overridden; for example:")
-        lines.append(f"    # {group}:")
-        for spec in members:
-            lines.append(f"    #   {spec.name.split('.', 1)[1]}: 0.0")
-    return "\n".join(lines) + "\n"
+        text += f"    # {group}: optional, unset = not overridden; for example:\n"
+        text += f"    # {group}:\n" + "".join(f"    #   {m}: 0.0\n" for m in members)
+    return text
 
 
 HEADERS = {

@@ -8,7 +8,8 @@ from typing import Any
 
 import rclpy
 from pipe_nav_core.config import ConfigError
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
@@ -62,13 +63,22 @@ def declare(node: Node, specs: Sequence[ParamSpec], read_only: bool = False) -> 
     Parameters are declared with dynamic typing: the values are checked and converted by
     :mod:`pipe_nav_ros.params` (which accepts ``10`` for a double, and names the parameter in
     its error), not by rclpy's static typing which would refuse the node with a type error.
+    A spec's range is declared for tools and later changes; a value outside it at the start is
+    declared without it, so that the node is refused with the params module's clear message.
     """
     values: dict[str, Any] = {}
     for spec in specs:
         descriptor = ParameterDescriptor(
             description=spec.description, dynamic_typing=True, read_only=read_only
         )
-        param = node.declare_parameter(spec.name, spec.default, descriptor)
+        if spec.range:
+            low, high = spec.range
+            descriptor.floating_point_range = [FloatingPointRange(from_value=low, to_value=high)]
+        try:
+            param = node.declare_parameter(spec.name, spec.default, descriptor)
+        except InvalidParameterValueException:
+            descriptor.floating_point_range = []
+            param = node.declare_parameter(spec.name, spec.default, descriptor)
         values[spec.name] = param.value
     return values
 
