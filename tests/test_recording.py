@@ -99,3 +99,33 @@ def test_an_epoch_is_stored_as_it_was_given_while_the_caller_goes_on():
     for k in (0, 21, 39):
         P = given[k]
         np.testing.assert_array_equal(rec.P_upd(k), np.triu(P) + np.triu(P, 1).T)
+
+
+def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
+    """A chunk being spilled is read back whole, and its rows stay as they were while the
+    caller reads the chunk before it: its array returns to the pool only once its file is
+    complete, and reading waits for that (else the next read could refill it)."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    held = threading.Event()
+
+    class SlowWriter(ThreadPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):  # the write waits until the test lets it
+            return super().submit(lambda: (held.wait(5.0), fn(*args, **kwargs)))
+
+    monkeypatch.setattr(recording, "ThreadPoolExecutor", SlowWriter)
+    recording.drop_spare()
+    width, n = 3, 5
+    rows = recording._Chunks(width, budget=0)  # two chunks in memory, older ones spill
+    for k in range(n):
+        for a, b, view in rows.claim(recording.CHUNK_EPOCHS):
+            view[:] = k  # chunk k's rows all hold k
+    threading.Timer(0.2, held.set).start()
+    last_spilled = n - 3
+    got = rows.chunk(last_spilled)  # asked for while its write is held back
+    time.sleep(0.5)  # the writes are done: their arrays are spare
+    before = rows.chunk(last_spilled - 1)  # read back into a spare array
+    assert np.all(got == last_spilled) and np.all(before == last_spilled - 1)
+    rows.close()

@@ -176,7 +176,11 @@ class _Chunks:
         self._writes = []
 
     def chunk(self, i: int) -> Array:
-        """Rows of chunk i (the filled ones), from memory or read back from disk."""
+        """Rows of chunk i (the filled ones), from memory or read back from disk. The pending
+        writes end first: a chunk's array goes back to the pool when its file is complete,
+        and a caller still holding it would see it refilled with another chunk's rows."""
+        if self._writes:
+            self.flush()
         c = self._chunks[i]
         if isinstance(c, str):
             hit = [a for k, a in self._read if k == i]
