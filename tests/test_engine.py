@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.engine import Navigator
+from pipe_nav_core.navigator import Navigator, PassOptions
 from pipe_nav_core.evaluation import score
 from pipe_nav_core.pipeline import estimates_to_trajectory
 from pipe_nav_core.process import accel_bias_allowance
@@ -193,7 +193,7 @@ def test_heading_is_not_learnt_from_zero_velocity_or_odometer_noise():
             "initial_azimuth": run.scenario.azimuth,
         }
     )
-    nav = Navigator(cfg, survey=run.log.markers, record=True)
+    nav = Navigator(cfg, run.log.markers, PassOptions(record=True))
     nav.run(run.log)
     rec = nav.recording
     t = rec.t
@@ -294,7 +294,7 @@ def test_progress_slices_give_identical_results(monkeypatch):
 
     run = simulate("sag104", seed=6)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    nav = Navigator(cfg, survey=run.log.markers, record=True)
+    nav = Navigator(cfg, run.log.markers, PassOptions(record=True))
     nav.run(run.log)
     whole = nav.recording
     seen: list[float] = []
@@ -313,7 +313,7 @@ def test_progress_slices_give_identical_results(monkeypatch):
 def test_free_heading_direction_is_a_rotation_about_the_pivot():
     """FreeHeading.direction is the error state of the whole solution turned about the
     vertical through the first marker: truth (-) estimate = angle * direction to first order."""
-    from pipe_nav_core.engine import FreeHeading
+    from pipe_nav_core.anchoring import FreeHeading
     from pipe_nav_core.state import NavState, layout_for
 
     lat0, lon0, h0 = math.radians(30.0), math.radians(114.0), 20.0
@@ -358,7 +358,7 @@ def test_unknown_heading_covariance_is_that_of_a_uniform_rotation():
     """FreeHeading(unknown): position and velocity covariances are the second moments of a
     vector turned by a uniform angle (Monte Carlo), the variances agree with them, and the
     azimuth variance is pi^2 / 3."""
-    from pipe_nav_core.engine import UNKNOWN_HEADING_VARIANCE, FreeHeading
+    from pipe_nav_core.anchoring import UNKNOWN_HEADING_VARIANCE, FreeHeading
     from pipe_nav_core.state import layout_for
 
     lat0, lon0, h0 = math.radians(30.0), math.radians(114.0), 20.0

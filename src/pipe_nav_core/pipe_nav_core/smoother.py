@@ -16,7 +16,7 @@ Passes:
    reckoning up to the second marker, re-anchored until it no longer turns
    (:func:`anchored_config`), and a filter pass starts from it (``forward`` of the result);
 3. Gauss-Newton: each following pass is linearized about the previous pass's smoothed
-   trajectory, every epoch of it (:class:`pipe_nav_core.engine.Navigator` ``reference``), with
+   trajectory, every epoch of it (:class:`pipe_nav_core.navigator.PassOptions` ``reference``), with
    the same prior, so that the smoother converges to the optimum of the whole batch problem
    (a factor graph of the prior, the IMU transitions between epochs and every update) instead
    of the optimum of a linearization about a drifting forward filter; it stops when a pass's
@@ -37,8 +37,9 @@ from numpy.typing import NDArray
 
 from . import attitude as att
 from . import earth
+from .anchoring import FreeHeading
 from .config import NOISE_EPOCH_S, NavConfig
-from .engine import FreeHeading, Navigator
+from .navigator import Navigator, PassOptions
 from .odometer_faults import bridged_for_dead_reckoning
 from .recording import Recording
 from .smoothing import rts_packed
@@ -189,19 +190,21 @@ def run_forward(
     free_heading: bool | None = None,
 ) -> Navigator:
     """One filter pass over a time-sorted log (recorded for the smoothers unless record=False;
-    reference: flat states (K, SV_SIZE), free_heading: see Navigator)."""
+    reference: flat states (K, SV_SIZE), free_heading: see PassOptions)."""
     nav = Navigator(
         config,
-        survey=log.markers,
-        record=record,
-        emit=False,
-        reverse=reverse,
-        initial=initial,
-        epoch_times=epoch_times,
-        odometer_exclude=odometer_exclude,
-        reference=reference,
-        initial_azimuth=initial_azimuth,
-        free_heading=free_heading,
+        log.markers,
+        PassOptions(
+            record=record,
+            emit=False,
+            reverse=reverse,
+            initial=initial,
+            epoch_times=epoch_times,
+            odometer_exclude=odometer_exclude,
+            reference=reference,
+            initial_azimuth=initial_azimuth,
+            free_heading=free_heading,
+        ),
     )
     report = _FRACTION.get()
     if len(log.imu) < 2:
@@ -498,7 +501,7 @@ def _two_filter(
     The backward filter starts at the receive trap with the forward estimate's azimuth there as
     its initial heading (with the configured sigma: a prior, not the forward's information)
     and leaves out the same odometer epochs; its heading prior stays outside it until its
-    second marker (:class:`~pipe_nav_core.engine.FreeHeading`) and is added to its covariance
+    second marker (:class:`~pipe_nav_core.anchoring.FreeHeading`) and is added to its covariance
     here. Returns the corrections to the forward estimates
     and the variances (K, n) of the fused covariances.
     """
