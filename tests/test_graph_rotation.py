@@ -4,7 +4,7 @@ vertical through a pivot, and retract applies a step's turn of the initial headi
 import math
 
 import numpy as np
-from pipe_nav_core.engine import FreeHeading
+from pipe_nav_core.anchoring import FreeHeading
 from pipe_nav_core.graph.rotation import retract, rotate_about
 from pipe_nav_core.state import (
     SV_H,

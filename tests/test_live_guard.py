@@ -80,7 +80,7 @@ def test_the_live_filter_runs_again_from_the_anchored_heading(log, truth):
     """The sample's initial heading (the first two markers' bearing) is 30 deg off: at the
     second marker the live filter runs again from the heading anchored as the smoother does,
     publishes every estimate once, and is as right after it as the smoother's first pass."""
-    from pipe_nav_core.engine import Navigator
+    from pipe_nav_core.navigator import Navigator
 
     result = replay_log(log, NavConfig())
     assert result.diagnostics["heading_rerun"] == 1

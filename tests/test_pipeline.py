@@ -28,7 +28,7 @@ def test_imu_mount_rotation_is_applied():
 
 
 def test_mount_rotation_is_the_extrinsic_xyz_euler_rotation():
-    from pipe_nav_core.engine import mount_rotation
+    from pipe_nav_core.ingest import mount_rotation
     from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(5)

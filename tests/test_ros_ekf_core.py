@@ -120,7 +120,7 @@ def test_twist_is_in_base_link(run, result):
 
 
 def test_twist_covariance_rotates_into_the_body():
-    from pipe_nav_core.engine import NavEstimate
+    from pipe_nav_core.estimates import NavEstimate
 
     q = att.quat_from_dcm(att.dcm_from_euler(0.0, 0.0, math.radians(90.0)))  # nose east
     est = NavEstimate(

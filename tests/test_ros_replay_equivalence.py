@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 pipeline = pytest.importorskip("pipe_nav_core.pipeline", reason="core pipeline not written yet")
-engine = pytest.importorskip("pipe_nav_core.engine", reason="core engine not written yet")
+navigator = pytest.importorskip("pipe_nav_core.navigator", reason="core navigator not written yet")
 sim = pytest.importorskip("pipe_nav_core.sim", reason="core simulator not written yet")
 rosmsg = pytest.importorskip(
     "pipe_nav_core.io.rosmsg", reason="core message conversion not written yet"

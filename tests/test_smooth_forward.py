@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.engine import Navigator
+from pipe_nav_core.navigator import Navigator, PassOptions
 from pipe_nav_core.sim import simulate
 from pipe_nav_core.smooth import forward
 from pipe_nav_core.smooth.forward import run_forward
@@ -30,7 +30,7 @@ def test_progress_slices_give_identical_results(monkeypatch):
     monkeypatch.setattr(forward, "SLICE_MIN_S", 5.0)  # slices of 5 s of data: many
     run = simulate("sag104", seed=6)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    nav = Navigator(cfg, survey=run.log.markers, record=True)
+    nav = Navigator(cfg, run.log.markers, PassOptions(record=True))
     nav.run(run.log)
     whole = nav.recording
     told = _Fractions()

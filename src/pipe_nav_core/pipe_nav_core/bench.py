@@ -27,8 +27,8 @@ from numpy.typing import NDArray
 from . import earth
 from .complementary import complementary_trajectory
 from .config import NavConfig
-from .engine import mount_rotation
 from .evaluation import sag_depth, score
+from .ingest import mount_rotation
 from .io.atomic import atomic_write
 from .sim import SimRun, get_scenario, simulate
 from .smooth.centreline import interpolate_enu

@@ -1,7 +1,7 @@
 """The filter epoch, compiled: mechanize the block of IMU samples, propagate the covariance,
 apply the gated updates, inject the correction, write what the smoothers need.
 
-:class:`pipe_nav_core.engine.Navigator` decides where epochs end, prepares the per-epoch inputs
+:class:`pipe_nav_core.navigator.Navigator` decides where epochs end, prepares the per-epoch inputs
 (odometer coverage and distance, encoder resolution, excluded slips, magnetometer sample) for a
 batch of epochs, and calls :func:`run_epochs` once per batch; the rare events (alignment, the
 heading re-anchoring and covariance recovery at a marker passage) stay in Python between

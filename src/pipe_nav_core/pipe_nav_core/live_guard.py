@@ -50,10 +50,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from .earth import geodetic_to_enu
-from .engine import NavEstimate, Navigator
+from .estimates import NavEstimate
 from .gaps import MIN_GAP_S, REST_MOVED_M, REST_SPEED, same_at_rest
 from .imu_faults import MARGIN_S, MAX_ACCEL, MAX_RATE, MIN_FLAT
 from .kalman import chi2_threshold
+from .navigator import Navigator
 from .odometer_faults import find_odometer_faults, without_faults
 from .types import ImuSamples, MagSamples, Marker, OdometerSamples, SensorLog
 
@@ -184,7 +185,7 @@ class GuardedNavigator(Navigator):
         e = self._latest
         if e is None or not 0.0 <= marker.t - e.t <= 2.0:
             return 0.0
-        if self.datum is None or not self._anchored or len(self._markers_seen) < 2:
+        if self.datum is None or not self.anchor.anchored or len(self.inbox.markers_seen) < 2:
             return 0.0  # the datum and the heading come from the first markers: not tested
         vel = np.asarray(e.vel_n, dtype=np.float64)
         pos = geodetic_to_enu(e.lat, e.lon, e.h, marker.lat, marker.lon, marker.alt).reshape(3)
@@ -237,7 +238,7 @@ class GuardedNavigator(Navigator):
         return self._published_only(super().finish())
 
     def _published_only(self, out: list[NavEstimate]) -> list[NavEstimate]:
-        if self._kept is not None and self._anchored:
+        if self._kept is not None and self.anchor.anchored:
             out = self._rerun(out)
         out = [e for e in out if e.t > self._published]
         if out:
@@ -256,7 +257,7 @@ class GuardedNavigator(Navigator):
         from .smooth.heading import anchored_config
 
         kept, self._kept = self._kept or [], None
-        if self.reanchor_rad == 0.0 or len(self._markers_seen) < 2:
+        if self.reanchor_rad == 0.0 or len(self.inbox.markers_seen) < 2:
             return out
         # the wheel's faults so far, found as offline (odometer_faults) and left out of both
         log = _log_of(kept)

@@ -17,7 +17,7 @@ import numpy as np
 
 from . import imu_model, quality
 from .config import AUTO_GRADE, NavConfig
-from .engine import NavEstimate
+from .estimates import NavEstimate
 from .gaps import fill_holes_at_rest, fill_short_holes, find_holes, remove_clock_steps
 from .imu_faults import without_imu_faults
 from .io import (
@@ -366,7 +366,7 @@ def _require_imu(
 def run_welds(log: SensorLog, result: SmoothResult, config: NavConfig) -> list[Weld]:
     """The girth welds of a smoothed run (products.welds.detect_welds) with the pig's pipe
     diameter and IMU mount."""
-    from .engine import mount_rotation
+    from .ingest import mount_rotation
 
     return detect_welds(log, result.centreline, result.datum, pipe_diameter=config.pipe_diameter,
                         r_base_imu=mount_rotation(config.imu_mount_rpy))  # fmt: skip

@@ -63,7 +63,7 @@ def system_matrix_k(
     time).
 
     dv_f: the specific-force velocity increment (m/s, ENU) in the attitude-to-velocity
-    coupling: the engine's first-estimate value (see :class:`pipe_nav_core.engine.Navigator`).
+    coupling: the engine's first-estimate value (see :class:`pipe_nav_core.navigator.Navigator`).
     at_rest: the pig is known to be stopped over the block; the couplings that multiply the
     true body rate and specific force (gyro and accelerometer error matrices) then use their
     exact values (the Earth rate and the gravity reaction (0, 0, g) m/s^2 ENU) instead of the

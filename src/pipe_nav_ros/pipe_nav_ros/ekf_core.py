@@ -1,7 +1,7 @@
 """The message handling of ekf_node, without rclpy.
 
 :class:`EkfCore` takes already-deserialized input messages (rclpy's or rosbags' classes alike),
-feeds the :class:`~pipe_nav_core.engine.Navigator` (which orders the samples by stamp across
+feeds the :class:`~pipe_nav_core.navigator.Navigator` (which orders the samples by stamp across
 topics), and turns its estimates into nav_msgs/Odometry, the datum into sensor_msgs/NavSatFix
 and its counters into diagnostic_msgs/DiagnosticArray, built with the given message classes.
 The node is parameters, subscriptions, timers and publishers around one EkfCore, so the same
@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.engine import NavEstimate
+from pipe_nav_core.estimates import NavEstimate
 from pipe_nav_core.io import rosmsg
 from pipe_nav_core.live_guard import GuardedNavigator
 from pipe_nav_core.types import Datum, Marker

@@ -1,6 +1,6 @@
 """The batch problem linearized about a trajectory, built from the filter's own epoch.
 
-:class:`FactorRecorder` is the :class:`~pipe_nav_core.engine.Navigator` run about a reference
+:class:`FactorRecorder` is the :class:`~pipe_nav_core.navigator.Navigator` run about a reference
 trajectory (the iterated smoother's pass: same alignment prior, same epochs, same inputs,
 same odometer exclusions), which also writes down, epoch by epoch, what its compiled epoch
 linearizes: the transition Phi_k, the process noise Qd_k and the offset (mechanization from
@@ -27,7 +27,6 @@ from .. import earth
 from .. import measurements as meas
 from ..attitude import dcm_into
 from ..config import NOISE_EPOCH_S, NavConfig
-from ..engine import Navigator
 from ..epoch import (
     D_FREE,
     D_HAS_PREV_VEL,
@@ -72,6 +71,7 @@ from ..epoch import (
     Inputs,
     run_epochs,
 )
+from ..navigator import Navigator, PassOptions
 from ..recording import Recording, phi_rows
 from ..state import I_VEL, L_ATT, SV_H, SV_LAT, c_nb_k
 from ..types import Marker, SensorLog
@@ -165,16 +165,13 @@ class FactorRecorder(Navigator):
         super().__init__(
             config,
             survey,
-            record=True,
-            emit=False,
-            reverse=reverse,
-            reference=reference,
-            odometer_exclude=odometer_exclude,
-        )
+            PassOptions(record=True, emit=False, reverse=reverse, reference=reference,
+                        odometer_exclude=odometer_exclude),
+        )  # fmt: skip
         self.sink = sink
         if sink is not None:
-            self.recording = Recording(self.layout, reference=self.reference,
-                                       ram_budget=SINK_RAM_BUDGET)  # fmt: skip
+            self.report.recording = Recording(self.layout, reference=self.reference,
+                                              ram_budget=SINK_RAM_BUDGET)  # fmt: skip
         K, n = (0 if sink is not None else len(reference)), self.layout.n
         # the rows of Phi that can differ from the identity's, and the rows of Qd that can be
         # more than diagonal: those of the attitude, velocity and position errors (the nonzero
@@ -376,7 +373,7 @@ class FactorRecorder(Navigator):
         self.factors.append(MeasurementFactor(kind, k, r, H, R, model, robust, name))
 
     def _marker_name(self, vec: Array) -> str:
-        for m in (*self.survey, *self._markers_seen):
+        for m in (*self.survey, *self.inbox.markers_seen):
             if m.t == vec[0] and m.lat == vec[1] and m.lon == vec[2]:
                 return m.name
         return ""

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from .. import attitude as att
 from .. import earth
-from ..engine import FreeHeading
+from ..anchoring import FreeHeading
 from ..state import SV_H, SV_LAT, SV_LON, SV_Q, SV_VEL, Layout, inject_many
 
 Array = NDArray[np.float64]

@@ -12,8 +12,9 @@ from numpy.typing import NDArray
 
 from .. import attitude as att
 from .. import earth
+from ..anchoring import FreeHeading
 from ..config import NavConfig
-from ..engine import FreeHeading, Navigator
+from ..navigator import Navigator
 from ..recording import Recording
 from ..state import SV_DIST, SV_H, SV_LAT, SV_LON, SV_Q, SV_T, SV_VEL, Layout
 from ..types import Datum, Marker, Trajectory

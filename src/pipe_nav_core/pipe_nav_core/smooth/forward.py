@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..config import NavConfig
-from ..engine import Navigator
+from ..navigator import Navigator, PassOptions
 from ..progress import QUIET, Progress
 from ..state import NavState
 from ..types import SensorLog
@@ -40,21 +40,23 @@ def run_forward(
     progress: Progress = QUIET,
 ) -> Navigator:
     """One filter pass over a time-sorted log, recorded for the smoothers unless record=False;
-    the other arguments are :class:`~pipe_nav_core.engine.Navigator`'s (reference: flat states
+    the other arguments are :class:`~pipe_nav_core.navigator.PassOptions`' (reference: flat states
     (K, SV_SIZE) to linearize about). ``progress`` hears the fraction of the pass done.
     ValueError when the log gives no navigation solution."""
     nav = Navigator(
         config,
-        survey=log.markers,
-        record=record,
-        emit=False,
-        reverse=reverse,
-        initial=initial,
-        epoch_times=epoch_times,
-        odometer_exclude=odometer_exclude,
-        reference=reference,
-        initial_azimuth=initial_azimuth,
-        free_heading=free_heading,
+        log.markers,
+        PassOptions(
+            record=record,
+            emit=False,
+            reverse=reverse,
+            initial=initial,
+            epoch_times=epoch_times,
+            odometer_exclude=odometer_exclude,
+            reference=reference,
+            initial_azimuth=initial_azimuth,
+            free_heading=free_heading,
+        ),
     )
     if len(log.imu) < 2:
         nav.run(log)

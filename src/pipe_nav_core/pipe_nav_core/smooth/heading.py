@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..config import NavConfig
-from ..engine import Navigator
+from ..navigator import Navigator
 from ..odometer_faults import bridged_for_dead_reckoning
 from ..progress import QUIET, Progress
 from ..types import SensorLog, markers_sorted

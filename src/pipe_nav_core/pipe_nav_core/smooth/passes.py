@@ -14,7 +14,7 @@ Passes:
 2. a filter pass over the whole log from that heading (else the live filter's configuration):
    its estimates are ``forward`` of the result;
 3. Gauss-Newton: each following pass is linearized about the previous pass's smoothed
-   trajectory, every epoch of it (:class:`pipe_nav_core.engine.Navigator` ``reference``), with
+   trajectory, every epoch of it (:class:`pipe_nav_core.navigator.PassOptions` ``reference``), with
    the same prior, so that the smoother converges to the optimum of the whole batch problem
    (a factor graph of the prior, the IMU transitions between epochs and every update) instead
    of the optimum of a linearization about a drifting forward filter; it stops when a pass's
@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..config import NavConfig
-from ..engine import Navigator
+from ..navigator import Navigator
 from ..progress import QUIET, Progress
 from ..recording import Recording
 from ..state import SV_H, SV_LAT, SV_LON, Layout, inject_many, layout_for

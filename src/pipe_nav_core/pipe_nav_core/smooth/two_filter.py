@@ -45,7 +45,7 @@ def two_filter(
     The backward filter starts at the receive trap with the forward estimate's azimuth there as
     its initial heading (with the configured sigma: a prior, not the forward's information)
     and leaves out the same odometer epochs (``exclude``, (N, 2) s); its heading prior stays
-    outside it until its second marker (:class:`~pipe_nav_core.engine.FreeHeading`) and is
+    outside it until its second marker (:class:`~pipe_nav_core.anchoring.FreeHeading`) and is
     added to its covariance here. Returns the corrections (K, n) to the forward estimates and
     the variances (K, n) of the fused covariances; ``progress`` hears the backward pass.
     """
