@@ -602,3 +602,27 @@ def test_log_driver_refuses_unusable_files_at_start(ctx, tmp_path, kind, content
             ]
             + [Parameter(k, value=v) for k, v in extra.items()],
         )
+
+
+def test_a_driver_shut_down_while_it_publishes_ends_without_an_error():
+    """The launch ends (its context shut down) while the sim source is publishing: the publish
+    that finds the context gone ends the source quietly, not as "source failed" (exit 1)."""
+    own = rclpy.Context()
+    rclpy.init(context=own)
+    node = SensorDriverNode(
+        "imu",
+        context=own,
+        parameter_overrides=[Parameter("source", value="sim"), Parameter("rate", value=20.0)],
+    )
+    try:
+        deadline = time.monotonic() + 30.0
+        while node.core.published < 50 and time.monotonic() < deadline:
+            time.sleep(0.05)  # the source thread publishes on its own
+        assert node.core.published >= 50
+        own.try_shutdown()  # as at the end of a launch, the source thread still running
+        time.sleep(0.3)
+        assert node.exit_code != 1
+    finally:
+        node.close()
+        with contextlib.suppress(Exception):
+            node.destroy_node()

@@ -159,6 +159,8 @@ class SensorDriverNode(PipeNavNode):
             self.exit_code = 2
             return
         except Exception as exc:  # noqa: BLE001 - report and stop this node, not the process
+            if self._stop.is_set() or not self.context.ok():
+                return  # shut down (Ctrl-C, launch ending) while a sample was being published
             self.get_logger().error(f"source failed: {type(exc).__name__}: {exc}")
             self.exit_code = 1
             return
