@@ -129,3 +129,26 @@ def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
     before = rows.chunk(last_spilled - 1)  # read back into a spare array
     assert np.all(got == last_spilled) and np.all(before == last_spilled - 1)
     rows.close()
+
+
+def test_reading_back_in_any_order_keeps_the_last_chunks_asked_for():
+    """The RTS pass reads the chunks from the last back, holding the one it is at while it asks
+    for the one before; a forward read (the variances) may have left other chunks in the read
+    buffers. A buffer is reused only for the chunk asked for least recently, so the one the
+    caller holds is never refilled under it."""
+    recording.drop_spare()
+    rows = recording._Chunks(2, budget=0)  # two chunks in memory, the older ones spill
+    n = 7
+    for k in range(n):
+        for a, b, view in rows.claim(recording.CHUNK_EPOCHS):
+            view[:] = k
+    for i in range(n):  # forward, as Recording.variances reads them
+        assert np.all(rows.chunk(i) == i)
+    held = None
+    for i in range(n - 1, -1, -1):  # backward, as rts_packed reads them
+        here = rows.chunk(i)
+        if held is not None:
+            assert np.all(held == i + 1), f"chunk {i + 1} refilled while held"
+        assert np.all(here == i)
+        held = here
+    rows.close()

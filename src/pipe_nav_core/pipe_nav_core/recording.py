@@ -183,9 +183,11 @@ class _Chunks:
             self.flush()
         c = self._chunks[i]
         if isinstance(c, str):
-            hit = [a for k, a in self._read if k == i]
-            if hit:
-                c = hit[0]
+            hit = [(k, a) for k, a in self._read if k == i]
+            if hit:  # now the last asked for: the buffers are reused least recently asked first
+                self._read.remove(hit[0])
+                self._read.append(hit[0])
+                c = hit[0][1]
             else:
                 full = len(self._read) == READ_BUFFERS
                 buf = self._read.pop(0)[1] if full else _take(self.width)
