@@ -28,17 +28,24 @@ import pytest
 pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy) is not installed here")
 highlevel = pytest.importorskip("rosbags.highlevel")
 
+# the command line itself and the fixtures' internals (not the API a ROS integrator uses)
 from pipe_nav_core.cli import SIM_EPOCH, main  # noqa: E402
-from pipe_nav_core.config import NavConfig  # noqa: E402
 from pipe_nav_core.evaluation import trajectory_enu  # noqa: E402
-from pipe_nav_core.io import write_sensor_bag  # noqa: E402
-from pipe_nav_core.io.rosmsg import datum_from_msg, jazzy_typestore, stamp_to_ns  # noqa: E402
-from pipe_nav_core.sim import get_scenario, simulate  # noqa: E402
+from pipe_nav_core.sim import get_scenario  # noqa: E402
 from pipe_nav_core.smooth.logs import slice_log  # noqa: E402
-from pipe_nav_core.types import Datum, SensorLog, Trajectory  # noqa: E402
 from pipe_nav_ros.params import nav_params_from_config, params_yaml  # noqa: E402
 from ros_graph import LoggedProcess, ros2_with_workspace  # noqa: E402
 from ruamel.yaml import YAML  # noqa: E402
+
+from pipe_nav_core import (  # noqa: E402
+    Datum,
+    NavConfig,
+    SensorLog,
+    Trajectory,
+    rosmsg,
+    simulate,
+    write_sensor_bag,
+)
 
 INPUT_TOPICS = ["/imu/data", "/odom/wheel", "/imu/mag", "/markers"]
 RECORDED_TOPICS = ["/pipe_nav/odometry", "/pipe_nav/datum", "/diagnostics"]
@@ -113,7 +120,7 @@ def last_diagnostics(bag: Path) -> dict[str, str]:
     """The key/values of ekf_node's last /diagnostics report made while it was navigating
     (before ~/finish reset it)."""
     last: dict[str, str] = {}
-    with highlevel.AnyReader([bag], default_typestore=jazzy_typestore()) as reader:
+    with highlevel.AnyReader([bag], default_typestore=rosmsg.jazzy_typestore()) as reader:
         conns = [c for c in reader.connections if c.topic == "/diagnostics"]
         for conn, _t, raw in reader.messages(connections=conns):
             for status in reader.deserialize(raw, conn.msgtype).status:
@@ -157,16 +164,16 @@ def read_odometry(bag: Path) -> Odometry:
     """/pipe_nav/odometry and /pipe_nav/datum of a bag (rosbag2 directory or .mcap), with
     rosbags."""
     stamps, enu, datums = [], [], []
-    with highlevel.AnyReader([bag], default_typestore=jazzy_typestore()) as reader:
+    with highlevel.AnyReader([bag], default_typestore=rosmsg.jazzy_typestore()) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         conns = [c for c in reader.connections if c.topic in RECORDED_TOPICS[:2]]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             if conn.topic == "/pipe_nav/datum":
-                datums.append(datum_from_msg(msg))
+                datums.append(rosmsg.datum_from_msg(msg))
                 continue
             p = msg.pose.pose.position
-            stamps.append(stamp_to_ns(msg.header.stamp))
+            stamps.append(rosmsg.stamp_to_ns(msg.header.stamp))
             enu.append((p.x, p.y, p.z))
     assert datums, f"{bag}: no /pipe_nav/datum"
     assert all(d == datums[0] for d in datums)

@@ -25,14 +25,14 @@ import pytest
 rclpy = pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy) is not installed here")
 
 from nav_msgs.msg import Odometry  # noqa: E402
-from pipe_nav_core.config import ConfigError  # noqa: E402
-from pipe_nav_core.io.rosmsg import stamp_to_sec  # noqa: E402
 from pipe_nav_ros.driver_node import SensorDriverNode  # noqa: E402
 from pipe_nav_ros.sources import nmea_checksum  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from ros_graph import LoggedProcess, ros2_with_workspace, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
+
+from pipe_nav_core import ConfigError, rosmsg  # noqa: E402
 
 SENSOR_DEEP = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=5000, reliability=ReliabilityPolicy.BEST_EFFORT
@@ -55,7 +55,7 @@ def bad_checksum(body: str) -> bytes:
 
 
 def stamp(msg) -> float:
-    return stamp_to_sec(msg.header.stamp)
+    return rosmsg.stamp_to_sec(msg.header.stamp)
 
 
 @pytest.fixture
@@ -585,7 +585,7 @@ def test_serial_damaged_lines_are_counted_and_skipped(ctx, pty, graph):
     [
         ("imu", "t_s,mx,my,mz\n1,2,3,4\n", {}, "imu log header must be t_s,gx,gy,gz,ax,ay,az"),
         ("mag", "t_s,mx,my,mz\n# nothing yet\n", {}, "holds no mag samples"),
-        ("odometer", "1.0,5\n", {"markers_csv": "/nonexistent/m.csv"}, "markers_csv"),
+        ("odometer", "1.0,5\n", {"markers_csv": "/no/m.csv"}, "markers_csv: .* cannot read"),
         ("odometer", "1.0,5\n", {"counter_bits": 65}, "counter_bits"),
         ("mag", "1,2,3,4\n", {"soft_iron": [1.0, 0.0]}, "soft_iron"),
     ],

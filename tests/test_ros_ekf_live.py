@@ -18,10 +18,6 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy) is not installe
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
-from pipe_nav_core.config import NavConfig  # noqa: E402
-from pipe_nav_core.io import rosmsg  # noqa: E402
-from pipe_nav_core.io.markers_csv import write_markers_csv  # noqa: E402
-from pipe_nav_core.sim import simulate  # noqa: E402
 from pipe_nav_ros.ekf_core import WARN  # noqa: E402
 from pipe_nav_ros.ekf_node import EkfNode  # noqa: E402
 from pipe_nav_ros.msg_types import rclpy_types  # noqa: E402
@@ -36,6 +32,7 @@ from rclpy.qos import (  # noqa: E402
 from ros_graph import own_domain, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 
+from pipe_nav_core import NavConfig, rosmsg, simulate, write_markers_csv  # noqa: E402
 from pipe_nav_ros import ekf_node as ekf_node_module  # noqa: E402
 
 

@@ -21,10 +21,6 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy) is not installe
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from nav_msgs.msg import Odometry, Path  # noqa: E402
-from pipe_nav_core.config import ConfigError, NavConfig  # noqa: E402
-from pipe_nav_core.earth import geodetic_to_enu  # noqa: E402
-from pipe_nav_core.io import rosmsg  # noqa: E402
-from pipe_nav_core.sim import simulate  # noqa: E402
 from pipe_nav_ros.driver_node import SensorDriverNode  # noqa: E402
 from pipe_nav_ros.ekf_node import EkfNode  # noqa: E402
 from pipe_nav_ros.msg_types import rclpy_types  # noqa: E402
@@ -40,6 +36,15 @@ from rclpy.qos import (  # noqa: E402
 from ros_graph import own_domain, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
+
+from pipe_nav_core import (  # noqa: E402
+    ConfigError,
+    NavConfig,
+    SensorLog,
+    rosmsg,
+    simulate,
+    write_sensor_bag,
+)
 
 CROP_S = 70.0  # rest, marker agm_00 (10 s), agm_01 (62 s)
 LATCHED = QoSProfile(
@@ -137,7 +142,7 @@ def test_ekf_node_follows_the_truth_latches_the_datum_and_reports(ctx, graph, ru
     assert len(odometry) > 100
 
     truth, d = run.truth, run.datum
-    enu = geodetic_to_enu(truth.lat, truth.lon, truth.h, d.lat, d.lon, d.alt)
+    enu = rosmsg.enu_of(d, truth.lat, truth.lon, truth.h)
     errors, stamps = [], []
     for msg in odometry:
         assert msg.header.frame_id == "map" and msg.child_frame_id == "base_link"
@@ -232,7 +237,7 @@ def test_invalid_parameters_refuse_the_node(ctx):
         EkfNode(context=ctx, parameter_overrides=[Parameter("gate_probability", value=2.0)])
     with pytest.raises(ConfigError, match="mode"):
         EkfNode(context=ctx, parameter_overrides=[Parameter("mode", value="magic")])
-    with pytest.raises(ConfigError, match="survey"):
+    with pytest.raises(ConfigError, match="survey_markers_csv: /nope.csv: cannot read"):
         EkfNode(
             context=ctx, parameter_overrides=[Parameter("survey_markers_csv", value="/nope.csv")]
         )
@@ -381,9 +386,6 @@ def test_serial_driver_reads_the_line_protocol(ctx, graph):
 
 
 def test_smoother_node_publishes_a_latched_path(ctx, graph, run, tmp_path):
-    pytest.importorskip("pipe_nav_core.pipeline")
-    from pipe_nav_core.io.bagwrite import write_sensor_bag
-    from pipe_nav_core.types import SensorLog
     from pipe_nav_ros.smoother_node import SmootherNode
 
     executor, helper, _ = graph

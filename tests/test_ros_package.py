@@ -15,9 +15,6 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from pipe_nav_core.config import ANGLE_FIELDS, SETTINGS, ConfigError, NavConfig
-from pipe_nav_core.io import rosmsg
-from pipe_nav_core.sensors import ImuSpec
 from pipe_nav_ros.msg_types import ROS_MESSAGES
 from pipe_nav_ros.params import (
     DRIVER_NODE_NAMES,
@@ -34,6 +31,8 @@ from pipe_nav_ros.params import (
     params_yaml,
     smoother_node_settings,
 )
+
+from pipe_nav_core import ANGLE_FIELDS, SETTINGS, ConfigError, ImuSpec, NavConfig, rosmsg
 
 PKG = Path(__file__).resolve().parents[1] / "src" / "pipe_nav_ros"
 NODES = {

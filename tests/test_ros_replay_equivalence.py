@@ -12,21 +12,19 @@ import math
 import numpy as np
 import pytest
 
-pipeline = pytest.importorskip("pipe_nav_core.pipeline", reason="core pipeline not written yet")
-navigator = pytest.importorskip("pipe_nav_core.navigator", reason="core navigator not written yet")
-sim = pytest.importorskip("pipe_nav_core.sim", reason="core simulator not written yet")
-rosmsg = pytest.importorskip(
-    "pipe_nav_core.io.rosmsg", reason="core message conversion not written yet"
-)
-bagwrite = pytest.importorskip(
-    "pipe_nav_core.io.bagwrite", reason="core bag writer not written yet"
-)
 highlevel = pytest.importorskip("rosbags.highlevel")
 
-from pipe_nav_core.config import NavConfig  # noqa: E402
-from pipe_nav_core.smooth.logs import slice_log  # noqa: E402
-from pipe_nav_core.types import SensorLog  # noqa: E402
+from pipe_nav_core.smooth.logs import slice_log  # noqa: E402  (a fixture's internal)
 from pipe_nav_ros.ekf_core import EkfCore  # noqa: E402
+
+from pipe_nav_core import (  # noqa: E402
+    NavConfig,
+    SensorLog,
+    replay_bag,
+    rosmsg,
+    simulate,
+    write_sensor_bag,
+)
 
 CROP_S = 90.0
 
@@ -38,9 +36,9 @@ def cropped(log: SensorLog, t_end: float) -> SensorLog:
 
 @pytest.fixture(scope="module")
 def bag_and_config(tmp_path_factory):
-    run = sim.simulate("demo", 3)
+    run = simulate("demo", 3)
     path = tmp_path_factory.mktemp("equivalence") / "demo.mcap"
-    bagwrite.write_sensor_bag(path, cropped(run.log, CROP_S))
+    write_sensor_bag(path, cropped(run.log, CROP_S))
     return path, NavConfig.from_dict(run.scenario.estimator_settings())
 
 
@@ -61,7 +59,7 @@ def ekf_node_estimates(path, config):
 
 def test_ekf_node_core_and_pipe_nav_replay_agree(bag_and_config, tmp_path):
     path, config = bag_and_config
-    result, _report = pipeline.replay_bag(path, tmp_path / "replay.mcap", config=config)
+    result, _report = replay_bag(path, tmp_path / "replay.mcap", config=config)
     ours, odometry, datums, core = ekf_node_estimates(path, config)
 
     theirs = result.estimates

@@ -8,14 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-pipeline = pytest.importorskip("pipe_nav_core.pipeline", reason="core pipeline not written yet")
-
-from pipe_nav_core.attitude import dcm_from_quat  # noqa: E402
-from pipe_nav_core.config import NavConfig  # noqa: E402
-from pipe_nav_core.io import rosmsg  # noqa: E402
 from pipe_nav_ros.params import smoother_node_settings  # noqa: E402
 from pipe_nav_ros.smoother_core import DONE, SmootherJob  # noqa: E402
+
+from pipe_nav_core import NavConfig, dcm_from_quat, rosmsg  # noqa: E402
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample.mcap"
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"

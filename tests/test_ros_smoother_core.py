@@ -3,16 +3,10 @@
 from __future__ import annotations
 
 import pytest
-
-pipeline = pytest.importorskip("pipe_nav_core.pipeline", reason="core pipeline not written yet")
-
-from pipe_nav_core.config import NavConfig  # noqa: E402
-from pipe_nav_core.io import rosmsg  # noqa: E402
-from pipe_nav_core.io.bagwrite import write_sensor_bag  # noqa: E402
-from pipe_nav_core.sim import simulate  # noqa: E402
-from pipe_nav_core.types import SensorLog  # noqa: E402
 from pipe_nav_ros.params import smoother_node_settings  # noqa: E402
 from pipe_nav_ros.smoother_core import DONE, ERROR, FAILED, OK, WARN, SmootherJob  # noqa: E402
+
+from pipe_nav_core import NavConfig, SensorLog, rosmsg, simulate, write_sensor_bag  # noqa: E402
 
 TYPES = rosmsg.rosbags_types()
 

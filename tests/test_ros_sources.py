@@ -11,9 +11,6 @@ import math
 
 import numpy as np
 import pytest
-from pipe_nav_core.config import ConfigError
-from pipe_nav_core.io import rosmsg
-from pipe_nav_core.types import Marker
 from pipe_nav_ros.driver_core import MARKER, SENSOR, DriverCore
 from pipe_nav_ros.params import driver_param_specs, driver_settings_from_params
 from pipe_nav_ros.sources import (
@@ -37,9 +34,10 @@ from pipe_nav_ros.sources import (
     parse_line,
     play,
     read_csv_log,
-    read_markers_csv,
     sim_samples,
 )
+
+from pipe_nav_core import ConfigError, Marker, rosmsg
 
 TYPES = rosmsg.rosbags_types()
 
@@ -374,24 +372,6 @@ def test_sim_sources_share_the_time_origin():
     assert len(markers) >= 2
     with pytest.raises(ConfigError, match="scenario"):
         sim_samples("imu", "no_such_scenario", 0)
-
-
-def test_read_markers_csv(tmp_path):
-    path = tmp_path / "markers.csv"
-    path.write_text(
-        "name,time_s,latitude_deg,longitude_deg,altitude_m,sigma_h_m,sigma_v_m\n"
-        "agm_01,62.0,39.901,116.401,44.0,0.02,0.03\n"
-        "agm_00,10.0,39.9,116.4,45.0,0.02,0.03\n"
-    )
-    a, b = read_markers_csv(path)  # sorted by passage time
-    assert a.name == "agm_00" and a.t == 10.0 and a.lat == pytest.approx(math.radians(39.9))
-    assert a.sigma_enu == (0.02, 0.02, 0.03) and b.name == "agm_01"
-    bad = tmp_path / "bad.csv"
-    bad.write_text("name,time_s\nx,1\n")
-    with pytest.raises(ConfigError, match="missing column"):
-        read_markers_csv(bad)
-    with pytest.raises(ConfigError, match="cannot read"):
-        read_markers_csv(tmp_path / "missing.csv")
 
 
 def test_readme_example_line_parses():

@@ -80,9 +80,9 @@ def crop_sample_bag(out: Path, seconds: float) -> tuple[float, float, int]:
     import math
 
     import numpy as np
-    from pipe_nav_core.io.bagread import read_bag
-    from pipe_nav_core.io.bagwrite import write_sensor_bag
-    from pipe_nav_core.smooth.logs import slice_log
+    from pipe_nav_core.smooth.logs import slice_log  # a fixture's internal, not the API
+
+    from pipe_nav_core import read_bag, write_sensor_bag
 
     log, _ = read_bag(SAMPLE_BAG)
     t_end = float(log.imu.t[0]) + seconds

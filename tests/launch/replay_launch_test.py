@@ -143,7 +143,7 @@ class TestReplayShutdown(unittest.TestCase):
         self.assertIn("success=True", text)
 
     def test_recording(self, output, bag_first, bag_last):
-        from pipe_nav_core.io.baginfo import bag_info
+        from pipe_nav_core import bag_info
 
         self.assertTrue((output / "metadata.yaml").is_file(), sorted(output.iterdir()))
         mcaps = sorted(output.glob("*.mcap"))

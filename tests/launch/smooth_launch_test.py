@@ -131,7 +131,7 @@ class TestSmoothShutdown(unittest.TestCase):
         )
 
     def test_outputs(self, output, csv, bag_first, bag_last):
-        from pipe_nav_core.io.baginfo import bag_info
+        from pipe_nav_core import bag_info
 
         self.assertTrue(output.is_file())
         info = bag_info(output)

@@ -3,17 +3,30 @@
 The public API, importable from here (``from pipe_nav_core import smooth_bag, NavConfig``); each
 name is imported from its module on first use, so ``import pipe_nav_core`` itself costs nothing:
 
-- settings and errors: NavConfig, ImuSpec, PipeNavError, InputError, ConfigError, BagError
+- settings and errors: NavConfig, ImuSpec, PipeNavError, InputError, ConfigError, BagError;
+  SETTINGS (each NavConfig field's Setting: its doc with the unit, the rule of its values),
+  ANGLE_FIELDS (the fields in radians, given in degrees): what a front end exposing every
+  setting (the ROS parameters, a GUI) is built from
 - data (SI units, radians; frames in pipe_nav_core.types): SensorLog, ImuSamples,
-  OdometerSamples, MagSamples, Marker, Datum, Trajectory
+  OdometerSamples, MagSamples, Marker, Datum, Trajectory; dcm_from_quat (the rotation matrix
+  of an estimate's quaternion, to turn its ENU values into the body frame)
 - bags and files: read_bag, bag_info, write_sensor_bag, read_markers_csv, write_markers_csv,
   read_centreline_csv, write_centreline_csv
 - estimation: Navigator (the live engine), GuardedNavigator (with the live fault guard),
-  NavEstimate, smooth_log, SmoothResult
+  NavEstimate, smooth_log, SmoothResult; warm_live (compiles the live engine's kernels on a
+  short simulated run, so a live node is ready before its first sample arrives)
 - the jobs of the command line and the nodes: smooth_bag, replay_bag, Outputs,
   centreline_rows, Progress
 - products: integrity_report, IntegrityReport, detect_welds
 - simulation and scoring: simulate, score
+
+One module is public as a module: ``rosmsg`` (``from pipe_nav_core import rosmsg``), the
+conversion between ROS 2 messages and these values, shared by the ROS nodes, the bag reader and
+writer and the tests. It is two dozen functions, most in matching pairs
+(``imu_to_msg`` / ``imu_from_msg``, ``odometry_to_msg`` / ``odometry_from_msg``, ...) with the
+message classes they build (``MsgTypes``) and the frame and covariance constants of
+INTERFACES.md; a ROS integrator uses them together, reads best qualified
+(``rosmsg.imu_to_msg``), and naming each here would double this list for one audience.
 """
 
 from __future__ import annotations
@@ -25,6 +38,9 @@ __version__ = "0.1.0"
 
 _API = {
     "NavConfig": "config",
+    "SETTINGS": "config",
+    "ANGLE_FIELDS": "config",
+    "Setting": "config",
     "ImuSpec": "sensors",
     "PipeNavError": "errors",
     "InputError": "errors",
@@ -37,6 +53,7 @@ _API = {
     "Marker": "types",
     "Datum": "types",
     "Trajectory": "types",
+    "dcm_from_quat": "attitude",
     "read_bag": "io",
     "bag_info": "io",
     "write_sensor_bag": "io",
@@ -49,6 +66,7 @@ _API = {
     "NavEstimate": "estimates",
     "smooth_log": "smooth.passes",
     "SmoothResult": "smooth.centreline",
+    "warm_live": "warmup",
     "smooth_bag": "pipeline",
     "replay_bag": "pipeline",
     "Outputs": "pipeline",
@@ -60,18 +78,22 @@ _API = {
     "simulate": "sim",
     "score": "evaluation",
 }
-__all__ = sorted(_API)
+# public modules (see the docstring): name -> the module
+_MODULES = {"rosmsg": "io.rosmsg"}
+__all__ = sorted({*_API, *_MODULES})
 
 
 def __getattr__(name: str) -> Any:
     """A name of the public API, imported from its module on first use."""
-    module = _API.get(name)
-    if module is None:
+    if name in _MODULES:
+        value = importlib.import_module(f".{_MODULES[name]}", __name__)
+    elif name in _API:
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+    else:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *_API})
+    return sorted({*globals(), *__all__})

@@ -57,9 +57,7 @@ TOPICS = {
 def _messages(duration_s: float, imu_rate_hz: float) -> tuple[list, list, dict[str, Any]]:
     """(stamp s, role, rclpy message) of the demo run's first duration_s seconds, its markers
     and the ekf_node parameters of its estimator settings."""
-    from pipe_nav_core.config import NavConfig
-    from pipe_nav_core.io import rosmsg
-    from pipe_nav_core.sim import simulate
+    from pipe_nav_core import NavConfig, rosmsg, simulate
 
     from .msg_types import rclpy_types
     from .params import nav_params_from_config
@@ -131,11 +129,12 @@ def run_bench(
     import yaml
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
-    from pipe_nav_core.io.markers_csv import write_markers_csv
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu, MagneticField, NavSatFix
+
+    from pipe_nav_core import write_markers_csv
 
     from .ros_common import latched_qos
 

@@ -19,8 +19,7 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-from pipe_nav_core.io import rosmsg
-from pipe_nav_core.types import Marker
+from pipe_nav_core import Marker, rosmsg
 
 from .sources import (
     ImuSample,

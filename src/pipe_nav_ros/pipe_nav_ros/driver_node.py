@@ -25,11 +25,13 @@ import os
 import threading
 import time
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 from nav_msgs.msg import Odometry
-from pipe_nav_core.config import ConfigError
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix
+
+from pipe_nav_core import ConfigError, InputError, read_markers_csv
 
 from .driver_core import MARKER, DriverCore
 from .msg_types import rclpy_types
@@ -46,7 +48,6 @@ from .sources import (
     merge_by_time,
     parse_line,
     play,
-    read_markers_csv,
     sim_samples,
 )
 
@@ -119,8 +120,8 @@ class SensorDriverNode(PipeNavNode):
             t_ref = first.t
             if self.kind == "odometer" and s["markers_csv"] and s["publish_markers"]:
                 try:
-                    markers = read_markers_csv(s["markers_csv"])
-                except ConfigError as exc:
+                    markers = read_markers_csv(Path(s["markers_csv"]).expanduser())
+                except InputError as exc:  # the core's MarkerCsvError
                     raise ConfigError(f"markers_csv: {exc}") from None
                 timed = [m for m in markers if math.isfinite(m.t)]
                 if len(timed) < len(markers):  # survey rows without a passage time

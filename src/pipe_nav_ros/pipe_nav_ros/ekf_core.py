@@ -48,13 +48,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pipe_nav_core.config import NavConfig
-from pipe_nav_core.estimates import NavEstimate
-from pipe_nav_core.io import rosmsg
-from pipe_nav_core.live_guard import GuardedNavigator
-from pipe_nav_core.types import Datum, Marker
 
-from pipe_nav_core import attitude as att
+from pipe_nav_core import (
+    Datum,
+    GuardedNavigator,
+    Marker,
+    NavConfig,
+    NavEstimate,
+    dcm_from_quat,
+    rosmsg,
+)
 
 # Topic role -> topic name (INTERFACES.md), for dispatching the messages of a bag by topic.
 INPUT_TOPICS = {
@@ -212,7 +215,7 @@ class EkfOutput:
 def twist_covariance(est: NavEstimate, angular_variance: float) -> np.ndarray:
     """6x6 covariance of the twist in base_link: the ENU velocity covariance rotated into the
     body, and ``angular_variance`` (rad/s)^2 on the angular diagonal."""
-    c_nb = att.dcm_from_quat(np.asarray(est.quat_nb, dtype=np.float64))
+    c_nb = dcm_from_quat(np.asarray(est.quat_nb, dtype=np.float64))
     cov = np.zeros((6, 6))
     cov[:3, :3] = c_nb.T @ np.asarray(est.cov_vel_n, dtype=np.float64) @ c_nb
     cov[3:, 3:] = np.eye(3) * angular_variance

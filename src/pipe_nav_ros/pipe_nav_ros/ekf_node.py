@@ -30,19 +30,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
-from pipe_nav_core.config import ConfigError, NavConfig
-from pipe_nav_core.warmup import warm_live
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 from std_srvs.srv import Trigger
 from tf2_ros import TransformBroadcaster
+
+from pipe_nav_core import ConfigError, InputError, NavConfig, read_markers_csv, warm_live
 
 from .ekf_core import EkfCore, EkfOutput
 from .msg_types import rclpy_types
@@ -56,7 +57,6 @@ from .ros_common import (
     run_node,
     sensor_qos,
 )
-from .sources import read_markers_csv
 
 NODE_NAME = "ekf_node"
 
@@ -97,8 +97,8 @@ class EkfNode(PipeNavNode):
         survey = []
         if s["survey_markers_csv"]:
             try:
-                survey = read_markers_csv(s["survey_markers_csv"])
-            except ConfigError as exc:
+                survey = read_markers_csv(Path(s["survey_markers_csv"]).expanduser())
+            except InputError as exc:  # the core's MarkerCsvError
                 raise ConfigError(f"survey_markers_csv: {exc}") from None
         self._pending_config: NavConfig | None = None
         self.core = EkfCore(

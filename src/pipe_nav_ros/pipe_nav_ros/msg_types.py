@@ -41,10 +41,10 @@ def rclpy_types() -> Any:
     ROS. ``byte`` fields are set as ``bytes`` (rclpy's representation). A message field of
     MsgTypes this table does not know raises KeyError (add it to ROS_MESSAGES).
     """
-    from pipe_nav_core.io.rosmsg import MsgTypes
+    from pipe_nav_core import rosmsg
 
     kwargs: dict[str, Any] = {}
-    for f in dataclasses.fields(MsgTypes):
+    for f in dataclasses.fields(rosmsg.MsgTypes):
         if f.name == "byte_as_bytes":
             kwargs[f.name] = True
         elif f.name in ROS_MESSAGES:
@@ -52,4 +52,4 @@ def rclpy_types() -> Any:
             kwargs[f.name] = getattr(importlib.import_module(f"{package}.msg"), name)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise KeyError(f"MsgTypes.{f.name}: no ROS message known for it (see ROS_MESSAGES)")
-    return MsgTypes(**kwargs)
+    return rosmsg.MsgTypes(**kwargs)

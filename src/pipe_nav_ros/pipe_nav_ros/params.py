@@ -25,8 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
-from pipe_nav_core.config import ANGLE_FIELDS, SETTINGS, ConfigError, NavConfig, Setting
-from pipe_nav_core.sensors import ImuSpec
+from pipe_nav_core import ANGLE_FIELDS, SETTINGS, ConfigError, ImuSpec, NavConfig, Setting
 
 # kinds of parameter value
 FLOAT, INT, BOOL, STR, FLOATS = "float", "int", "bool", "str", "floats"

@@ -14,8 +14,7 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
-from pipe_nav_core.config import NavConfig
-from pipe_nav_core.io import rosmsg
+from pipe_nav_core import NavConfig, rosmsg
 
 OK, WARN, ERROR = 0, 1, 2
 DIAGNOSTIC_NAME = "pipe_nav: smoother_node"
@@ -54,7 +53,7 @@ class SmootherJob:
         """Smooth the bag (blocking); afterwards ``state`` is DONE or FAILED (``error``)."""
         s = self.settings
         try:
-            from pipe_nav_core.pipeline import Outputs, centreline_rows, smooth_bag
+            from pipe_nav_core import Outputs, centreline_rows, smooth_bag
 
             outputs = Outputs(
                 bag=s["output"],

@@ -40,10 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from pipe_nav_core.config import ConfigError
-from pipe_nav_core.io.markers_csv import MarkerCsvError
-from pipe_nav_core.io.markers_csv import read_markers_csv as core_read_markers_csv
-from pipe_nav_core.types import Marker
+from pipe_nav_core import ConfigError, Marker
 
 KINDS = ("imu", "odometer", "mag")
 SENTENCES = {"imu": "PNIMU", "odometer": "PNODO", "mag": "PNMAG"}
@@ -499,7 +496,7 @@ def sim_samples(kind: str, scenario: str, seed: int) -> tuple[list[Sample], floa
     The time origin is the earliest sample of any sensor of the run, so the three driver nodes
     running the same scenario and seed share it. The odometer stream includes the marker passages.
     """
-    from pipe_nav_core.sim import simulate  # only this source needs the simulator
+    from pipe_nav_core import simulate  # only this source needs the simulator
 
     try:
         run = simulate(scenario, seed)
@@ -526,15 +523,6 @@ def sim_samples(kind: str, scenario: str, seed: int) -> tuple[list[Sample], floa
         markers = sorted(log.markers, key=lambda m: m.t)
         out = list(merge_by_time(odo_samples, markers))
     return out, t_ref
-
-
-def read_markers_csv(path: str | Path) -> list[Marker]:
-    """Markers of a marker CSV (INTERFACES.md; the core's reader, as ``pipe-nav --markers``),
-    sorted by passage time; ConfigError naming the file and line when it does not parse."""
-    try:
-        return core_read_markers_csv(Path(path).expanduser())
-    except MarkerCsvError as exc:
-        raise ConfigError(str(exc)) from None
 
 
 def _vec(v: Any) -> tuple[float, float, float]:
