@@ -19,15 +19,13 @@ from numpy.typing import NDArray
 
 from . import attitude as att
 from . import earth
-from . import measurements as meas
 from .config import NavConfig
-from .kalman import ErrorStateKF, chi2_threshold
+from .kalman import ErrorStateKF
+from .measurements import marker
 from .state import Layout, NavState
 from .types import Marker
 
 Array = NDArray[np.float64]
-
-LATE_MARKER_S = 2.0  # s: a marker passage this far before its epoch's start is dropped
 
 # rad: the live filter's own heading prior while its heading is unanchored; the rest of the
 # configured prior is carried outside the filter as a rotation about the first marker (FreeHeading)
@@ -162,8 +160,9 @@ class HeadingAnchor:
         self._counts = counts
 
     def late(self, m: Marker, s: NavState) -> bool:
-        """True (counted) for a marker passage stamped over LATE_MARKER_S before s.t (s)."""
-        if m.t < s.t - LATE_MARKER_S:
+        """True (counted) for a marker passage too late for the epoch starting at s
+        (marker.late)."""
+        if marker.late(m, s.t):
             self._counts["late_marker_dropped"] += 1
             return True
         return False
@@ -202,12 +201,9 @@ class HeadingAnchor:
             self.anchored = True
             self.reanchor_rad = d_az
             self._counts["heading_reanchor_mdeg"] = int(round(math.degrees(d_az) * 1000))
-        mm = meas.marker_fix(s, lay, m, time_sigma=self.cfg.marker_time_sigma)
-        r = mm.residual - mm.H @ kf.x
-        S = mm.H @ kf.P @ mm.H.T + mm.R
-        nis = float(r @ np.linalg.solve(S, r))
-        limit = chi2_threshold(self.cfg.gate_probability, len(r))
-        if np.isfinite(nis) and nis > limit:
-            kf.P = kf.P * (nis / len(r))
+        grow = marker.inflation(s, lay, m, kf.x, kf.P, time_sigma=self.cfg.marker_time_sigma,
+                                gate_probability=self.cfg.gate_probability)  # fmt: skip
+        if grow is not None:
+            kf.P = kf.P * grow
             self._counts["marker_covariance_inflations"] += 1
         return s, rz

@@ -26,59 +26,69 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from . import attitude as att
-from . import earth
-from . import measurements as meas
-from .config import NOISE_EPOCH_S, NavConfig
+from .config import NavConfig
 from .jit import kernel
-from .kalman import chi2_threshold, joseph_update, predict_k
+from .kalman import chi2_threshold, predict_k
+from .measurements import (
+    gravity_tilt,
+    magnetic_heading,
+    marker,
+    odometer,
+    zero_rate,
+    zero_velocity,
+)
+from .measurements.context import (
+    C_EPOCHS,
+    COUNTERS,
+    KINDS,
+    P_CHI2,
+    P_DR_ALONG,
+    P_DR_LATERAL,
+    P_EARTH_SIGN,
+    P_IMU,
+    P_LEVER,
+    P_LEVER_KNOWN,
+    P_MAG_DECL,
+    P_MAG_DIP,
+    P_MAG_DIP_GATE,
+    P_MAG_NORM_GATE,
+    P_MAG_ON,
+    P_MAG_REF,
+    P_MAG_REF_OK,
+    P_MAG_SIGMA,
+    P_MARKER_TIME,
+    P_NHC_SIGMA,
+    P_ODO_SIGMA,
+    P_PIPE_D,
+    P_SCALE_RW,
+    P_SIZE,
+    P_STOP_GYRO,
+    P_STOP_SPEED,
+    P_TILT_GATE,
+    P_TILT_ON,
+    P_TILT_SIGMA,
+    P_ZARU,
+    P_ZUPT,
+    Context,
+)
 from .mechanization import dr_step_k, ins_step_k
 from .process import discretize_k, imu_noise, process_noise_k, system_matrix_k
 from .sensors import ImuSpec
 from .state import (
     I_BG,
     I_VEL,
-    L_ATT,
     L_N,
     L_VEL,
     SV_DIST,
-    SV_H,
     SV_K,
-    SV_LAT,
     SV_SIZE,
     SV_T,
-    c_nb_k,
     difference_k,
     inject_k,
 )
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
-
-# measurement kinds (rows of the update statistics)
-KINDS = ("nhc", "odometer", "zupt", "zaru", "tilt", "mag", "marker")
-K_NHC, K_ODO, K_ZUPT, K_ZARU, K_TILT, K_MAG, K_MARKER = range(7)
-# event counters
-COUNTERS = (
-    "epochs",
-    "epochs_without_odometer",
-    "odometer_excluded",
-    "tilt_gated_motion",
-    "mag_disturbed",
-)
-C_EPOCHS, C_NO_ODO, C_EXCLUDED, C_TILT_GATED, C_MAG_DISTURBED = range(5)
-
-# settings (prm)
-P_EARTH_SIGN, P_PIPE_D, P_LEVER, P_LEVER_KNOWN = 0, 1, 2, 5  # P_LEVER: 3 values
-P_STOP_SPEED, P_STOP_GYRO, P_ODO_SIGMA, P_NHC_SIGMA, P_ZUPT, P_ZARU = 6, 7, 8, 9, 10, 11
-P_TILT_ON, P_TILT_GATE, P_TILT_SIGMA = 12, 13, 14
-P_MAG_ON, P_MAG_NORM_GATE, P_MAG_DIP_GATE, P_MAG_DECL, P_MAG_SIGMA = 15, 16, 17, 18, 19
-P_MAG_REF, P_MAG_DIP, P_MAG_REF_OK = 20, 21, 22
-P_SCALE_RW, P_DR_ALONG, P_DR_LATERAL, P_MARKER_TIME = 23, 24, 25, 26
-P_CHI2 = 27  # 3: gates for 1, 2, 3 rows
-P_IMU = 30  # 6: process_noise_k's IMU densities
-P_ARW = P_IMU  # gyro angle random walk, rad/sqrt(s)
-P_SIZE = 36
 
 # the filter's memory besides sv, x, P, carry (dyn)
 D_PREV_SPEED, D_HAS_PREV_VEL, D_PREV_VEL, D_S_START, D_FREE, D_V_JAC = 0, 1, 2, 5, 6, 7
@@ -229,23 +239,6 @@ class Batch:
 
 
 @kernel
-def _update(
-    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Array, out: EpochOutputs
-) -> None:
-    """One gated update of (x, P) in place, counted under kind in out's statistics."""
-    m = r.shape[0]
-    nis, dx, x_new, P_new = joseph_update(P, x, H, R, r, prm[P_CHI2 + m - 1])
-    if dx.shape[0] == 0:
-        out.rej[kind] += 1
-        return
-    x[:] = x_new
-    P[:] = P_new
-    out.acc[kind] += 1
-    out.nis[kind] += nis
-    out.dof[kind] += m
-
-
-@kernel
 def _predict(
     e: int,
     k_ep: int,
@@ -376,6 +369,57 @@ def _predict(
     out.ws_m[:, 3:] = sum_c_f_dt
 
 
+def context(
+    ws: Array,
+    ws_sv: Array,
+    ws_m: Array,
+    dyn: Array,
+    L: Index,
+    prm: Array,
+    imu_t: Array,
+    q: Array,
+    mag_t: Array,
+    mag_f: Array,
+    markers: Array,
+) -> Context:
+    """The measurements' context of the epoch whose prediction left ws, ws_sv, ws_m (a
+    Batch's, :func:`_predict`) with the filter's memory dyn: imu_t and q are the batch's (all
+    its samples; the epoch's are sliced here), markers the passages to apply (M, 7)."""
+    i0, i1 = int(ws[W_I0]), int(ws[W_I1])
+    return Context(
+        ws_sv[S_LIN].copy(),
+        ws_sv[S_MECH],
+        L,
+        prm,
+        ws[W_T],
+        ws[W_SPEED],
+        ws[W_STOPPED] != 0.0,
+        L[L_VEL] >= 0,
+        ws[W_HAS_ODO] != 0.0,
+        ws[W_EXCLUDED] != 0.0,
+        dyn[D_FREE] != 0.0,
+        ws[W_LEVER_RATE],
+        ws[W_W_YZ],
+        ws[W_VJAC : W_VJAC + 3].copy(),
+        ws[W_MVB : W_MVB + 3],
+        ws[W_GYRO : W_GYRO + 3].copy(),
+        ws[W_FMN : W_FMN + 3].copy(),
+        ws[W_DP : W_DP + 3],
+        ws_m,
+        dyn[D_HAS_PREV_VEL] != 0.0,
+        dyn[D_PREV_VEL : D_PREV_VEL + 3],
+        imu_t[i0:i1],
+        q[i0:i1],
+        int(ws[W_MAG_I]),
+        mag_t,
+        mag_f,
+        markers,
+    )
+
+
+_context = kernel(context)  # the same, compiled, for _updates
+
+
 @kernel
 def _updates(
     e: int,
@@ -393,86 +437,17 @@ def _updates(
     and the epoch's outputs (Navigator's epoch, second half)."""
     sv, x, P, _, dyn = f
     has_ref = ref.shape[0] > 0
-    ins = L[L_VEL] >= 0
-    T, speed, stopped = out.ws[W_T], out.ws[W_SPEED], out.ws[W_STOPPED] != 0.0
-    odo_ok = out.ws[W_HAS_ODO] != 0.0
-    free = dyn[D_FREE] != 0.0
-    s1 = out.ws_sv[S_MECH]
-    s = out.ws_sv[S_LIN].copy()  # every update is linearized here
-    v_jac = out.ws[W_VJAC : W_VJAC + 3].copy()
+    c = _context(out.ws, out.ws_sv, out.ws_m, dyn, L, prm, inp.imu_t, out.q, inp.mag_t,
+                 inp.mag_f, markers)  # fmt: skip
+    odometer.apply(c, x, P, out)
+    zero_velocity.apply(c, x, P, out)
+    zero_rate.apply(c, x, P, out)
+    gravity_tilt.apply(c, x, P, out)
+    magnetic_heading.apply(c, x, P, out)
+    marker.apply(c, x, P, out)
+    s, s1, T, speed, stopped, dp = c.s, c.s1, c.T, c.speed, c.stopped, c.dp
     omega = out.ws[W_OMEGA : W_OMEGA + 3]
-    dp = out.ws[W_DP : W_DP + 3]
-    if not odo_ok:
-        out.counts[C_NO_ODO] += 1
-    if ins and odo_ok:
-        lever_known = prm[P_LEVER_KNOWN] != 0.0
-        bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * out.ws[W_W_YZ]
-        over = np.sqrt(NOISE_EPOCH_S / max(T, 1e-3))  # NavConfig.over_epoch
-        sigma_speed = np.hypot(prm[P_ODO_SIGMA] * over, bend)
-        vel_b_offset = out.ws[W_MVB : W_MVB + 3] - c_nb_k(s1).T @ s1[I_VEL : I_VEL + 3]
-        r, H, R = meas.odometer_velocity_k(
-            s,
-            L,
-            speed,
-            vel_b_offset,
-            out.ws[W_LEVER_RATE],
-            sigma_speed,
-            prm[P_NHC_SIGMA] * over,
-            v_jac,
-            T,
-        )
-        _update(K_NHC, r[1:], H[1:].copy(), R[1:, 1:].copy(), x, P, prm, out)
-        if out.ws[W_EXCLUDED] != 0.0:
-            out.counts[C_EXCLUDED] += 1
-        else:
-            _update(K_ODO, r[:1], H[:1].copy(), R[:1, :1].copy(), x, P, prm, out)
-    if stopped:
-        if ins:
-            r, H, R = meas.zero_velocity_k(s, L, prm[P_ZUPT])
-            _update(K_ZUPT, r, H, R, x, P, prm, out)
-        sigma = np.sqrt(prm[P_ARW] ** 2 / T + prm[P_ZARU] ** 2)
-        gyro_mean = out.ws[W_GYRO : W_GYRO + 3].copy()
-        r, H, R = meas.zero_rate_k(s, L, gyro_mean, sigma, prm[P_EARTH_SIGN])
-        if free:
-            H[:, L[L_ATT] + 2] = 0.0
-        _update(K_ZARU, r, H, R, x, P, prm, out)
-    if prm[P_TILT_ON] != 0.0 and odo_ok and dyn[D_HAS_PREV_VEL] != 0.0:
-        accel_n = (dp / T - dyn[D_PREV_VEL : D_PREV_VEL + 3]) / T
-        f_mean_n = out.ws[W_FMN : W_FMN + 3].copy()
-        g = earth._gravity(s[SV_LAT], s[SV_H])
-        f_norm = np.sqrt(np.sum(f_mean_n**2))
-        gate = prm[P_TILT_GATE]
-        if abs(f_norm - g) > gate or np.sqrt(np.sum(accel_n**2)) > gate:
-            out.counts[C_TILT_GATED] += 1
-        else:
-            r, H, R = meas.gravity_tilt_k(
-                s, L, f_mean_n, out.ws_m[:, :3] / T, accel_n, prm[P_TILT_SIGMA], out.ws_m[:, 3:] / T
-            )
-            _update(K_TILT, r, H, R, x, P, prm, out)
-    i_mag = int(out.ws[W_MAG_I])
-    if prm[P_MAG_ON] != 0.0 and i_mag >= 0 and prm[P_MAG_REF_OK] != 0.0:
-        i0, i1 = int(out.ws[W_I0]), int(out.ws[W_I1])
-        j = i0
-        while j < i1 - 1 and inp.imu_t[j] < inp.mag_t[i_mag]:
-            j += 1
-        c = np.empty((3, 3))
-        att.dcm_into((out.q[j, 0], out.q[j, 1], out.q[j, 2], out.q[j, 3]), c)
-        m_b = inp.mag_f[i_mag].copy()
-        m_n = c @ m_b
-        dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
-        norm = np.sqrt(np.sum(m_b**2))
-        if (
-            abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
-            or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE]
-        ):
-            out.counts[C_MAG_DISTURBED] += 1
-        else:
-            r, H, R = meas.magnetic_heading_k(s, L, m_b, c, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
-            _update(K_MAG, r, H, R, x, P, prm, out)
-    for j in range(markers.shape[0]):
-        r, H, R = meas.marker_fix_k(s, L, markers[j], prm[P_MARKER_TIME])
-        out.marker_res[j] = r
-        _update(K_MARKER, r, H, R, x, P, prm, out)
+    v_jac = c.v_jac
     if has_ref:
         lin = ref[k_ep]
         est = inject_k(lin, x, L)
@@ -515,7 +490,7 @@ def run_epochs(
     """The epochs ending at ``ends`` (see the module docstring); epoch e is the filter's epoch
     number k0 + e. stop: leave the last epoch after its prediction (its results in ws, ws_sv,
     ws_x, ws_m); resume: the first epoch's prediction was left so. The markers (M, 7)
-    (:func:`measurements.marker_vector`) are applied in the last epoch."""
+    (:func:`measurements.marker.marker_vector`) are applied in the last epoch."""
     B = inp.ends.shape[0]
     for e in range(B):
         if not (resume and e == 0):

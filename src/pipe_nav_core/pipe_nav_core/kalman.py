@@ -12,12 +12,15 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from functools import lru_cache
 from statistics import NormalDist
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .jit import kernel
-from .measurements import Measurement
+
+if TYPE_CHECKING:
+    from .measurements import Measurement
 
 Array = NDArray[np.float64]
 

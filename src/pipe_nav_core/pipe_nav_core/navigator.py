@@ -43,7 +43,7 @@ from .epoch import (
 from .estimates import NavEstimate, Reporter, model_warnings
 from .ingest import Inbox
 from .kalman import ErrorStateKF
-from .measurements import marker_vector
+from .measurements.marker import marker_vector
 from .odometer_resolution import OdometerResolution
 from .planner import BatchPool, Ends, epoch_inputs, plan, tally
 from .recording import Recording

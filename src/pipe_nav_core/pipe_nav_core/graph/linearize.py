@@ -7,9 +7,9 @@ linearizes: the transition Phi_k, the process noise Qd_k and the offset (mechani
 X_{k-1} minus X_k) of every between-factor, from :func:`pipe_nav_core.epoch.run_epochs` itself
 (a prediction from zero error and zero covariance returns exactly those), and every
 measurement the epoch would apply, as a :class:`~.problem.MeasurementFactor` evaluated by the
-same kernel of :mod:`pipe_nav_core.measurements` with the same inputs and the same motion and
-disturbance gates. Nothing of a measurement model is written twice: the factors call the
-kernels; this module only passes them the epoch's inputs, as :func:`epoch._updates` does.
+same kernel of :mod:`pipe_nav_core.measurements` with the same inputs, preconditions, gates
+and row splits: each measurement's ``factors`` front end runs the same compiled policy as the
+``apply`` that :func:`epoch._updates` calls.
 
 The chi-square gates on the innovation are not applied here (they depend on the forward
 filter's covariance): the batch solver gates and weighs the factors itself (:mod:`.batch`).
@@ -23,57 +23,11 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import earth
-from .. import measurements as meas
-from ..attitude import dcm_into
-from ..config import NOISE_EPOCH_S, NavConfig
-from ..epoch import (
-    D_FREE,
-    D_HAS_PREV_VEL,
-    D_PREV_VEL,
-    P_ARW,
-    P_EARTH_SIGN,
-    P_LEVER_KNOWN,
-    P_MAG_DECL,
-    P_MAG_DIP,
-    P_MAG_DIP_GATE,
-    P_MAG_NORM_GATE,
-    P_MAG_ON,
-    P_MAG_REF,
-    P_MAG_REF_OK,
-    P_MAG_SIGMA,
-    P_MARKER_TIME,
-    P_NHC_SIGMA,
-    P_ODO_SIGMA,
-    P_PIPE_D,
-    P_TILT_GATE,
-    P_TILT_ON,
-    P_TILT_SIGMA,
-    P_ZARU,
-    P_ZUPT,
-    S_LIN,
-    S_MECH,
-    W_DP,
-    W_EXCLUDED,
-    W_FMN,
-    W_GYRO,
-    W_HAS_ODO,
-    W_LEVER_RATE,
-    W_MAG_I,
-    W_MVB,
-    W_SPEED,
-    W_STOPPED,
-    W_T,
-    W_VJAC,
-    W_W_YZ,
-    Batch,
-    Filter,
-    Inputs,
-    run_epochs,
-)
+from .. import measurements
+from ..config import NavConfig
+from ..epoch import Batch, Filter, Inputs, context, run_epochs
 from ..navigator import Navigator, PassOptions
 from ..recording import Recording, phi_rows
-from ..state import I_VEL, L_ATT, SV_H, SV_LAT, c_nb_k
 from ..types import Marker, SensorLog
 from .problem import LinearChain, MeasurementFactor, Model, Prior
 
@@ -83,54 +37,6 @@ Index = NDArray[np.int64]
 # bytes of the pass's packed covariances kept in memory when a sink takes the problem (the
 # rest spills to disk: only the per-sample nominal and the mean errors are read)
 SINK_RAM_BUDGET = 32 * 2**20
-
-
-def _odometer_model(args: tuple, rows: slice) -> Model:
-    """The odometer-velocity kernel with this epoch's inputs, rows 0 (speed) or 1: (NHC)."""
-
-    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
-        r, H, R = meas.odometer_velocity_k(sv, L, *args)
-        return r[rows].copy(), H[rows].copy(), R[rows, rows].copy()
-
-    return model
-
-
-def _zero_velocity_model(sigma: float) -> Model:
-    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
-        return meas.zero_velocity_k(sv, L, sigma)
-
-    return model
-
-
-def _zero_rate_model(gyro_mean: Array, sigma: float, earth_sign: float, free: bool) -> Model:
-    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
-        r, H, R = meas.zero_rate_k(sv, L, gyro_mean, sigma, earth_sign)
-        if free:  # as epoch._updates: no gyrocompassing while the heading is free
-            H[:, L[L_ATT] + 2] = 0.0
-        return r, H, R
-
-    return model
-
-
-def _tilt_model(f_mean_n: Array, c_mean: Array, accel_n: Array, sigma: float, c_f: Array) -> Model:
-    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
-        return meas.gravity_tilt_k(sv, L, f_mean_n, c_mean, accel_n, sigma, c_f)
-
-    return model
-
-
-def _mag_model(field_b: Array, c_nb: Array, declination: float, sigma: float) -> Model:
-    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
-        return meas.magnetic_heading_k(sv, L, field_b, c_nb, declination, sigma)
-
-    return model
-
-
-def _marker_model(marker: Array, time_sigma: float) -> Model:
-    def model(sv: Array, L: Index) -> tuple[Array, Array, Array]:
-        return meas.marker_fix_k(sv, L, marker, time_sigma)
-
-    return model
 
 
 class EpochSink(Protocol):
@@ -307,64 +213,15 @@ class FactorRecorder(Navigator):
     ) -> None:
         """The measurements epoch._updates applies at epoch k, with its inputs and gates (but
         not its innovation gate), as factors evaluated at the linearization point."""
-        ins = self.layout.has_vel
-        ws = sb.ws
-        T, speed = ws[W_T], ws[W_SPEED]
-        stopped, odo_ok = ws[W_STOPPED] != 0.0, ws[W_HAS_ODO] != 0.0
-        free = dyn[D_FREE] != 0.0
-        s1 = sb.ws_sv[S_MECH].copy()
-        s = sb.ws_sv[S_LIN].copy()
-        v_jac = ws[W_VJAC : W_VJAC + 3].copy()
-        add = self._add
-        if ins and odo_ok:
-            lever_known = prm[P_LEVER_KNOWN] != 0.0
-            bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * ws[W_W_YZ]
-            over = np.sqrt(NOISE_EPOCH_S / max(T, 1e-3))
-            sigma_speed = float(np.hypot(prm[P_ODO_SIGMA] * over, bend))
-            vel_b_offset = ws[W_MVB : W_MVB + 3] - c_nb_k(s1).T @ s1[I_VEL : I_VEL + 3]
-            args = (float(speed), vel_b_offset, float(ws[W_LEVER_RATE]), sigma_speed,
-                    float(prm[P_NHC_SIGMA] * over), v_jac, float(T))  # fmt: skip
-            add("nhc", k, s, _odometer_model(args, slice(1, 3)))
-            if ws[W_EXCLUDED] == 0.0:
-                add("odometer", k, s, _odometer_model(args, slice(0, 1)))
-        if stopped:
-            if ins:
-                add("zupt", k, s, _zero_velocity_model(float(prm[P_ZUPT])))
-            sigma = float(np.sqrt(prm[P_ARW] ** 2 / T + prm[P_ZARU] ** 2))
-            gyro_mean = ws[W_GYRO : W_GYRO + 3].copy()
-            add("zaru", k, s, _zero_rate_model(gyro_mean, sigma, float(prm[P_EARTH_SIGN]), free))
-        if prm[P_TILT_ON] != 0.0 and odo_ok and dyn[D_HAS_PREV_VEL] != 0.0:
-            dp = ws[W_DP : W_DP + 3]
-            accel_n = (dp / T - dyn[D_PREV_VEL : D_PREV_VEL + 3]) / T
-            f_mean_n = ws[W_FMN : W_FMN + 3].copy()
-            g = float(earth.gravity(s[SV_LAT], s[SV_H]))
-            gate = prm[P_TILT_GATE]
-            if not (abs(np.linalg.norm(f_mean_n) - g) > gate or np.linalg.norm(accel_n) > gate):
-                model = _tilt_model(f_mean_n, sb.ws_m[:, :3] / T, accel_n,
-                                    float(prm[P_TILT_SIGMA]), sb.ws_m[:, 3:] / T)  # fmt: skip
-                add("tilt", k, s, model)
-        i_mag = int(ws[W_MAG_I])
-        if prm[P_MAG_ON] != 0.0 and i_mag >= 0 and prm[P_MAG_REF_OK] != 0.0:
-            n_s = len(inp.imu_t)
-            j = 0
-            while j < n_s - 1 and inp.imu_t[j] < inp.mag_t[i_mag]:
-                j += 1
-            c = np.empty((3, 3))
-            q = sb.q[j]
-            dcm_into((float(q[0]), float(q[1]), float(q[2]), float(q[3])), c)
-            m_b = inp.mag_f[i_mag].copy()
-            m_n = c @ m_b
-            dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
-            norm = np.linalg.norm(m_b)
-            disturbed = (abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
-                         or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE])  # fmt: skip
-            if not disturbed:
-                model = _mag_model(m_b, c, float(prm[P_MAG_DECL]), float(prm[P_MAG_SIGMA]))
-                add("mag", k, s, model)
-        for row in markers:
-            vec = np.array(row, dtype=np.float64)
-            add("marker", k, s, _marker_model(vec, float(prm[P_MARKER_TIME])), robust=True,
-                name=self._marker_name(vec))  # fmt: skip
+        c = context(sb.ws, sb.ws_sv, sb.ws_m, dyn, self.layout.index, prm, inp.imu_t, sb.q,
+                    inp.mag_t, inp.mag_f, markers)  # fmt: skip
+        rows = iter(markers)
+        for kind, model in measurements.factors(c):
+            if kind == "marker":
+                name = self._marker_name(next(rows))
+                self._add(kind, k, c.s, model, robust=True, name=name)
+            else:
+                self._add(kind, k, c.s, model)
 
     def _add(
         self, kind: str, k: int, s: Array, model: Model, *, robust: bool = False, name: str = ""
