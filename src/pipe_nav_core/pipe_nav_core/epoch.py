@@ -17,6 +17,10 @@ Arrays and indices (all float64 unless said):
 - :class:`Inputs`: the batch's IMU samples and per-epoch odometer and magnetometer data;
 - :class:`EpochOutputs` (a :class:`Batch`'s arrays): per epoch, per sample (lat, lon, h, q_nb,
   odometer reading) and the update statistics.
+
+About 500 lines, one module on purpose: the compiled epoch loop, its array records and their
+index constants are read together, and numba compiles the loop with every function it calls
+(a split would only move the constants away from the loop that reads them).
 """
 
 from __future__ import annotations

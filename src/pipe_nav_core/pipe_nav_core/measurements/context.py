@@ -126,6 +126,12 @@ def update(
     out.dof[kind] += m
 
 
+def factor(kind: int, model_k: Callable[..., Model], *args: object) -> Factor:
+    """(the kind's name, its model at a flat state and layout): the kernel ``model_k`` called
+    with (sv, L) and then ``args``, the inputs its measurement's policy chose."""
+    return KINDS[kind], lambda sv, L: model_k(sv, L, *args)
+
+
 @kernel
 def rows(r: Array, H: Array, R: Array, lo: int, hi: int) -> Model:
     """Rows lo:hi of a measurement (residual, H, R), applied as an update of their own."""

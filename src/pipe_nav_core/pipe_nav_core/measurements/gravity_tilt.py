@@ -22,7 +22,6 @@ from ..state import L_AM, L_ATT, L_BA, L_N, SV_H, SV_LAT, Layout, NavState
 from .context import (
     C_TILT_GATED,
     K_TILT,
-    KINDS,
     P_TILT_GATE,
     P_TILT_ON,
     P_TILT_SIGMA,
@@ -32,6 +31,7 @@ from .context import (
     Index,
     Measurement,
     Model,
+    factor,
     update,
 )
 
@@ -124,8 +124,4 @@ def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     verdict, args = inputs_k(c)
-
-    def model(sv: Array, L: Index) -> Model:
-        return gravity_tilt_k(sv, L, *args)
-
-    return [(KINDS[K_TILT], model)] if verdict == ON else []
+    return [factor(K_TILT, gravity_tilt_k, *args)] if verdict == ON else []

@@ -19,7 +19,6 @@ from ..state import L_ATT, L_N, Layout, NavState
 from .context import (
     C_MAG_DISTURBED,
     K_MAG,
-    KINDS,
     P_MAG_DECL,
     P_MAG_DIP,
     P_MAG_DIP_GATE,
@@ -34,6 +33,7 @@ from .context import (
     Index,
     Measurement,
     Model,
+    factor,
     update,
 )
 
@@ -123,8 +123,4 @@ def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     verdict, args = inputs_k(c)
-
-    def model(sv: Array, L: Index) -> Model:
-        return magnetic_heading_k(sv, L, *args)
-
-    return [(KINDS[K_MAG], model)] if verdict == ON else []
+    return [factor(K_MAG, magnetic_heading_k, *args)] if verdict == ON else []

@@ -23,7 +23,6 @@ from ..state import I_VEL, L_N, L_POS, SV_H, SV_LAT, SV_LON, SV_T, Layout, NavSt
 from ..types import Marker
 from .context import (
     K_MARKER,
-    KINDS,
     P_MARKER_TIME,
     Array,
     Context,
@@ -31,6 +30,7 @@ from .context import (
     Index,
     Measurement,
     Model,
+    factor,
     update,
 )
 
@@ -110,11 +110,5 @@ def factors(c: Context) -> list[Factor]:
     """The updates :func:`apply` makes at this context, as models of the state (in the order
     of c.markers)."""
     time_sigma = float(c.prm[P_MARKER_TIME])
-
-    def model_of(marker: Array) -> Factor:
-        def model(sv: Array, L: Index) -> Model:
-            return marker_fix_k(sv, L, marker, time_sigma)
-
-        return KINDS[K_MARKER], model
-
-    return [model_of(np.array(row, dtype=np.float64)) for row in c.markers]
+    return [factor(K_MARKER, marker_fix_k, np.array(row, dtype=np.float64), time_sigma)
+            for row in c.markers]  # fmt: skip

@@ -15,7 +15,6 @@ from ..jit import kernel
 from ..state import I_BG, L_ATT, L_BG, L_N, SV_LAT, Layout, NavState, c_nb_k
 from .context import (
     K_ZARU,
-    KINDS,
     P_ARW,
     P_EARTH_SIGN,
     P_ZARU,
@@ -25,6 +24,7 @@ from .context import (
     Index,
     Measurement,
     Model,
+    factor,
     update,
 )
 
@@ -86,8 +86,4 @@ def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     on, args = inputs_k(c)
-
-    def model(sv: Array, L: Index) -> Model:
-        return zero_rate_k(sv, L, *args)
-
-    return [(KINDS[K_ZARU], model)] if on else []
+    return [factor(K_ZARU, zero_rate_k, *args)] if on else []

@@ -10,7 +10,6 @@ from ..jit import kernel
 from ..state import I_VEL, L_N, L_VEL, Layout, NavState
 from .context import (
     K_ZUPT,
-    KINDS,
     P_ZUPT,
     Array,
     Context,
@@ -18,6 +17,7 @@ from .context import (
     Index,
     Measurement,
     Model,
+    factor,
     update,
 )
 
@@ -58,8 +58,4 @@ def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     on, sigma = inputs_k(c)
-
-    def model(sv: Array, L: Index) -> Model:
-        return zero_velocity_k(sv, L, sigma)
-
-    return [(KINDS[K_ZUPT], model)] if on else []
+    return [factor(K_ZUPT, zero_velocity_k, sigma)] if on else []
