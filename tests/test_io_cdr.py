@@ -265,3 +265,23 @@ def test_stored_message_definitions_are_jazzys():
     for name in written:
         assert DEFINITIONS[name] == TS.generate_msgdef(name, ros_version=2)[0], name
         assert HASHES[name] == TS.hash_rihs01(name), name
+
+
+@pytest.mark.parametrize("name", ["agm_1", "", "a marker with a long name"])
+def test_marker_navsatfix_matches_rosbags(name):
+    """The sensor bag's marker passages, written by io/cdr, are rosmsg.marker_to_msg's message
+    as rosbags serializes it."""
+    import math
+
+    from pipe_nav_core.io import bagwrite
+    from pipe_nav_core.io.rosmsg import COVARIANCE_TYPE_DIAGONAL_KNOWN
+    from pipe_nav_core.types import Marker
+
+    m = Marker(name, 123.456789, math.radians(36.06), math.radians(103.83), 1520.25,
+               (0.02, 0.025, 0.03))  # fmt: skip
+    ns = int(sec_to_ns(np.array([m.t]))[0])
+    ref = bytes(TS.serialize_cdr(rosmsg.marker_to_msg(rosmsg.rosbags_types(), m),
+                                 "sensor_msgs/msg/NavSatFix"))  # fmt: skip
+    cov = np.diag(np.asarray(m.sigma_enu) ** 2).reshape(9)
+    assert bagwrite._navsatfix(ns, name, m.lat, m.lon, m.alt, cov,
+                               COVARIANCE_TYPE_DIAGONAL_KNOWN) == ref  # fmt: skip

@@ -35,6 +35,7 @@ from .mcapwrite import DEFAULT_CHUNK_SIZE, McapWriter, Stream, message_records
 from .msgdefs import DEFINITIONS, HASHES
 from .rosmsg import (
     BASE_FRAME,
+    COVARIANCE_TYPE_DIAGONAL_KNOWN,
     COVARIANCE_TYPE_UNKNOWN,
     MAP_FRAME,
     ODOM_FRAME,
@@ -43,8 +44,6 @@ from .rosmsg import (
     body_rates_from_quats,
     enu_of,
     jazzy_typestore,
-    marker_to_msg,
-    rosbags_types,
 )
 from .stamps import NS_PER_S, sec_to_ns
 from .topics import (
@@ -439,13 +438,42 @@ def write_sensor_bag(
     _write(b, path, compression, chunk_size, inputs)
 
 
+def _navsatfix(
+    ns: int, frame_id: str, lat: float, lon: float, alt: float, cov: NDArray[np.float64],
+    cov_type: int,
+) -> bytes:
+    """A sensor_msgs/NavSatFix (status fix, GPS service) stamped ``ns`` (ns): lat, lon rad
+    (written in degrees), alt m ellipsoidal, position covariance (9,) m^2 ENU of ``cov_type``."""
+    sec, nsec = divmod(int(ns), NS_PER_S)
+    return cdr.encode_one(
+        cdr.NAVSATFIX,
+        {
+            "sec": sec,
+            "nanosec": nsec,
+            "status": STATUS_FIX,
+            "service": SERVICE_GPS,
+            "latitude": math.degrees(lat),
+            "longitude": math.degrees(lon),
+            "altitude": float(alt),
+            "position_covariance": cov,
+            "position_covariance_type": cov_type,
+        },
+        {"frame_id": frame_id},
+    )
+
+
 def _marker_stream(b: _BagBuilder, topic: str, markers: Sequence[Marker]) -> None:
-    ts = jazzy_typestore()
-    types = rosbags_types()
+    """The marker passages as NavSatFix (rosmsg.marker_to_msg's message: frame_id the name,
+    diagonal ENU covariance of the survey sigmas)."""
     ms = sorted(markers, key=lambda m: m.t)
     ns = sec_to_ns(np.array([m.t for m in ms], dtype=np.float64))
     _check_times(ns, topic)
-    payloads = [bytes(ts.serialize_cdr(marker_to_msg(types, m), NAVSATFIX_TYPE)) for m in ms]
+    payloads = [
+        _navsatfix(int(k), m.name, m.lat, m.lon, m.alt,
+                   np.diag(np.asarray(m.sigma_enu, dtype=np.float64).reshape(3) ** 2).reshape(9),
+                   COVARIANCE_TYPE_DIAGONAL_KNOWN)
+        for k, m in zip(ns, ms, strict=True)
+    ]  # fmt: skip
     cid = b.channel(topic, NAVSATFIX_TYPE, TOPIC_QOS["markers"])
     b.streams.append(Stream.variable(cid, ns.tolist(), payloads))
 
@@ -558,21 +586,8 @@ def write_output_bag(
         b.streams.append(Stream.variable(cid, [path_ns], [payload]))
 
     cid = b.channel(OUTPUT_DATUM_TOPIC, NAVSATFIX_TYPE, TOPIC_QOS["datum"])
-    sec, nsec = divmod(datum_ns, NS_PER_S)
-    payload = cdr.encode_one(
-        cdr.NAVSATFIX,
-        {
-            "sec": sec,
-            "nanosec": nsec,
-            "status": STATUS_FIX,
-            "service": SERVICE_GPS,
-            "latitude": math.degrees(datum.lat),
-            "longitude": math.degrees(datum.lon),
-            "altitude": float(datum.alt),
-            "position_covariance_type": COVARIANCE_TYPE_UNKNOWN,
-        },
-        {"frame_id": MAP_FRAME},
-    )
+    payload = _navsatfix(datum_ns, MAP_FRAME, datum.lat, datum.lon, datum.alt, np.zeros(9),
+                         COVARIANCE_TYPE_UNKNOWN)  # fmt: skip
     b.streams.append(Stream.variable(cid, [datum_ns], [payload]))
 
     if odometry is not None and len(odometry.t):
