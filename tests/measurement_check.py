@@ -5,9 +5,8 @@ linearize the same, correct model only if every H is right)."""
 import math
 
 import numpy as np
-from pipe_nav_core.state import Layout, NavState
-
-from pipe_nav_core import attitude as att
+from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.model.state import Layout, NavState
 
 MODES = ["ins", "dr"]
 

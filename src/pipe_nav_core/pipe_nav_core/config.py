@@ -16,8 +16,8 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
-from .errors import ConfigError
-from .sensors import GRADES, ImuSpec, imu_grade
+from pipe_nav_core.errors import ConfigError
+from pipe_nav_core.model.sensors import GRADES, ImuSpec, imu_grade
 
 NOISE_EPOCH_S = 0.1  # s, averaging time of odometer_speed_sigma and nhc_sigma
 AUTO_GRADE = "auto"  # imu_grade: the noise model measured from the run (imu_model)
@@ -191,120 +191,183 @@ class NavConfig:
     The IMU integrates at its own rate between the filter_rate_hz epochs.
     """
 
-    mode: str = _field("ins", OneOf(("ins", "dr"), quote=True),
-                       "ins (strapdown INS aided by the odometer) or dr (odometer dead reckoning)")
-    imu_grade: str = _field(AUTO_GRADE, OneOf((AUTO_GRADE, *sorted(GRADES)), last=", "),
-                            "IMU noise model: auto (measured from the run) | consumer | industrial"
-                            " | tactical")
-    imu_overrides: Mapping[str, float] = _field({}, ImuOverrides(),
-                                                "ImuSpec fields replacing the grade's, SI units")
+    mode: str = _field(
+        "ins",
+        OneOf(("ins", "dr"), quote=True),
+        "ins (strapdown INS aided by the odometer) or dr (odometer dead reckoning)",
+    )
+    imu_grade: str = _field(
+        AUTO_GRADE,
+        OneOf((AUTO_GRADE, *sorted(GRADES)), last=", "),
+        "IMU noise model: auto (measured from the run) | consumer | industrial | tactical",
+    )
+    imu_overrides: Mapping[str, float] = _field(
+        {}, ImuOverrides(), "ImuSpec fields replacing the grade's, SI units"
+    )
     imu_mount_rpy: tuple[float, float, float] = _field(
-        (0.0, 0.0, 0.0), TRIPLE,
-        "roll, pitch, yaw of imu_link in base_link (imu_link->base_link), deg", angle=True)
+        (0.0, 0.0, 0.0),
+        TRIPLE,
+        "roll, pitch, yaw of imu_link in base_link (imu_link->base_link), deg",
+        angle=True,
+    )
     gyro_error_states: bool = _field(
-        True, FLAG, "estimate gyro scale factors and misalignments (9 more error states)")
+        True, FLAG, "estimate gyro scale factors and misalignments (9 more error states)"
+    )
     accel_error_states: bool = _field(
-        True, FLAG, "estimate accelerometer scale factors and misalignments (9 more)")
-    filter_rate_hz: float = _field(10.0, Positive(at_most=1000),
-                                   "covariance propagation and update rate, Hz")
+        True, FLAG, "estimate accelerometer scale factors and misalignments (9 more)"
+    )
+    filter_rate_hz: float = _field(
+        10.0, Positive(at_most=1000), "covariance propagation and update rate, Hz"
+    )
     reorder_window_s: float = _field(
-        0.5, NON_NEGATIVE, "samples wait this long to be put in stamp order; later ones dropped, s")
+        0.5, NON_NEGATIVE, "samples wait this long to be put in stamp order; later ones dropped, s"
+    )
 
     # Odometer (wheel on the pipe wall). Speed noises are over NOISE_EPOCH_S (see over_epoch).
     odometer_speed_sigma: float = _field(
-        0.005, POSITIVE, "odometer speed white noise averaged over 0.1 s, m/s")
+        0.005, POSITIVE, "odometer speed white noise averaged over 0.1 s, m/s"
+    )
     nhc_sigma: float = _field(
-        0.005, POSITIVE, "NHC: lateral and vertical body velocity noise averaged over 0.1 s, m/s")
+        0.005, POSITIVE, "NHC: lateral and vertical body velocity noise averaged over 0.1 s, m/s"
+    )
     # The reading errors at both ends of an epoch are states (quantization does not accumulate).
     odometer_resolution: float = _field(
-        0.0, NON_NEGATIVE, "m per encoder count; 0 = the smallest step seen in the readings")
+        0.0, NON_NEGATIVE, "m per encoder count; 0 = the smallest step seen in the readings"
+    )
     odometer_scale_sigma: float = _field(
-        0.02, POSITIVE, "initial one-sigma odometer scale-factor error (fraction)")
+        0.02, POSITIVE, "initial one-sigma odometer scale-factor error (fraction)"
+    )
     odometer_scale_rw: float = _field(
-        1e-6, NON_NEGATIVE, "odometer scale-factor random walk, 1/sqrt(s)")
+        1e-6, NON_NEGATIVE, "odometer scale-factor random walk, 1/sqrt(s)"
+    )
     boresight_sigma: float = _field(
-        0.01, POSITIVE, "initial one-sigma odometer/IMU misalignment, deg", angle=True)
+        0.01, POSITIVE, "initial one-sigma odometer/IMU misalignment, deg", angle=True
+    )
     odometer_lever_arm: tuple[float, float, float] = _field(
-        (0.0, 0.0, 0.0), TRIPLE, "wheel contact point in base_link, m")
+        (0.0, 0.0, 0.0), TRIPLE, "wheel contact point in base_link, m"
+    )
     pipe_diameter: float = _field(
-        0.2, POSITIVE, "pipe diameter, m (wall-vs-centreline distance noise in bends)")
+        0.2, POSITIVE, "pipe diameter, m (wall-vs-centreline distance noise in bends)"
+    )
     odometer_distance_sigma: float = _field(
-        2e-3, POSITIVE, "dr mode along-track distance noise, m/sqrt(m)")
+        2e-3, POSITIVE, "dr mode along-track distance noise, m/sqrt(m)"
+    )
     dr_lateral_sigma: float = _field(
-        1e-3, POSITIVE, "dr mode lateral/vertical path noise, m/sqrt(m)")
+        1e-3, POSITIVE, "dr mode lateral/vertical path noise, m/sqrt(m)"
+    )
 
     # Stops: zero velocity and zero angular rate
     stop_speed_threshold: float = _field(
-        0.002, NON_NEGATIVE, "odometer speed below which the pig may be stopped, m/s")
+        0.002, NON_NEGATIVE, "odometer speed below which the pig may be stopped, m/s"
+    )
     stop_gyro_threshold: float = _field(
-        0.02, NON_NEGATIVE, "|gyro| (bias removed) below which the pig may be stopped, deg/s",
-        angle=True)
+        0.02,
+        NON_NEGATIVE,
+        "|gyro| (bias removed) below which the pig may be stopped, deg/s",
+        angle=True,
+    )
     zupt_sigma: float = _field(0.002, POSITIVE, "zero-velocity update noise, m/s")
     zaru_sigma: float = _field(1e-4, POSITIVE, "zero-angular-rate update noise, rad/s")
 
     # Gravity tilt (seed 001 eq. 11-13; tilt_gate is eq. 13's threshold xi_g)
-    tilt_update: str = _field("auto", OneOf(("auto", "on", "off")),
-                              "gravity tilt update: auto (on in dr, off in ins) | on | off")
+    tilt_update: str = _field(
+        "auto",
+        OneOf(("auto", "on", "off")),
+        "gravity tilt update: auto (on in dr, off in ins) | on | off",
+    )
     tilt_gate: float = _field(
-        0.05, POSITIVE, "tilt update motion-test threshold on |C [0,0,g] x f|, m/s^2")
+        0.05, POSITIVE, "tilt update motion-test threshold on |C [0,0,g] x f|, m/s^2"
+    )
     tilt_sigma: float = _field(0.02, POSITIVE, "tilt update noise, m/s^2")
 
     # Magnetometer (seed 001 eq. 10, 31)
     mag_update: bool = _field(False, FLAG, "use the magnetometer heading update")
     mag_declination: float = _field(
-        0.0, FINITE, "magnetic declination, east of true north positive, deg", angle=True)
+        0.0, FINITE, "magnetic declination, east of true north positive, deg", angle=True
+    )
     mag_attenuation: float = _field(
-        0.0, NON_NEGATIVE, "in-pipe relative permeability mu; 0 = estimate at the start")
+        0.0, NON_NEGATIVE, "in-pipe relative permeability mu; 0 = estimate at the start"
+    )
     mag_heading_sigma: float = _field(0.05, POSITIVE, "magnetic heading noise, deg", angle=True)
     mag_magnitude_gate: float = _field(
-        0.15, POSITIVE, "reject when | |m| / (mu |B|) - 1 | exceeds this")
+        0.15, POSITIVE, "reject when | |m| / (mu |B|) - 1 | exceeds this"
+    )
     mag_dip_gate: float = _field(
-        0.2, POSITIVE, "reject when the dip angle differs more than this from the reference, deg",
-        angle=True)
+        0.2,
+        POSITIVE,
+        "reject when the dip angle differs more than this from the reference, deg",
+        angle=True,
+    )
     mag_hard_iron: tuple[float, float, float] = _field(
-        (0.0, 0.0, 0.0), TRIPLE,
-        "magnetometer hard iron, T in imu_link (keep 0 if the driver corrects it)")
+        (0.0, 0.0, 0.0),
+        TRIPLE,
+        "magnetometer hard iron, T in imu_link (keep 0 if the driver corrects it)",
+    )
 
     # Markers (the passage-time error adds speed * sigma along track)
     marker_time_sigma: float = _field(0.03, NON_NEGATIVE, "marker passage-time error, s")
 
     # Alignment and initial uncertainty
     static_alignment_s: float = _field(
-        2.0, POSITIVE, "seconds of rest needed for the coarse alignment at the start, s")
-    heading_source: str = _field("markers", OneOf(("markers", "magnetometer", "fixed")),
-                                 "initial heading from markers | magnetometer | fixed")
+        2.0, POSITIVE, "seconds of rest needed for the coarse alignment at the start, s"
+    )
+    heading_source: str = _field(
+        "markers",
+        OneOf(("markers", "magnetometer", "fixed")),
+        "initial heading from markers | magnetometer | fixed",
+    )
     initial_azimuth: float = _field(
-        0.0, FINITE, "initial azimuth for heading_source fixed, deg from north (with markers"
+        0.0,
+        FINITE,
+        "initial azimuth for heading_source fixed, deg from north (with markers"
         " and fewer than two surveyed, the start value; the heading is reported unknown)",
-        angle=True)
+        angle=True,
+    )
     initial_heading_sigma: float = _field(
-        math.radians(20.0), POSITIVE, "initial heading one-sigma before the second marker, deg",
-        angle=True)
+        math.radians(20.0),
+        POSITIVE,
+        "initial heading one-sigma before the second marker, deg",
+        angle=True,
+    )
     initial_tilt_sigma: float = _field(
-        math.radians(0.5), POSITIVE, "initial roll/pitch one-sigma after static levelling, deg",
-        angle=True)
+        math.radians(0.5),
+        POSITIVE,
+        "initial roll/pitch one-sigma after static levelling, deg",
+        angle=True,
+    )
     initial_position_sigma: float = _field(
-        0.05, POSITIVE, "initial position one-sigma at the first marker, m")
+        0.05, POSITIVE, "initial position one-sigma at the first marker, m"
+    )
 
     # Innovation gating
     gate_probability: float = _field(
-        0.9999, Between(0.5, 1), "chi-square acceptance probability of every update, in (0.5, 1)")
+        0.9999, Between(0.5, 1), "chi-square acceptance probability of every update, in (0.5, 1)"
+    )
 
     # Integrity products, computed from the smoothed solution (products/)
     pipe_outer_diameter: float = _field(
-        0.0, NON_NEGATIVE, "pipe outer diameter for bending strain, m; 0 = pipe_diameter")
+        0.0, NON_NEGATIVE, "pipe outer diameter for bending strain, m; 0 = pipe_diameter"
+    )
     curvature_window: float = _field(  # at least 0.5 m when derived
-        0.0, NON_NEGATIVE, "chainage window of the curvature profile, m; 0 = 3 outer diameters")
+        0.0, NON_NEGATIVE, "chainage window of the curvature profile, m; 0 = 3 outer diameters"
+    )
     bend_min_angle: float = _field(
-        math.radians(1.0), POSITIVE,
-        "smallest bend listed (3-D angle between its end tangents), deg", angle=True)
+        math.radians(1.0),
+        POSITIVE,
+        "smallest bend listed (3-D angle between its end tangents), deg",
+        angle=True,
+    )
     bend_threshold_radius: float = _field(
-        2000.0, POSITIVE, "a bend is where the radius of curvature is below this, m")
+        2000.0, POSITIVE, "a bend is where the radius of curvature is below this, m"
+    )
     bend_class_limits: tuple[float, float, float] = _field(
-        (2.5, 12.0, 150.0), Increasing(3), "bend class by radius, outer diameters: elbow < a <="
-        " induction < b <= field < c <= elastic")
+        (2.5, 12.0, 150.0),
+        Increasing(3),
+        "bend class by radius, outer diameters: elbow < a <= induction < b <= field < c <= elastic",
+    )
     strain_thresholds: tuple[float, ...] = _field(
-        (0.125, 0.2), Increasing(), "strain features: bending strain over these levels, percent")
+        (0.125, 0.2), Increasing(), "strain features: bending strain over these levels, percent"
+    )
 
     def over_epoch(self, sigma: float, epoch_s: float) -> float:
         """Sigma of a white velocity noise averaged over epoch_s (s), given its sigma over

@@ -22,7 +22,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from . import aot
+from pipe_nav_core import aot
 
 _PACKAGE = Path(__file__).resolve().parent
 _PREFIX = __name__.rpartition(".")[0] + "."  # of this package's module names

@@ -16,8 +16,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from .config import NavConfig
-from .types import SensorLog
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.types import SensorLog
 
 # The demo run's first 70 s: rest, then two markers (10 s and 62 s), enough for every code path
 # of the live filter (alignment, odometer, non-holonomic, magnetometer and marker updates).
@@ -29,8 +29,8 @@ WARM_UP = 3
 
 @lru_cache(maxsize=1)
 def _warmup_run() -> tuple[SensorLog, NavConfig]:
-    from .sim import simulate
-    from .smooth.logs import slice_log
+    from pipe_nav_core.sim import simulate
+    from pipe_nav_core.smooth.logs import slice_log
 
     run = simulate("demo", 0)
     log = slice_log(run.log, float(run.log.imu.t[0]), float(run.log.imu.t[0]) + _SPAN_S)
@@ -40,7 +40,7 @@ def _warmup_run() -> tuple[SensorLog, NavConfig]:
 def warm_live() -> float:
     """Run the live Navigator over the warm-up run as a bag plays (pipeline.replay_log), s of
     wall time taken."""
-    from .pipeline import replay_log
+    from pipe_nav_core.app.pipeline import replay_log
 
     t0 = time.perf_counter()
     replay_log(*_warmup_run())
@@ -49,7 +49,7 @@ def warm_live() -> float:
 
 def warm_smoothers() -> float:
     """Smooth the warm-up run with every method (s of wall time taken)."""
-    from .smooth.passes import smooth_log
+    from pipe_nav_core.smooth.passes import smooth_log
 
     t0 = time.perf_counter()
     log, config = _warmup_run()
@@ -59,11 +59,11 @@ def warm_smoothers() -> float:
 
 
 def warm_products() -> float:
-    """Call the products' window kernels (pipe_nav_core.windows) as the weld detector does
+    """Call the products' window kernels (pipe_nav_core.products.windows) as the weld detector does
     (s of wall time taken)."""
     import numpy as np
 
-    from .windows import correlate, running_maximum, running_median
+    from pipe_nav_core.products.windows import correlate, running_maximum, running_median
 
     t0 = time.perf_counter()
     x = np.linspace(0.0, 1.0, 64)
@@ -75,7 +75,7 @@ def warm_products() -> float:
 
 
 def _marker() -> Path:
-    from . import jit
+    from pipe_nav_core import jit
 
     return jit._PACKAGE / "__pycache__" / "kernels_warm.txt"
 
@@ -84,7 +84,7 @@ def is_warm() -> bool:
     """Whether every kernel has been compiled for the package's current sources, and the
     ahead-of-time module built or found not buildable (a marker beside the package holds the
     kernels' source stamp and the AOT outcome once :func:`ensure_warm` has run)."""
-    from . import jit
+    from pipe_nav_core import jit
 
     try:
         stamp, _, aot = _marker().read_text(encoding="utf-8").partition("\n")
@@ -101,7 +101,7 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     first and after, terminal or not, so no one waits in silence. True if it compiled."""
     if is_warm():
         return False
-    from . import jit
+    from pipe_nav_core import jit
 
     tell = say or (lambda m: print(m, file=sys.stderr, flush=True))
     tell(
@@ -143,7 +143,7 @@ def compile_bytecode() -> None:
     (0.3 s instead of 0.2 s for ``pipe-nav smooth``'s imports)."""
     import compileall
 
-    from . import jit
+    from pipe_nav_core import jit
 
     compileall.compile_dir(jit._PACKAGE, quiet=2)
 

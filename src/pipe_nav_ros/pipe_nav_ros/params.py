@@ -8,7 +8,7 @@ Estimator settings: one ROS parameter per :class:`~pipe_nav_core.config.NavConfi
 the field's default, and its description and range from the field's
 :class:`~pipe_nav_core.config.Setting`. Angle fields are given in degrees under ``<field>_deg``
 (as in ``config/ekf.yaml``); triples are double arrays; ``imu_overrides`` becomes one optional
-parameter per :class:`~pipe_nav_core.sensors.ImuSpec` number, ``imu_overrides.<field>`` (SI
+parameter per :class:`~pipe_nav_core.model.sensors.ImuSpec` number, ``imu_overrides.<field>`` (SI
 units, unset = the grade's value). Integers are accepted where a double is expected (``10`` for
 ``10.0``).
 

@@ -1,6 +1,6 @@
 """The work of smoother_node, without rclpy: run ``smooth_bag`` and make the output messages.
 
-:class:`SmootherJob` runs :func:`pipe_nav_core.pipeline.smooth_bag` (the same function as
+:class:`SmootherJob` runs :func:`pipe_nav_core.app.pipeline.smooth_bag` (the same function as
 ``pipe-nav smooth``: it writes the output MCAP and the optional CSV / GeoJSON / KML / plot),
 records its progress for the logs and /diagnostics, and builds the nav_msgs/Path, the datum
 NavSatFix and the bend apexes' geometry_msgs/PoseArray to publish latched. The node runs it in a
@@ -46,7 +46,7 @@ class SmootherJob:
 
     # ------------------------------------------------------------------ running
     def told(self) -> _Told:
-        """What smooth_bag tells this job as it runs (pipe_nav_core.progress.Progress)."""
+        """What smooth_bag tells this job as it runs (pipe_nav_core.app.progress.Progress)."""
         return _Told(self)
 
     def run(self) -> None:
@@ -158,7 +158,7 @@ class SmootherJob:
 
 
 class _Told:
-    """A job's pipe_nav_core.progress.Progress: each stage's text and the fraction of the
+    """A job's pipe_nav_core.app.progress.Progress: each stage's text and the fraction of the
     current filter pass, into the job's ``stage`` and ``fraction`` (for /diagnostics)."""
 
     def __init__(self, job: SmootherJob) -> None:

@@ -1,6 +1,6 @@
 """smoother_node: smooth a recorded bag offline and publish the centreline.
 
-Runs :func:`pipe_nav_core.pipeline.smooth_bag` on the parameter ``bag`` (as ``pipe-nav smooth``:
+Runs :func:`pipe_nav_core.app.pipeline.smooth_bag` on the parameter ``bag`` (as ``pipe-nav smooth``:
 writes ``output`` and the optional csv / geojson / kml / plot files), reports progress in the
 log and on ``/diagnostics``, then publishes ``pipe_nav/path`` (nav_msgs/Path in map),
 ``pipe_nav/datum`` (sensor_msgs/NavSatFix) and ``pipe_nav/bends`` (geometry_msgs/PoseArray in

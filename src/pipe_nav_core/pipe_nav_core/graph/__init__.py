@@ -11,9 +11,9 @@
   solving each linearization as its pass runs.
 """
 
-from .batch import GraphResult, graph_smooth
-from .problem import LinearChain, MeasurementFactor, Prior
-from .solver import ChainSolution, solve_chain
+from pipe_nav_core.graph.batch import GraphResult, graph_smooth
+from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior
+from pipe_nav_core.graph.solver import ChainSolution, solve_chain
 
 __all__ = [
     "ChainSolution",

@@ -23,15 +23,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import NavConfig
-from ..kalman import chi2_threshold
-from ..state import Layout, layout_for
-from ..types import SensorLog, markers_sorted
-from .linearize import FactorRecorder
-from .problem import LinearChain, MeasurementFactor, Prior, whitener
-from .robust import HUBER_K, huber_cost, huber_weight
-from .rotation import Pivot, retract
-from .solver import ChainSolution, Eliminator, WhitenedFactors, whiten
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.kalman import chi2_threshold
+from pipe_nav_core.graph.linearize import FactorRecorder
+from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior, whitener
+from pipe_nav_core.graph.robust import HUBER_K, huber_cost, huber_weight
+from pipe_nav_core.graph.rotation import Pivot, retract
+from pipe_nav_core.graph.solver import ChainSolution, Eliminator, WhitenedFactors, whiten
+from pipe_nav_core.model.state import Layout, layout_for
+from pipe_nav_core.types import SensorLog, markers_sorted
 
 Array = NDArray[np.float64]
 

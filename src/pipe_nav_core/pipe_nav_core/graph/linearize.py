@@ -1,13 +1,13 @@
 """The batch problem linearized about a trajectory, built from the filter's own epoch.
 
-:class:`FactorRecorder` is the :class:`~pipe_nav_core.navigator.Navigator` run about a reference
-trajectory (the iterated smoother's pass: same alignment prior, same epochs, same inputs,
+:class:`FactorRecorder` is the :class:`~pipe_nav_core.filter.navigator.Navigator` run about a
+reference trajectory (the iterated smoother's pass: same alignment prior, same epochs, same inputs,
 same odometer exclusions), which also writes down, epoch by epoch, what its compiled epoch
 linearizes: the transition Phi_k, the process noise Qd_k and the offset (mechanization from
-X_{k-1} minus X_k) of every between-factor, from :func:`pipe_nav_core.epoch.run_epochs` itself
-(a prediction from zero error and zero covariance returns exactly those), and every
+X_{k-1} minus X_k) of every between-factor, from :func:`pipe_nav_core.filter.epoch.run_epochs`
+itself (a prediction from zero error and zero covariance returns exactly those), and every
 measurement the epoch would apply, as a :class:`~.problem.MeasurementFactor` evaluated by the
-same kernel of :mod:`pipe_nav_core.measurements` with the same inputs, preconditions, gates
+same kernel of :mod:`pipe_nav_core.model.measurements` with the same inputs, preconditions, gates
 and row splits: each measurement's ``factors`` front end runs the same compiled policy as the
 ``apply`` that :func:`epoch._updates` calls.
 
@@ -23,13 +23,13 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import measurements
-from ..config import NavConfig
-from ..epoch import Batch, Filter, Inputs, context, run_epochs
-from ..navigator import Navigator, PassOptions
-from ..recording import Recording, phi_rows
-from ..types import Marker, SensorLog
-from .problem import LinearChain, MeasurementFactor, Model, Prior
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.epoch import Batch, Filter, Inputs, context, run_epochs
+from pipe_nav_core.filter.navigator import Navigator, PassOptions
+from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Model, Prior
+from pipe_nav_core.model import measurements
+from pipe_nav_core.smooth.recording import Recording, phi_rows
+from pipe_nav_core.types import Marker, SensorLog
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]

@@ -1,7 +1,7 @@
 """The batch smoothing problem as a factor graph, linearized about a trajectory.
 
-Variables: the error state delta_k (layout of :mod:`pipe_nav_core.state`, ENU navigation frame,
-SI units, rad) of every filter epoch k = 0 .. K-1 relative to the linearization point X_k:
+Variables: the error state delta_k (layout of :mod:`pipe_nav_core.model.state`, ENU navigation
+frame, SI units, rad) of every filter epoch k = 0 .. K-1 relative to the linearization point X_k:
 truth_k = X_k (+) delta_k.
 
 Factors (each a whitened least-squares term):
@@ -11,7 +11,7 @@ Factors (each a whitened least-squares term):
   mechanization from X_{k-1} minus X_k (zero on a trajectory that follows its own IMU);
 - :class:`MeasurementFactor` s on one epoch each: residual r = z - h(X_k), Jacobian H
   (r ~= H delta_k + v) and noise R from the filter's own measurement kernels
-  (:mod:`pipe_nav_core.measurements`), optionally with a robust loss.
+  (:mod:`pipe_nav_core.model.measurements`), optionally with a robust loss.
 
 The problem holds no solver (:mod:`.solver`) and no knowledge of where its factors came from
 (:mod:`.linearize` builds them from the filter's epoch).

@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import attitude as att
-from .. import earth
-from ..anchoring import FreeHeading
-from ..state import SV_H, SV_LAT, SV_LON, SV_Q, SV_VEL, Layout, inject_many
+from pipe_nav_core.filter.anchoring import FreeHeading
+from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.geo import earth
+from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, SV_Q, SV_VEL, Layout, inject_many
 
 Array = NDArray[np.float64]
 Pivot = tuple[float, float, float]  # lat rad, lon rad, h m

@@ -36,8 +36,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..recording import CHUNK_EPOCHS, RAM_BUDGET_BYTES, _Chunks
-from .problem import EIG_FLOOR, MIN_VARIANCE, LinearChain, MeasurementFactor, whitener
+from pipe_nav_core.graph.problem import (
+    EIG_FLOOR,
+    MIN_VARIANCE,
+    LinearChain,
+    MeasurementFactor,
+    whitener,
+)
+from pipe_nav_core.smooth.recording import CHUNK_EPOCHS, RAM_BUDGET_BYTES, _Chunks
 
 Array = NDArray[np.float64]
 

@@ -10,17 +10,12 @@ Modules: :mod:`.topics` (names, BagError, BagReport), :mod:`.stamps` (exact ns <
 
 from __future__ import annotations
 
-from .atomic import (
-    OutputIsInputError,
-    atomic_path,
-    atomic_write,
-    ensure_not_input,
-)
-from .bagfiles import bag_files
-from .baginfo import BagInfo, TopicInfo, bag_info, bag_time_range
-from .bagread import concat_logs, iter_bag, read_bag
-from .bagwrite import write_output_bag, write_rosbag2_metadata, write_sensor_bag
-from .centreline import (
+from pipe_nav_core.io.atomic import OutputIsInputError, atomic_path, atomic_write, ensure_not_input
+from pipe_nav_core.io.bagfiles import bag_files
+from pipe_nav_core.io.baginfo import BagInfo, TopicInfo, bag_info, bag_time_range
+from pipe_nav_core.io.bagread import concat_logs, iter_bag, read_bag
+from pipe_nav_core.io.bagwrite import write_output_bag, write_rosbag2_metadata, write_sensor_bag
+from pipe_nav_core.io.centreline import (
     CENTRELINE_COLUMNS,
     CENTRELINE_HEADER,
     CentrelineCsvError,
@@ -29,15 +24,15 @@ from .centreline import (
     resample_by_chainage,
     write_centreline_csv,
 )
-from .gis import write_geojson, write_kml
-from .markers_csv import (
+from pipe_nav_core.io.gis import write_geojson, write_kml
+from pipe_nav_core.io.markers_csv import (
     MARKER_COLUMNS,
     MarkerCsvError,
     merge_markers,
     read_markers_csv,
     write_markers_csv,
 )
-from .topics import BagError, BagReport, TopicNames
+from pipe_nav_core.io.topics import BagError, BagReport, TopicNames
 
 __all__ = [
     "CENTRELINE_COLUMNS",

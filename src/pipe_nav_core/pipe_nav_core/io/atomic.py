@@ -19,7 +19,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from ..errors import InputError
+from pipe_nav_core.errors import InputError
 
 
 class OutputIsInputError(InputError):
@@ -52,8 +52,6 @@ def ensure_not_input(
         same_file = out.exists() and p.exists() and _same(out, p)
         if same_file or out_real == Path(os.path.realpath(p)):
             raise OutputIsInputError(f"{out}: refusing to overwrite the input file {p}")
-
-
 
 
 def _tmp_name(target: Path) -> Path:

@@ -19,18 +19,18 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..types import Marker
-from . import cdr
-from .mcapread import MessageBatch
-from .rosmsg import (
+from pipe_nav_core.io import cdr
+from pipe_nav_core.io.mcapread import MessageBatch
+from pipe_nav_core.io.rosmsg import (
     imu_from_msg,
     jazzy_typestore,
     mag_from_msg,
     marker_from_msg,
     wheel_from_msg,
 )
-from .stamps import NS_PER_S
-from .topics import ROLE_TYPES, SKIP_BAD_CDR, SKIP_NAN, BagReport
+from pipe_nav_core.io.stamps import NS_PER_S
+from pipe_nav_core.io.topics import ROLE_TYPES, SKIP_BAD_CDR, SKIP_NAN, BagReport
+from pipe_nav_core.types import Marker
 
 _LAYOUT = {
     "imu": cdr.IMU,

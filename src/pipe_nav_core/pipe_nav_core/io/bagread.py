@@ -24,22 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, McapFormatError
-from ..types import (
-    ImuSamples,
-    MagSamples,
-    OdometerSamples,
-    SensorLog,
-    empty_imu,
-    empty_mag,
-    empty_odometer,
-)
-from .bagdecode import decode_role
-from .bagfiles import bag_files
-from .mcapread import McapScanner, MessageBatch
-from .stamps import ns_to_sec, sec_to_ns_scalar
-from .topic_checks import REORDER_WINDOW_S, TIME_JUMP_S, TopicState
-from .topics import (
+from pipe_nav_core.errors import InputError, McapFormatError
+from pipe_nav_core.io.bagdecode import decode_role
+from pipe_nav_core.io.bagfiles import bag_files
+from pipe_nav_core.io.mcapread import McapScanner, MessageBatch
+from pipe_nav_core.io.stamps import ns_to_sec, sec_to_ns_scalar
+from pipe_nav_core.io.topic_checks import REORDER_WINDOW_S, TIME_JUMP_S, TopicState
+from pipe_nav_core.io.topics import (
     DEFAULT_TOPICS,
     ROLE_TYPES,
     SKIP_BAD_CDR,
@@ -54,6 +45,15 @@ from .topics import (
     BagReport,
     TopicNames,
     normalize_type,
+)
+from pipe_nav_core.types import (
+    ImuSamples,
+    MagSamples,
+    OdometerSamples,
+    SensorLog,
+    empty_imu,
+    empty_mag,
+    empty_odometer,
 )
 
 EMIT_LAG_S = 5.0  # s: streaming holds back this much data behind the newest stamp

@@ -25,15 +25,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import __version__
-from ..attitude import dcm_from_quat
-from ..types import Datum, Marker, SensorLog, Trajectory
-from . import cdr
-from .atomic import atomic_write, ensure_not_input
-from .centreline import require_finite
-from .mcapwrite import DEFAULT_CHUNK_SIZE, McapWriter, Stream, message_records
-from .msgdefs import DEFINITIONS, HASHES
-from .rosmsg import (
+from pipe_nav_core import __version__
+from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.io import cdr
+from pipe_nav_core.io.atomic import atomic_write, ensure_not_input
+from pipe_nav_core.io.centreline import require_finite
+from pipe_nav_core.io.mcapwrite import DEFAULT_CHUNK_SIZE, McapWriter, Stream, message_records
+from pipe_nav_core.io.msgdefs import DEFINITIONS, HASHES
+from pipe_nav_core.io.rosmsg import (
     BASE_FRAME,
     COVARIANCE_TYPE_DIAGONAL_KNOWN,
     COVARIANCE_TYPE_UNKNOWN,
@@ -45,8 +44,8 @@ from .rosmsg import (
     enu_of,
     jazzy_typestore,
 )
-from .stamps import NS_PER_S, sec_to_ns
-from .topics import (
+from pipe_nav_core.io.stamps import NS_PER_S, sec_to_ns
+from pipe_nav_core.io.topics import (
     DEFAULT_TOPICS,
     IMU_TYPE,
     MAG_TYPE,
@@ -61,9 +60,10 @@ from .topics import (
     BagError,
     TopicNames,
 )
+from pipe_nav_core.types import Datum, Marker, SensorLog, Trajectory
 
 if TYPE_CHECKING:
-    from ..products.bends import PipeBend
+    from pipe_nav_core.products.bends import PipeBend
 
 _INT32_MAX_S = 2**31 - 1
 
@@ -439,7 +439,12 @@ def write_sensor_bag(
 
 
 def _navsatfix(
-    ns: int, frame_id: str, lat: float, lon: float, alt: float, cov: NDArray[np.float64],
+    ns: int,
+    frame_id: str,
+    lat: float,
+    lon: float,
+    alt: float,
+    cov: NDArray[np.float64],
     cov_type: int,
 ) -> bytes:
     """A sensor_msgs/NavSatFix (status fix, GPS service) stamped ``ns`` (ns): lat, lon rad
@@ -687,7 +692,7 @@ def write_rosbag2_metadata(bag_file: str | os.PathLike[str]) -> str:
     rosbags, older ``ros2 bag``). Topics, counts and times come from the MCAP summary; the QoS
     from each channel's ``offered_qos_profiles`` (version 8 enum numbers are written as names).
     Returns the metadata path."""
-    from .mcapread import read_summary
+    from pipe_nav_core.io.mcapread import read_summary
 
     f = os.fspath(bag_file)
     summ = read_summary(f)

@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..types import ImuSamples, MagSamples, Marker, OdometerSamples, SensorLog
-from .bagread import concat_logs, iter_bag, read_bag
-from .bagwrite import write_sensor_bag
-from .rosmsg import jazzy_typestore
+from pipe_nav_core.io.bagread import concat_logs, iter_bag, read_bag
+from pipe_nav_core.io.bagwrite import write_sensor_bag
+from pipe_nav_core.io.rosmsg import jazzy_typestore
+from pipe_nav_core.types import ImuSamples, MagSamples, Marker, OdometerSamples, SensorLog
 
 
 def synthetic_log(seconds: float, imu_hz: int) -> SensorLog:
@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
 
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        from . import rosmsg
+        from pipe_nav_core.io import rosmsg
 
         types = rosmsg.rosbags_types()
         t0 = time.perf_counter()

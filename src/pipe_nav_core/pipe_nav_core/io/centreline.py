@@ -22,7 +22,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..attitude import (
+from pipe_nav_core.errors import InputError
+from pipe_nav_core.geo.attitude import (
     dcm_from_quat,
     euler_from_dcm,
     quat_conj,
@@ -32,10 +33,9 @@ from ..attitude import (
     quat_normalize,
     rotvec_from_quat,
 )
-from ..earth import ecef_to_geodetic, geodetic_to_ecef, geodetic_to_enu
-from ..errors import InputError
-from ..types import Datum, Trajectory
-from .atomic import atomic_write
+from pipe_nav_core.geo.earth import ecef_to_geodetic, geodetic_to_ecef, geodetic_to_enu
+from pipe_nav_core.io.atomic import atomic_write
+from pipe_nav_core.types import Datum, Trajectory
 
 CENTRELINE_COLUMNS = [
     "time_s",

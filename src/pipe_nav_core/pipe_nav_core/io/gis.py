@@ -19,14 +19,14 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from ..types import Marker, Trajectory
-from .atomic import atomic_write, target_stem
-from .centreline import require_finite
+from pipe_nav_core.io.atomic import atomic_write, target_stem
+from pipe_nav_core.io.centreline import require_finite
+from pipe_nav_core.types import Marker, Trajectory
 
 if TYPE_CHECKING:
-    from ..products.bends import PipeBend
-    from ..products.strain import StrainFeature
-    from ..products.welds import Weld
+    from pipe_nav_core.products.bends import PipeBend
+    from pipe_nav_core.products.strain import StrainFeature
+    from pipe_nav_core.products.welds import Weld
 
 
 def _coords(traj: Trajectory) -> list[list[float]]:
@@ -235,9 +235,13 @@ def write_points_geojson(
     properties) each (``pipe-nav locate``'s features); non-finite property values become
     null. Atomic."""
     feats = [
-        _point_feature(_point_coords(lat, lon, alt),
-                       {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                        for k, v in props.items()})  # fmt: skip
+        _point_feature(
+            _point_coords(lat, lon, alt),
+            {
+                k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in props.items()
+            },
+        )  # fmt: skip
         for lat, lon, alt, props in points
     ]
     doc = {"type": "FeatureCollection",

@@ -16,10 +16,10 @@ import math
 import os
 from collections.abc import Iterable, Sequence
 
-from ..errors import InputError
-from ..types import Marker, markers_sorted
-from .atomic import atomic_write
-from .rosmsg import DEFAULT_MARKER_SIGMA_M
+from pipe_nav_core.errors import InputError
+from pipe_nav_core.io.atomic import atomic_write
+from pipe_nav_core.io.rosmsg import DEFAULT_MARKER_SIGMA_M
+from pipe_nav_core.types import Marker, markers_sorted
 
 MARKER_COLUMNS = [
     "name",
@@ -138,9 +138,7 @@ def merge_markers(bag_markers: Sequence[Marker], csv_markers: Sequence[Marker]) 
     time of the bag's marker of the same name. Sorted by passage time."""
     bag_time = {m.name: m.t for m in bag_markers}
     csv_fixed = [
-        dataclasses.replace(m, t=bag_time[m.name])
-        if math.isnan(m.t) and m.name in bag_time
-        else m
+        dataclasses.replace(m, t=bag_time[m.name]) if math.isnan(m.t) and m.name in bag_time else m
         for m in csv_markers
     ]
     replaced = {m.name for m in csv_markers}

@@ -16,7 +16,7 @@ summary section. The summary reader gives cheap counts and time ranges.
 The records are parsed here, not with :mod:`mcap.records`, because that tolerance needs it:
 strings are decoded with replacement characters and a field that runs past the end of its
 record raises ValueError, where ``mcap.records`` raises UnicodeDecodeError on a damaged topic
-name and returns a cut-off field short without a word (tests/test_mcapread.py).
+name and returns a cut-off field short without a word (tests/unit/test_mcapread.py).
 
 MCAP format: https://mcap.dev/spec (little-endian; records are opcode u8, length u64, content).
 """
@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import McapFormatError
+from pipe_nav_core.errors import McapFormatError
 
 MAGIC = b"\x89MCAP0\r\n"
 

@@ -42,7 +42,7 @@ from mcap.records import (
 )
 from numpy.typing import NDArray
 
-from .mcapread import (
+from pipe_nav_core.io.mcapread import (
     MAGIC,
     MESSAGE_HEADER_SIZE,
     OP_ATTACHMENT_INDEX,

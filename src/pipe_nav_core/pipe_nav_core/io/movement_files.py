@@ -20,10 +20,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .atomic import atomic_write, target_stem
+from pipe_nav_core.io.atomic import atomic_write, target_stem
 
 if TYPE_CHECKING:
-    from ..products.movement import MovementReport, PointMovement
+    from pipe_nav_core.products.movement import MovementReport, PointMovement
 
 MOVEMENT_COLUMNS = [
     "weld",

@@ -3,7 +3,7 @@
 as ROS 2 Jazzy records them in a bag's schemas and channel metadata.
 
 They are what rosbags' Jazzy typestore generates (``generate_msgdef(t, ros_version=2)[0]``,
-``hash_rihs01(t)``; tests/test_io_cdr.py checks they still are), stored here because building
+``hash_rihs01(t)``; tests/unit/test_io_cdr.py checks they still are), stored here because building
 that typestore costs about 0.1 s, a tenth of smoothing a short run. A definition is the type's
 own fields, then each type it uses after a separator line; each type's own fields are stored
 once (``_FIELDS``, a line each). Other types are still generated (io/bagwrite.py).

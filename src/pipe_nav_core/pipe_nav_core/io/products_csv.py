@@ -17,8 +17,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..products import CurvatureProfile, PipeBend, StrainFeature
-from .atomic import atomic_write
+from pipe_nav_core.io.atomic import atomic_write
+from pipe_nav_core.products import CurvatureProfile, PipeBend, StrainFeature
 
 STRAIN_COLUMNS = [
     "distance_m",

@@ -23,13 +23,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..attitude import dcm_from_quat, quat_conj, quat_mul, rotvec_from_quat
-from ..earth import geodetic_to_enu
-from ..types import Datum, Marker, SensorLog, Trajectory
-from .stamps import NS_PER_S, ns_to_sec_scalar, sec_to_ns_scalar
+from pipe_nav_core.geo.attitude import dcm_from_quat, quat_conj, quat_mul, rotvec_from_quat
+from pipe_nav_core.geo.earth import geodetic_to_enu
+from pipe_nav_core.io.stamps import NS_PER_S, ns_to_sec_scalar, sec_to_ns_scalar
+from pipe_nav_core.types import Datum, Marker, SensorLog, Trajectory
 
 if TYPE_CHECKING:
-    from ..products.bends import PipeBend
+    from pipe_nav_core.products.bends import PipeBend
 
 DEFAULT_MARKER_SIGMA_M = 0.05  # used when a NavSatFix carries no usable covariance
 

@@ -20,12 +20,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..earth import enu_to_geodetic
-from ..types import Datum, Trajectory
-from .topics import OUTPUT_PATH_TOPIC
+from pipe_nav_core.geo.earth import enu_to_geodetic
+from pipe_nav_core.io.topics import OUTPUT_PATH_TOPIC
+from pipe_nav_core.types import Datum, Trajectory
 
 if TYPE_CHECKING:
-    from ..products.welds import Weld
+    from pipe_nav_core.products.welds import Weld
 
 DATUM_TOPIC = "/pipe_nav/datum"
 WELDS_ATTACHMENT = "welds.csv"
@@ -52,8 +52,8 @@ def smoothed_attachments(
 ) -> list[tuple[str, str, bytes]]:
     """The attachments of a smoothed bag: ``centreline.csv`` (the centreline CSV text) and,
     when ``welds`` is not None, ``welds.csv`` (the RUN_welds.csv text)."""
-    from .centreline import CENTRELINE_HEADER, centreline_text
-    from .welds_csv import welds_text
+    from pipe_nav_core.io.centreline import CENTRELINE_HEADER, centreline_text
+    from pipe_nav_core.io.welds_csv import welds_text
 
     out = [(CENTRELINE_ATTACHMENT, CSV_MEDIA_TYPE,
             (CENTRELINE_HEADER + "\n" + centreline_text(centreline, datum)).encode())]  # fmt: skip
@@ -68,8 +68,8 @@ def read_smoothed_run(path: str | os.PathLike[str]) -> SmoothedRun:
     from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
-    from .centreline import read_centreline_csv
-    from .welds_csv import parse_welds_text
+    from pipe_nav_core.io.centreline import read_centreline_csv
+    from pipe_nav_core.io.welds_csv import parse_welds_text
 
     p = os.fspath(path)
     traj, datum, metadata = read_smoothed_bag(p)

@@ -37,11 +37,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from .atomic import all_or_none, atomic_write
-from .textfile import read_text
+from pipe_nav_core.io.atomic import all_or_none, atomic_write
+from pipe_nav_core.io.textfile import read_text
 
 if TYPE_CHECKING:
-    from ..products.tally import LocatedRow
+    from pipe_nav_core.products.tally import LocatedRow
 
 ALIASES = {
     "weld": ("weldnumber", "weld", "weldno", "girthweld", "girthweldnumber", "girthweldno",
@@ -256,7 +256,7 @@ def write_located(
 ) -> None:
     """``pipe-nav locate``'s outputs, all or none: FEATURES.csv (:func:`write_features_csv`)
     and a GeoJSON of points with the tally's cells and the located values as properties."""
-    from .gis import write_points_geojson
+    from pipe_nav_core.io.gis import write_points_geojson
 
     paths = [p for p in (features_csv, geojson) if p]
     with all_or_none(paths) as staged:

@@ -13,7 +13,8 @@ and applies, vectorized over each batch:
 
 Markers only get duplicate removal (same name and stamp) and the late check.
 
-This is not :class:`pipe_nav_core.stream.ReorderBuffer`, although both reorder within a window:
+This is not :class:`pipe_nav_core.filter.stream.ReorderBuffer`, although both reorder within a
+window:
 that one merges single live samples of several kinds through a heap in float seconds and never
 drops a sample for being out of order (only for arriving after its release); this one works on
 whole numpy batches of one topic in integer ns (1.5 M IMU samples a run), drops what lies
@@ -27,16 +28,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..types import Marker
-from .bagdecode import VALUE_KEYS, Pieces, empty_pieces
-from .stamps import NS_PER_S
-from .topics import (
+from pipe_nav_core.io.bagdecode import VALUE_KEYS, Pieces, empty_pieces
+from pipe_nav_core.io.stamps import NS_PER_S
+from pipe_nav_core.io.topics import (
     SKIP_DUPLICATE,
     SKIP_LATE,
     SKIP_NON_MONOTONIC,
     SKIP_TIME_JUMP,
     BagReport,
 )
+from pipe_nav_core.types import Marker
 
 REORDER_WINDOW_S = 0.5  # s: stamps this much out of order are re-sorted, older ones dropped
 TIME_JUMP_S = 1.0  # s: an isolated stamp this far ahead of both neighbours is a glitch

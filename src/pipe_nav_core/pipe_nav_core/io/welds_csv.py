@@ -18,9 +18,9 @@ import math
 import os
 from collections.abc import Sequence
 
-from ..products.welds import Weld
-from .atomic import atomic_write
-from .textfile import read_text
+from pipe_nav_core.io.atomic import atomic_write
+from pipe_nav_core.io.textfile import read_text
+from pipe_nav_core.products.welds import Weld
 
 WELD_COLUMNS = [
     "weld",

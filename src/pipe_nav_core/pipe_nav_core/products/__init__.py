@@ -4,10 +4,20 @@ features (:mod:`.curvature`, :mod:`.strain`, :mod:`.bends`), bundled by :mod:`.i
 
 from __future__ import annotations
 
-from .bends import BEND_CLASSES, PipeBend, find_bends
-from .curvature import AxisTrack, CurvatureProfile, axis_track, curvature_profile
-from .integrity import IntegrityReport, integrity_report
-from .strain import StrainFeature, read_bends_reference, strain_features, strain_pct
+from pipe_nav_core.products.bends import BEND_CLASSES, PipeBend, find_bends
+from pipe_nav_core.products.curvature import (
+    AxisTrack,
+    CurvatureProfile,
+    axis_track,
+    curvature_profile,
+)
+from pipe_nav_core.products.integrity import IntegrityReport, integrity_report
+from pipe_nav_core.products.strain import (
+    StrainFeature,
+    read_bends_reference,
+    strain_features,
+    strain_pct,
+)
 
 __all__ = [
     "BEND_CLASSES",

@@ -27,9 +27,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..attitude import quat_from_euler
-from ..sensors import ImuSpec
-from .curvature import AxisTrack, CurvatureProfile, relative_angle_sigma, windowed_curvature
+from pipe_nav_core.geo.attitude import quat_from_euler
+from pipe_nav_core.model.sensors import ImuSpec
+from pipe_nav_core.products.curvature import (
+    AxisTrack,
+    CurvatureProfile,
+    relative_angle_sigma,
+    windowed_curvature,
+)
 
 FloatArray = NDArray[np.float64]
 

@@ -29,11 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..attitude import dcm_from_quat
-from ..earth import radii
-from ..io.centreline import chainage_times, interpolate_trajectory
-from ..sensors import ImuSpec
-from ..types import Trajectory
+from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.geo.earth import radii
+from pipe_nav_core.io.centreline import chainage_times, interpolate_trajectory
+from pipe_nav_core.model.sensors import ImuSpec
+from pipe_nav_core.types import Trajectory
 
 FloatArray = NDArray[np.float64]
 

@@ -38,10 +38,10 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.linalg import splu
 
-from ..attitude import dcm_from_quat, euler_from_dcm, quat_from_euler
-from ..earth import enu_to_geodetic, geodetic_to_enu
-from ..types import Datum, Trajectory
-from .movement import MIN_WELD_PAIRS, RunLike, align_welds, chainage_map
+from pipe_nav_core.geo.attitude import dcm_from_quat, euler_from_dcm, quat_from_euler
+from pipe_nav_core.geo.earth import enu_to_geodetic, geodetic_to_enu
+from pipe_nav_core.products.movement import MIN_WELD_PAIRS, RunLike, align_welds, chainage_map
+from pipe_nav_core.types import Datum, Trajectory
 
 FloatArray = NDArray[np.float64]
 

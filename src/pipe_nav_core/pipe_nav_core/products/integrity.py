@@ -8,12 +8,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import NavConfig
-from ..io.centreline import pieces_of
-from ..types import Trajectory
-from .bends import PipeBend, find_bends
-from .curvature import CurvatureProfile, axis_track, curvature_profile
-from .strain import StrainFeature, strain_features, strain_pct
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.io.centreline import pieces_of
+from pipe_nav_core.products.bends import PipeBend, find_bends
+from pipe_nav_core.products.curvature import CurvatureProfile, axis_track, curvature_profile
+from pipe_nav_core.products.strain import StrainFeature, strain_features, strain_pct
+from pipe_nav_core.types import Trajectory
 
 
 @dataclass(frozen=True)

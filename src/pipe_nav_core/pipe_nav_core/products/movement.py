@@ -33,14 +33,14 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import NavConfig
-from ..earth import geodetic_to_enu
-from ..kalman import chi2_threshold
-from ..types import Datum, Trajectory
-from .integrity import IntegrityReport, integrity_report
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.kalman import chi2_threshold
+from pipe_nav_core.geo.earth import geodetic_to_enu
+from pipe_nav_core.products.integrity import IntegrityReport, integrity_report
+from pipe_nav_core.types import Datum, Trajectory
 
 if TYPE_CHECKING:
-    from .welds import Weld
+    from pipe_nav_core.products.welds import Weld
 
 FloatArray = NDArray[np.float64]
 
@@ -141,7 +141,7 @@ class MovementReport:
 
 def align_welds(a: Sequence[float], b: Sequence[float]) -> list[tuple[int, int]]:
     """Matched index pairs of two weld chainage lists (m), by the joint-length sequences."""
-    from .welds import align_sequences
+    from pipe_nav_core.products.welds import align_sequences
 
     return [(int(i), int(j)) for i, j in align_sequences(a, b)]
 
@@ -251,7 +251,7 @@ def compare_runs(
 ) -> MovementReport:
     """Compare run B with run A (see the module docstring). config: settings of the curvature
     and bend products (default NavConfig()); reports: both runs' integrity reports when already
-    computed (e.g. in parallel by :mod:`pipe_nav_core.runs`). threshold m, n_sigma, bend_gap m,
+    computed (e.g. in parallel by :mod:`pipe_nav_core.app.runs`). threshold m, n_sigma, bend_gap m,
     bend_tolerance m as in the module docstring."""
     if not threshold >= 0.0 or not math.isfinite(threshold):
         raise ValueError(f"movement threshold must be >= 0 m, not {threshold}")

@@ -19,9 +19,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..sensors import ImuSpec
-from .bends import PipeBend
-from .curvature import AxisTrack, CurvatureProfile, windowed_curvature
+from pipe_nav_core.model.sensors import ImuSpec
+from pipe_nav_core.products.bends import PipeBend
+from pipe_nav_core.products.curvature import AxisTrack, CurvatureProfile, windowed_curvature
 
 FloatArray = NDArray[np.float64]
 

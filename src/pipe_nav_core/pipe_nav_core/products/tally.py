@@ -26,11 +26,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ..attitude import dcm_from_quat
-from ..io.centreline import interpolate_trajectory
-from ..io.tally_csv import Tally, TallyRow
-from ..types import Trajectory
-from .welds import Weld, align_sequences
+from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.io.centreline import interpolate_trajectory
+from pipe_nav_core.io.tally_csv import Tally, TallyRow
+from pipe_nav_core.products.welds import Weld, align_sequences
+from pipe_nav_core.types import Trajectory
 
 FloatArray = NDArray[np.float64]
 
@@ -137,9 +137,17 @@ def locate_tally(
     sigma_h = np.sqrt(sig[:, 0] ** 2 + sig[:, 1] ** 2 + (sig_d * horiz) ** 2)
     sigma_v = np.sqrt(sig[:, 2] ** 2 + (sig_d * axis[:, 2]) ** 2)
     rows = [
-        LocatedRow(r, float(dist[m]), float(at.lat[m]), float(at.lon[m]), float(at.h[m]),
-                   float(sigma_h[m]), float(sigma_v[m]), float(t[m]),
-                   matched[id(ups[m])].number if id(ups[m]) in matched else None)  # fmt: skip
+        LocatedRow(
+            r,
+            float(dist[m]),
+            float(at.lat[m]),
+            float(at.lon[m]),
+            float(at.h[m]),
+            float(sigma_h[m]),
+            float(sigma_v[m]),
+            float(t[m]),
+            matched[id(ups[m])].number if id(ups[m]) in matched else None,
+        )  # fmt: skip
         for m, r in enumerate(tally.rows)
     ]
     return TallyLocation(rows, [(tw[j], run[i]) for i, j in pairs], scale, offset, notes)

@@ -45,10 +45,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..attitude import dcm_from_quat
-from ..io.centreline import interpolate_trajectory
-from ..types import Datum, SensorLog, Trajectory
-from ..windows import correlate, running_maximum, running_median
+from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.io.centreline import interpolate_trajectory
+from pipe_nav_core.products.windows import correlate, running_maximum, running_median
+from pipe_nav_core.types import Datum, SensorLog, Trajectory
 
 FloatArray = NDArray[np.float64]
 

@@ -16,13 +16,13 @@ scenarios (Scenario and the named set), run (simulate, SimRun).
 
 from __future__ import annotations
 
-from .geometry import Bend, PipeGeometry, Sag, field_features
-from .imu import ImuErrorModel, TriadErrors
-from .kinematics import KinState, evaluate
-from .motion import PigMotion, RollTurn, SpeedParams, Stop
-from .odometer import SlipEpisode
-from .run import SimRun, build_motion, mount_matrix, simulate
-from .scenarios import Scenario, get_scenario, scenario_names
+from pipe_nav_core.sim.geometry import Bend, PipeGeometry, Sag, field_features
+from pipe_nav_core.sim.imu import ImuErrorModel, TriadErrors
+from pipe_nav_core.sim.kinematics import KinState, evaluate
+from pipe_nav_core.sim.motion import PigMotion, RollTurn, SpeedParams, Stop
+from pipe_nav_core.sim.odometer import SlipEpisode
+from pipe_nav_core.sim.run import SimRun, build_motion, mount_matrix, simulate
+from pipe_nav_core.sim.scenarios import Scenario, get_scenario, scenario_names
 
 __all__ = [
     "Bend",

@@ -12,10 +12,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..earth import enu_to_geodetic
-from ..gaps import retimed
-from ..segments import samples_where
-from ..types import SensorLog
+from pipe_nav_core.faults.gaps import retimed
+from pipe_nav_core.geo.earth import enu_to_geodetic
+from pipe_nav_core.smooth.segments import samples_where
+from pipe_nav_core.types import SensorLog
 
 
 def _t0(log: SensorLog) -> float:
@@ -112,17 +112,25 @@ CORPUS = (
     FaultCase("marker surveyed 20 m off", lambda lg, d: marker_moved(lg, 2, 20.0), "left out"),
     FaultCase("marker stamped 3 s late", lambda lg, d: marker_late(lg, 2, 3.0), "left out"),
     FaultCase("data gap of 30 s", lambda lg, d: data_gap(lg, 0.42 * d, 30.0), "data gap"),
-    FaultCase("clock step of an hour", lambda lg, d: clock_step(lg, 0.5 * d, 3600.0),
-              "clock step"),  # fmt: skip
+    FaultCase(
+        "clock step of an hour", lambda lg, d: clock_step(lg, 0.5 * d, 3600.0), "clock step"
+    ),  # fmt: skip
     FaultCase("IMU shock of 5 s", lambda lg, d: imu_shock(lg, 0.53 * d, 5.0), "IMU shock"),
-    FaultCase("IMU pinned at 8 g for 0.2 s", lambda lg, d: imu_pinned(lg, 0.3 * d, 0.2),
-              "IMU saturated"),  # fmt: skip
-    FaultCase("IMU samples dropped for 0.3 s", lambda lg, d: imu_dropped(lg, 0.53 * d, 0.3),
-              "IMU"),  # fmt: skip
-    FaultCase("wheel stuck for 20 s", lambda lg, d: odometer_stuck(lg, 0.21 * d, 20.0),
-              "odometer stuck"),  # fmt: skip
-    FaultCase("odometer spike of 5 m", lambda lg, d: odometer_spike(lg, 0.53 * d, 5.0),
-              "odometer spike"),  # fmt: skip
-    FaultCase("odometer step of -0.5 m", lambda lg, d: odometer_spike(lg, 0.53 * d, -0.5, True),
-              "backward step"),  # fmt: skip
+    FaultCase(
+        "IMU pinned at 8 g for 0.2 s", lambda lg, d: imu_pinned(lg, 0.3 * d, 0.2), "IMU saturated"
+    ),  # fmt: skip
+    FaultCase(
+        "IMU samples dropped for 0.3 s", lambda lg, d: imu_dropped(lg, 0.53 * d, 0.3), "IMU"
+    ),  # fmt: skip
+    FaultCase(
+        "wheel stuck for 20 s", lambda lg, d: odometer_stuck(lg, 0.21 * d, 20.0), "odometer stuck"
+    ),  # fmt: skip
+    FaultCase(
+        "odometer spike of 5 m", lambda lg, d: odometer_spike(lg, 0.53 * d, 5.0), "odometer spike"
+    ),  # fmt: skip
+    FaultCase(
+        "odometer step of -0.5 m",
+        lambda lg, d: odometer_spike(lg, 0.53 * d, -0.5, True),
+        "backward step",
+    ),  # fmt: skip
 )

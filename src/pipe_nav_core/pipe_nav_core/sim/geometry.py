@@ -25,8 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
-from .. import earth
-from .profiles import smoothstep, smoothstep_integral
+from pipe_nav_core.geo import earth
+from pipe_nav_core.sim.profiles import smoothstep, smoothstep_integral
 
 FloatArray = NDArray[np.float64]
 
@@ -254,7 +254,7 @@ class PipeGeometry:
         g = self.grid
         ds = np.diff(g)
         nodes = (g[:-1, None] + 0.5 * ds[:, None] * (1.0 + _GL3_X[None, :])).reshape(-1)
-        wts = (0.5 * ds[:, None] * _GL3_W[None, :])
+        wts = 0.5 * ds[:, None] * _GL3_W[None, :]
         psi, th, _, _ = self.direction(nodes)
         if np.max(np.abs(th)) > math.radians(85.0):
             raise ValueError("pipe pitch exceeds 85 deg; vertical pipes are not supported")

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import lfilter
 
-from ..sensors import ImuSpec
+from pipe_nav_core.model.sensors import ImuSpec
 
 FloatArray = NDArray[np.float64]
 

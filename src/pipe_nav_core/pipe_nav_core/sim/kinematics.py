@@ -24,10 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .. import earth
-from ..attitude import dcm_from_euler, quat_mul, quat_normalize
-from .geometry import PipeGeometry
-from .motion import PigMotion
+from pipe_nav_core.geo import earth
+from pipe_nav_core.geo.attitude import dcm_from_euler, quat_mul, quat_normalize
+from pipe_nav_core.sim.geometry import PipeGeometry
+from pipe_nav_core.sim.motion import PigMotion
 
 FloatArray = NDArray[np.float64]
 

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import earth
-from ..types import Marker
-from .geometry import PipeGeometry
-from .motion import PigMotion
+from pipe_nav_core.geo import earth
+from pipe_nav_core.sim.geometry import PipeGeometry
+from pipe_nav_core.sim.motion import PigMotion
+from pipe_nav_core.types import Marker
 
 FloatArray = NDArray[np.float64]
 

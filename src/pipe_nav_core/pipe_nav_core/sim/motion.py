@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .profiles import RampProfile
+from pipe_nav_core.sim.profiles import RampProfile
 
 FloatArray = NDArray[np.float64]
 
@@ -108,8 +108,10 @@ def build_speed_profile(
             t += tr
             s += 0.5 * target * tr
             v = target
-        hold = forced_hold if forced_hold is not None else float(
-            np.clip(rng.exponential(params.interval), 0.5, 4.0 * params.interval)
+        hold = (
+            forced_hold
+            if forced_hold is not None
+            else float(np.clip(rng.exponential(params.interval), 0.5, 4.0 * params.interval))
         )
         forced_hold = None
         new = level()

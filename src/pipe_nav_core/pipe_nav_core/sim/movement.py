@@ -19,11 +19,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .. import earth
-from ..types import Datum
-from .geometry import Sag
-from .run import SimRun, simulate
-from .scenarios import Scenario
+from pipe_nav_core.geo import earth
+from pipe_nav_core.sim.geometry import Sag
+from pipe_nav_core.sim.run import SimRun, simulate
+from pipe_nav_core.sim.scenarios import Scenario
+from pipe_nav_core.types import Datum
 
 FloatArray = NDArray[np.float64]
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..types import OdometerSamples
+from pipe_nav_core.types import OdometerSamples
 
 FloatArray = NDArray[np.float64]
 

@@ -17,16 +17,24 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ..types import Datum, ImuSamples, MagSamples, Marker, SensorLog, Trajectory, empty_mag
-from .geometry import PipeGeometry
-from .imu import ImuErrorModel, TriadErrors
-from .kinematics import evaluate, interval_means, lobatto_times, quat_from_angles
-from .magnetometer import WeldField, earth_field_enu, magnetometer_reading
-from .markers import make_markers
-from .motion import PigMotion, build_roll_profiles, build_speed_profile
-from .odometer import SlipEpisode, draw_slips, odometer_reading
-from .scenarios import Scenario, get_scenario
-from .weld_bump import weld_bump_accel, weld_passage_times
+from pipe_nav_core.sim.geometry import PipeGeometry
+from pipe_nav_core.sim.imu import ImuErrorModel, TriadErrors
+from pipe_nav_core.sim.kinematics import evaluate, interval_means, lobatto_times, quat_from_angles
+from pipe_nav_core.sim.magnetometer import WeldField, earth_field_enu, magnetometer_reading
+from pipe_nav_core.sim.markers import make_markers
+from pipe_nav_core.sim.motion import PigMotion, build_roll_profiles, build_speed_profile
+from pipe_nav_core.sim.odometer import SlipEpisode, draw_slips, odometer_reading
+from pipe_nav_core.sim.scenarios import Scenario, get_scenario
+from pipe_nav_core.sim.weld_bump import weld_bump_accel, weld_passage_times
+from pipe_nav_core.types import (
+    Datum,
+    ImuSamples,
+    MagSamples,
+    Marker,
+    SensorLog,
+    Trajectory,
+    empty_mag,
+)
 
 FloatArray = NDArray[np.float64]
 

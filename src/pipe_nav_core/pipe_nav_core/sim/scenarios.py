@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..sensors import ImuSpec, imu_grade
-from .geometry import Bend, Feature, PipeGeometry, Sag, field_features
-from .motion import RollTurn, SpeedParams, Stop
+from pipe_nav_core.model.sensors import ImuSpec, imu_grade
+from pipe_nav_core.sim.geometry import Bend, Feature, PipeGeometry, Sag, field_features
+from pipe_nav_core.sim.motion import RollTurn, SpeedParams, Stop
 
 FloatArray = NDArray[np.float64]
 
@@ -147,10 +147,20 @@ class Scenario:
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be positive, not {v!r}")
-        for k in ("static_start", "static_end", "odo_tick", "odo_scale_sigma", "mag_noise",
-                  "weld_bump_height", "weld_bump_duration",
-                  "marker_time_sigma", "survey_sigma_h", "survey_sigma_v", "speed_fluctuation",
-                  "pipe_outer_diameter"):
+        for k in (
+            "static_start",
+            "static_end",
+            "odo_tick",
+            "odo_scale_sigma",
+            "mag_noise",
+            "weld_bump_height",
+            "weld_bump_duration",
+            "marker_time_sigma",
+            "survey_sigma_h",
+            "survey_sigma_v",
+            "speed_fluctuation",
+            "pipe_outer_diameter",
+        ):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"scenario {self.name!r}: {k} must be >= 0, not {v!r}")
@@ -258,8 +268,11 @@ class Scenario:
             "marker_time_sigma": float(self.marker_time_sigma),
             "odometer_scale_sigma": max(float(self.odo_scale_sigma), 1e-4),
             # the outer diameter is a nominal pipe dimension the user knows (strain products)
-            **({"pipe_outer_diameter": float(self.pipe_outer_diameter)}
-               if self.pipe_outer_diameter > 0 else {}),
+            **(
+                {"pipe_outer_diameter": float(self.pipe_outer_diameter)}
+                if self.pipe_outer_diameter > 0
+                else {}
+            ),
         }
 
 

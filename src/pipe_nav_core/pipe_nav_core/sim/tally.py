@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ..io.atomic import atomic_write
+from pipe_nav_core.io.atomic import atomic_write
 
 FloatArray = NDArray[np.float64]
 

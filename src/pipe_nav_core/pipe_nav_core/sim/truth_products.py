@@ -38,13 +38,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..products.bends import PipeBend, bend_class, bend_direction
-from ..products.curvature import CurvatureProfile
+from pipe_nav_core.products.bends import PipeBend, bend_class, bend_direction
+from pipe_nav_core.products.curvature import CurvatureProfile
 
 if TYPE_CHECKING:
-    from ..config import NavConfig
-    from .geometry import PipeGeometry
-    from .run import SimRun
+    from pipe_nav_core.config import NavConfig
+    from pipe_nav_core.sim.geometry import PipeGeometry
+    from pipe_nav_core.sim.run import SimRun
 
 FloatArray = NDArray[np.float64]
 
@@ -256,7 +256,7 @@ def truth_bends(
 def run_config(run: SimRun) -> NavConfig:
     """The estimator settings of a run's scenario (products settings: outer diameter, window,
     bend thresholds) as a NavConfig."""
-    from ..config import NavConfig
+    from pipe_nav_core.config import NavConfig
 
     return NavConfig.from_dict(run.scenario.estimator_settings())
 
@@ -293,7 +293,7 @@ def truth_profile(
 def as_pipe_bends(run: SimRun, bends: list[TruthBend], config: NavConfig) -> list[PipeBend]:
     """Truth bends as :class:`~pipe_nav_core.products.bends.PipeBend` (sigmas 0, apex time the
     pig's passage, class by the settings' limits), for the bend CSV writer."""
-    from ..attitude import quat_from_euler
+    from pipe_nav_core.geo.attitude import quat_from_euler
 
     geometry = _geometry(run)
     d = config.outer_diameter()
@@ -326,7 +326,7 @@ def write_truth_products(
     chainage) and the exact bend list (at the settings' minimum angle and threshold radius)
     beside the simulated bag ``out``, in the layouts of ``RUN_strain.csv`` and
     ``RUN_bends.csv`` (INTERFACES.md; sigmas 0). Returns the two paths."""
-    from ..io.products_csv import write_bends_csv, write_strain_csv
+    from pipe_nav_core.io.products_csv import write_bends_csv, write_strain_csv
 
     cfg = config or run_config(run)
     strain_path, bends_path = truth_product_paths(out)

@@ -10,18 +10,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import attitude as att
-from .. import earth
-from ..anchoring import FreeHeading
-from ..config import NavConfig
-from ..navigator import Navigator
-from ..recording import Recording
-from ..state import SV_DIST, SV_H, SV_LAT, SV_LON, SV_Q, SV_T, SV_VEL, Layout
-from ..types import Datum, Marker, Trajectory
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.anchoring import FreeHeading
+from pipe_nav_core.filter.navigator import Navigator
+from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.geo import earth
+from pipe_nav_core.model.state import SV_DIST, SV_H, SV_LAT, SV_LON, SV_Q, SV_T, SV_VEL, Layout
+from pipe_nav_core.smooth.recording import Recording
+from pipe_nav_core.types import Datum, Marker, Trajectory
 
 if TYPE_CHECKING:
-    from ..products import IntegrityReport
-    from ..products.welds import Weld
+    from pipe_nav_core.products import IntegrityReport
+    from pipe_nav_core.products.welds import Weld
 
 Array = NDArray[np.float64]
 SAMPLE_BATCH = 1 << 18  # samples corrected at once by smoothed_centreline (bounds temporaries)

@@ -13,12 +13,12 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import NavConfig
-from ..navigator import Navigator, PassOptions
-from ..progress import QUIET, Progress
-from ..state import NavState
-from ..types import SensorLog
-from .logs import slice_log
+from pipe_nav_core.app.progress import QUIET, Progress
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.navigator import Navigator, PassOptions
+from pipe_nav_core.model.state import NavState
+from pipe_nav_core.smooth.logs import slice_log
+from pipe_nav_core.types import SensorLog
 
 Array = NDArray[np.float64]
 PROGRESS_SLICES = 40  # at most this many slices a pass
@@ -40,8 +40,8 @@ def run_forward(
     progress: Progress = QUIET,
 ) -> Navigator:
     """One filter pass over a time-sorted log, recorded for the smoothers unless record=False;
-    the other arguments are :class:`~pipe_nav_core.navigator.PassOptions`' (reference: flat states
-    (K, SV_SIZE) to linearize about). ``progress`` hears the fraction of the pass done.
+    the other arguments are :class:`~pipe_nav_core.filter.navigator.PassOptions`' (reference: flat
+    states (K, SV_SIZE) to linearize about). ``progress`` hears the fraction of the pass done.
     ValueError when the log gives no navigation solution."""
     nav = Navigator(
         config,

@@ -17,13 +17,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..config import NavConfig
-from ..navigator import Navigator
-from ..odometer_faults import bridged_for_dead_reckoning
-from ..progress import QUIET, Progress
-from ..types import SensorLog, markers_sorted
-from .forward import run_forward
-from .logs import log_until
+from pipe_nav_core.app.progress import QUIET, Progress
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.faults.odometer import bridged_for_dead_reckoning
+from pipe_nav_core.filter.navigator import Navigator
+from pipe_nav_core.smooth.forward import run_forward
+from pipe_nav_core.smooth.logs import log_until
+from pipe_nav_core.types import SensorLog, markers_sorted
 
 ANCHOR_RAD = 5e-4  # rad: re-anchoring rotation below which the initial heading is settled
 ANCHOR_PASSES = 6  # at most this many re-anchoring passes over the data up to the 2nd marker

@@ -8,7 +8,14 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ..types import ImuSamples, MagSamples, Marker, OdometerSamples, SensorLog, markers_sorted
+from pipe_nav_core.types import (
+    ImuSamples,
+    MagSamples,
+    Marker,
+    OdometerSamples,
+    SensorLog,
+    markers_sorted,
+)
 
 
 def slice_log(log: SensorLog, t0: float, t1: float) -> SensorLog:

@@ -14,7 +14,8 @@ Passes:
 2. a filter pass over the whole log from that heading (else the live filter's configuration):
    its estimates are ``forward`` of the result;
 3. Gauss-Newton: each following pass is linearized about the previous pass's smoothed
-   trajectory, every epoch of it (:class:`pipe_nav_core.navigator.PassOptions` ``reference``), with
+   trajectory, every epoch of it (:class:`pipe_nav_core.filter.navigator.PassOptions`
+   ``reference``), with
    the same prior, so that the smoother converges to the optimum of the whole batch problem
    (a factor graph of the prior, the IMU transitions between epochs and every update) instead
    of the optimum of a linearization about a drifting forward filter; it stops when a pass's
@@ -32,13 +33,11 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import NavConfig
-from ..navigator import Navigator
-from ..progress import QUIET, Progress
-from ..recording import Recording
-from ..state import SV_H, SV_LAT, SV_LON, Layout, inject_many, layout_for
-from ..types import Datum, SensorLog, Trajectory, markers_sorted
-from .centreline import (
+from pipe_nav_core.app.progress import QUIET, Progress
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.navigator import Navigator
+from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, Layout, inject_many, layout_for
+from pipe_nav_core.smooth.centreline import (
     SmoothResult,
     forward_trajectory,
     marker_residuals,
@@ -46,11 +45,13 @@ from .centreline import (
     summarize,
     with_free_heading,
 )
-from .forward import run_forward
-from .heading import smoothing_config
-from .rts import rts_packed
-from .slips import find_slips
-from .two_filter import two_filter
+from pipe_nav_core.smooth.forward import run_forward
+from pipe_nav_core.smooth.heading import smoothing_config
+from pipe_nav_core.smooth.recording import Recording
+from pipe_nav_core.smooth.rts import rts_packed
+from pipe_nav_core.smooth.slips import find_slips
+from pipe_nav_core.smooth.two_filter import two_filter
+from pipe_nav_core.types import Datum, SensorLog, Trajectory, markers_sorted
 
 Array = NDArray[np.float64]
 METHODS = ("forward", "rts", "two-filter", "graph")
@@ -107,7 +108,11 @@ def smooth_log(
     def result_of(nav: Navigator, centre: Trajectory) -> SmoothResult:
         centre = with_free_heading(centre, nav.free_heading)
         result = SmoothResult(
-            centre, forward, datum, markers, marker_residuals(centre, markers),
+            centre,
+            forward,
+            datum,
+            markers,
+            marker_residuals(centre, markers),
             config=config,
         )
         result.summary = summarize(result, nav)
@@ -194,7 +199,7 @@ def _graph_result(
     (flat states start (K, SV_SIZE)) with their odometer exclusions; the summary says the
     method, the RTS passes and the graph's iterations, markers downweighted by its robust
     loss and factors left out by its gate. ``progress`` hears its stages."""
-    from ..graph import graph_smooth
+    from pipe_nav_core.graph import graph_smooth
 
     g = graph_smooth(log, cfg, start, odometer_exclude=exclude, reverse=reverse,
                      say=progress.stage)  # fmt: skip

@@ -16,7 +16,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 from numpy.typing import NDArray
 
-from ..jit import kernel
+from pipe_nav_core.jit import kernel
 
 Array = NDArray[np.float64]
 

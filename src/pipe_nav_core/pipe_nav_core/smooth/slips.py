@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import earth
-from ..config import NOISE_EPOCH_S, NavConfig
-from ..recording import Recording
-from ..state import SV_K
-from ..types import Trajectory
+from pipe_nav_core.config import NOISE_EPOCH_S, NavConfig
+from pipe_nav_core.geo import earth
+from pipe_nav_core.model.state import SV_K
+from pipe_nav_core.smooth.recording import Recording
+from pipe_nav_core.types import Trajectory
 
 Array = NDArray[np.float64]
 

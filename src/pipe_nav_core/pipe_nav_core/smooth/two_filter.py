@@ -9,14 +9,23 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import attitude as att
-from ..config import NavConfig
-from ..progress import QUIET, Progress
-from ..recording import Recording
-from ..state import SV_BG, SV_H, SV_LAT, SV_LON, SV_VEL, Layout, NavState, difference_many
-from ..types import SensorLog
-from .forward import run_forward
-from .logs import reverse_log
+from pipe_nav_core.app.progress import QUIET, Progress
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.model.state import (
+    SV_BG,
+    SV_H,
+    SV_LAT,
+    SV_LON,
+    SV_VEL,
+    Layout,
+    NavState,
+    difference_many,
+)
+from pipe_nav_core.smooth.forward import run_forward
+from pipe_nav_core.smooth.logs import reverse_log
+from pipe_nav_core.smooth.recording import Recording
+from pipe_nav_core.types import SensorLog
 
 Array = NDArray[np.float64]
 FUSE_BATCH = 1024  # epochs fused at once (bounds the (B, n, n) temporaries)
@@ -45,7 +54,7 @@ def two_filter(
     The backward filter starts at the receive trap with the forward estimate's azimuth there as
     its initial heading (with the configured sigma: a prior, not the forward's information)
     and leaves out the same odometer epochs (``exclude``, (N, 2) s); its heading prior stays
-    outside it until its second marker (:class:`~pipe_nav_core.anchoring.FreeHeading`) and is
+    outside it until its second marker (:class:`~pipe_nav_core.filter.anchoring.FreeHeading`) and is
     added to its covariance here. Returns the corrections (K, n) to the forward estimates and
     the variances (K, n) of the fused covariances; ``progress`` hears the backward pass.
     """

@@ -1,0 +1,85 @@
+"""Which sensor error makes a scenario's error: the error budget of a simulated run.
+
+The scenario is simulated again with one error source removed at a time (the IMU error-free,
+the odometer exact, both), the markers surveyed exactly, and each run smoothed with the
+scenario's own estimator settings; the maximum horizontal and vertical errors and the
+smoother's own vertical sigma at the worst point say what the remaining error comes from and
+whether the sigmas cover it. The simulator draws each sensor's errors from its own random
+stream, so removing one source leaves the others' realizations as they were.
+
+``python -m pipe_nav_core.bench.sources undulation90 --seed 1`` prints a Markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from pipe_nav_core.bench.evaluation import score
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.io.centreline import interpolate_trajectory
+from pipe_nav_core.model.sensors import imu_grade
+from pipe_nav_core.sim import Scenario, get_scenario, simulate
+from pipe_nav_core.smooth.centreline import interpolate_enu
+from pipe_nav_core.smooth.passes import smooth_log
+
+CASES = ("as simulated", "IMU error-free", "odometer exact", "both exact")
+
+
+def variant(scenario: Scenario, case: str) -> Scenario:
+    """The scenario with the markers surveyed exactly and the error sources of ``case`` (one of
+    CASES) removed."""
+    sc = replace(scenario, survey_sigma_h=0.0, survey_sigma_v=0.0)
+    if case in ("IMU error-free", "both exact"):
+        spec = scenario.imu_spec or imu_grade(scenario.imu_grade)
+        sc = replace(sc, imu_spec=spec.scaled(0.0))
+    if case in ("odometer exact", "both exact"):
+        sc = replace(sc, odo_scale_sigma=0.0, odo_slip_interval=1e9, odo_tick=1e-6,
+                     marker_time_sigma=0.0)  # fmt: skip
+    if case not in CASES:
+        raise ValueError(f"unknown case {case!r}; choose one of {', '.join(CASES)}")
+    return sc
+
+
+def error_budget(
+    name: str, seed: int = 1, cases: Sequence[str] = CASES
+) -> list[dict[str, float | str]]:
+    """One row per case: max horizontal and vertical error (m) against the truth, and the
+    smoother's vertical one-sigma (m) where the vertical error is largest."""
+    scenario = get_scenario(name)
+    config = NavConfig.from_dict(scenario.estimator_settings())
+    rows: list[dict[str, float | str]] = []
+    for case in cases:
+        run = simulate(variant(scenario, case), seed=seed)
+        result = smooth_log(run.log, config, method="rts")
+        s = score(result.centreline, run.truth, run.log.markers, datum=result.datum)
+        truth = run.truth
+        t = truth.t[np.r_[True, np.diff(truth.distance) > 0]]  # moving: one time per place
+        err_v = (interpolate_enu(result.centreline, t, result.datum)
+                 - interpolate_enu(truth, t, result.datum))[:, 2]  # fmt: skip
+        at = interpolate_trajectory(result.centreline, t[[int(np.argmax(np.abs(err_v)))]])
+        sigma_v = float(np.asarray(at.sigma_enu).reshape(-1, 3)[0, 2])
+        rows.append({"case": case, "max_h": s.max_h, "max_v": s.max_v, "sigma_v": sigma_v})
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m pipe_nav_core.bench.sources SCENARIO [--seed N]``: the table on stdout."""
+    ap = argparse.ArgumentParser(prog="python -m pipe_nav_core.bench.sources",
+                                 description=__doc__.splitlines()[0])  # fmt: skip
+    ap.add_argument("scenario", help="a simulator scenario (pipe-nav simulate --help lists them)")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args(argv)
+    print(f"{args.scenario}, seed {args.seed}, markers surveyed exactly, rts\n")
+    print("| case | max h cm | max v cm | sigma v there cm |\n|---|---|---|---|")
+    for r in error_budget(args.scenario, args.seed):
+        print(f"| {r['case']} | {100 * float(r['max_h']):.1f} | {100 * float(r['max_v']):.1f} "
+              f"| {100 * float(r['sigma_v']):.1f} |")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

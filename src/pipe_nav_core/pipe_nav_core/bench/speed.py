@@ -1,0 +1,390 @@
+"""Speed and memory benchmark (``pipe-nav bench --speed``): the stages of ``pipe-nav smooth`` on
+a simulated field run, as ratios to real time and to merely reading the bag with rosbags, the
+peak resident memory of a whole ``pipe-nav smooth`` process, and the online engine's cost per
+IMU sample with a 1 kHz IMU. The same run written in the bag forms others write (:data:`FORMS`:
+zstd, lz4 and uncompressed 1 MiB chunks as rosbag2's MCAP storage writes them, with and
+without a magnetometer, and the rosbag2 directory form) gives one row each: reading and
+decoding it with our reader, serially and as by default (zstd chunks unpacked by a worker
+thread ahead of the decoding), and the whole ``pipe-nav smooth`` process on it. Absolute times
+are noisy on shared machines; the ratios are what to compare.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipe_nav_core.app.pipeline import Outputs, replay_log, write_products
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.io import bag_info, read_bag, write_rosbag2_metadata, write_sensor_bag
+from pipe_nav_core.io.bagread import READ_WORKERS_ENV, read_workers
+from pipe_nav_core.io.topics import DEFAULT_TOPICS
+from pipe_nav_core.sim import get_scenario, simulate
+from pipe_nav_core.smooth.forward import run_forward
+from pipe_nav_core.smooth.passes import smooth_log
+from pipe_nav_core.types import empty_mag
+
+
+def _rosbags_read_seconds(bag: Path, limit: int = 200_000) -> tuple[float, int]:
+    """Seconds rosbags needs to read and deserialize ``limit`` messages, and the total count."""
+    from rosbags.highlevel import AnyReader
+
+    from pipe_nav_core.io import write_rosbag2_metadata
+
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp) / "bag"
+        d.mkdir()
+        (d / bag.name).symlink_to(bag.resolve())
+        write_rosbag2_metadata(d / bag.name)
+        with AnyReader([d]) as reader:
+            total = sum(c.msgcount for c in reader.connections)
+            n = 0
+            t0 = time.perf_counter()
+            for conn, _, raw in reader.messages():
+                reader.deserialize(raw, conn.msgtype)
+                n += 1
+                if n >= limit:
+                    break
+            return time.perf_counter() - t0, total if n >= limit else n
+
+
+ROSBAG2_CHUNK_SIZE = 1 << 20  # bytes of records per chunk (rosbag2's MCAP storage: zstd, 1 MiB)
+FIELD_MAG_RATE_HZ = 50.0  # Hz: the magnetometer of the field bags (the others' bag of issue 21)
+
+
+@dataclass(frozen=True)
+class BagForm:
+    """One way of writing the field run to a bag.
+
+    compression: chunk compression, ``zstd``, ``lz4`` or ``""`` (none); chunk_size: bytes of
+    uncompressed records per chunk; mag: with the magnetometer topic; directory: a rosbag2
+    directory (``metadata.yaml`` beside the ``.mcap``) instead of a single ``.mcap``.
+    """
+
+    name: str
+    compression: str
+    chunk_size: int = ROSBAG2_CHUNK_SIZE
+    mag: bool = True
+    directory: bool = False
+
+    def stem(self) -> str:
+        """File name part that tells the form apart."""
+        comp = self.compression or "none"
+        kib = self.chunk_size // 1024
+        return (
+            f"{comp}_{kib}k" + ("" if self.mag else "_nomag") + ("_dir" if self.directory else "")
+        )
+
+
+FORMS = (
+    BagForm("zstd", "zstd"),
+    BagForm("zstd, no magnetometer", "zstd", mag=False),
+    BagForm("lz4", "lz4"),
+    BagForm("lz4, no magnetometer", "lz4", mag=False),
+    BagForm("uncompressed", ""),
+    BagForm("uncompressed, no magnetometer", "", mag=False),
+    BagForm("rosbag2 directory (metadata.yaml + zstd .mcap)", "zstd", directory=True),
+)
+QUICK_FORMS = (FORMS[0], FORMS[2], FORMS[4], FORMS[6])
+
+
+def _form_path(out_dir: Path, base: str, form: BagForm) -> tuple[Path, Path]:
+    """(the bag to read, the file whose existence says it was written completely)."""
+    name = f"{base}_{form.stem()}"
+    if form.directory:
+        d = out_dir / name
+        return d, d / "metadata.yaml"
+    bag = out_dir / f"{name}.mcap"
+    return bag, bag
+
+
+def field_bags(
+    out_dir: Path, length_km: float, imu_rate_hz: float, forms: Sequence[BagForm] = FORMS
+) -> tuple[dict[BagForm, Path], float]:
+    """The simulated field run (IMU at ``imu_rate_hz``, odometer 50 Hz, magnetometer
+    :data:`FIELD_MAG_RATE_HZ`, markers) written in each of ``forms`` under ``out_dir`` (made
+    once and cached), and its duration in s (first to last IMU stamp)."""
+    base = f"field_{length_km:g}km_{imu_rate_hz:g}hz_mag{FIELD_MAG_RATE_HZ:g}hz"
+    paths = {f: _form_path(out_dir, base, f) for f in forms}
+    missing = [f for f, (_, done) in paths.items() if not done.exists()]
+    if missing:
+        sc = dataclasses.replace(
+            get_scenario("field10k").with_length(length_km * 1000.0),
+            mag_enabled=True,
+            mag_rate_hz=FIELD_MAG_RATE_HZ,
+        )
+        log = simulate(sc, seed=1, imu_rate_hz=imu_rate_hz, truth_every=100).log
+        for f in missing:
+            bag, _ = paths[f]
+            lg = log if f.mag else dataclasses.replace(log, mag=empty_mag())
+            if f.directory:
+                bag.mkdir(parents=True, exist_ok=True)
+                one = bag / f"{bag.name}_0.mcap"
+                write_sensor_bag(one, lg, compression=f.compression, chunk_size=f.chunk_size)
+                write_rosbag2_metadata(one)
+            else:
+                write_sensor_bag(bag, lg, compression=f.compression, chunk_size=f.chunk_size)
+    info = bag_info(paths[forms[0]][0])
+    imu = info.topics[DEFAULT_TOPICS.imu]
+    if imu.start is None or imu.end is None:
+        raise ValueError(f"{paths[forms[0]][0]}: no IMU messages in the field bag")
+    return {f: p for f, (p, _) in paths.items()}, float(imu.end - imu.start)
+
+
+def _bag_bytes(bag: Path) -> int:
+    return sum(f.stat().st_size for f in bag.iterdir()) if bag.is_dir() else bag.stat().st_size
+
+
+def read_seconds(bag: Path, workers: int, repeat: int = 2) -> float:
+    """Best wall time (s) of ``repeat`` reads (read + decode + checks) of a bag with
+    ``read_bag(workers=workers)``."""
+    best = math.inf
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        read_bag(bag, workers=workers)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def form_figures(bag: Path, form: BagForm, duration: float, repeat: int = 2) -> dict:
+    """One row of the bag-form table: size, messages, read + decode time serially and with
+    the pool (s), and the whole ``pipe-nav smooth`` process (wall s, peak MB)."""
+    workers = read_workers()
+    info = bag_info(bag)
+    serial = read_seconds(bag, 0, repeat)
+    pooled = read_seconds(bag, workers, repeat) if workers else serial
+    peak, wall = peak_memory_mb(bag)
+    return {
+        "name": form.name,
+        "compression": form.compression,
+        "chunk_size": float(form.chunk_size),
+        "mag": form.mag,
+        "directory": form.directory,
+        "size_mb": _bag_bytes(bag) / 2**20,
+        "messages": float(info.message_count),
+        "duration_s": duration,
+        "read_workers": float(workers),
+        "read_serial_s": serial,
+        "read_pooled_s": pooled,
+        "cli_wall_s": wall,
+        "peak_rss_mb": peak,
+    }
+
+
+def smooth_stages(bag: Path, duration: float) -> dict[str, float]:
+    """Seconds per stage of pipe-nav smooth, in-process."""
+    sc = get_scenario("field10k")
+    cfg = NavConfig.from_dict(sc.estimator_settings())
+    out: dict[str, float] = {"duration_s": duration}
+    t0 = time.perf_counter()
+    log, _ = read_bag(bag)
+    out["read_decode_s"] = time.perf_counter() - t0
+    out["imu_messages"] = float(len(log.imu))
+    t0 = time.perf_counter()
+    run_forward(log, cfg)
+    out["forward_pass_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = smooth_log(log, cfg, method="rts")
+    out["smooth_total_s"] = time.perf_counter() - t0
+    out["passes"] = float(res.summary.get("passes_run", res.summary.get("passes", 1)))
+    with tempfile.TemporaryDirectory() as tmp:
+        o = Outputs(
+            bag=f"{tmp}/o.mcap",
+            csv=f"{tmp}/o.csv",
+            geojson=f"{tmp}/o.geojson",
+            kml=f"{tmp}/o.kml",
+            plot=f"{tmp}/o.png",
+        )
+        t0 = time.perf_counter()
+        write_products(res, o)
+        out["outputs_s"] = time.perf_counter() - t0
+    return out
+
+
+# run in the measured child: pipe-nav smooth, then its own high-water mark (VmHWM, kB) into
+# the file argv[1]. The rusage of a child is no measure: Linux starts it from the parent's
+# peak at fork, so a large benchmark process would report its own size.
+_CHILD = """
+import sys
+from pipe_nav_core.app.cli import main
+rc = main(sys.argv[2:])
+try:
+    with open("/proc/self/status") as f:
+        hwm = next(line.split()[1] for line in f if line.startswith("VmHWM:"))
+    with open(sys.argv[1], "w") as f:
+        f.write(hwm)
+except (OSError, StopIteration):
+    pass
+sys.exit(rc)
+"""
+
+
+def peak_memory_mb(bag: Path, env: Mapping[str, str] | None = None) -> tuple[float, float]:
+    """Peak resident memory (MB) and wall time (s) of a whole ``pipe-nav smooth`` process
+    (its own high-water mark on Linux; elsewhere the child's rusage, which can include the
+    parent's size at fork). ``env``: variables set for the child on top of ours."""
+    with tempfile.TemporaryDirectory() as tmp:
+        hwm = Path(tmp) / "hwm"
+        cmd = [sys.executable, "-c", _CHILD, str(hwm), "smooth", str(bag)]
+        cmd += ["--out", f"{tmp}/", "--quiet", "--imu-grade", "tactical"]
+        t0 = time.perf_counter()
+        child = subprocess.Popen(cmd, env={**os.environ, **env} if env else None)
+        _, status, usage = os.wait4(child.pid, 0)
+        wall = time.perf_counter() - t0
+        child.returncode = os.waitstatus_to_exitcode(status)
+        if child.returncode:
+            raise subprocess.CalledProcessError(child.returncode, cmd)
+        kb = float(hwm.read_text()) if hwm.exists() else float(usage.ru_maxrss)
+    return kb / 1024.0, wall
+
+
+def online_cost(seconds: float = 60.0) -> dict[str, float]:
+    """The online engine (ekf_node's code path) on a 1 kHz IMU with odometer and magnetometer:
+    microseconds of CPU per IMU sample and the ratio to real time."""
+    sc = dataclasses.replace(get_scenario("demo"), imu_rate_hz=1000.0, mag_enabled=True)
+    run = simulate(sc, seed=3)
+    log = run.log
+    t_end = log.imu.t[0] + seconds
+    cut = dataclasses.replace(
+        log,
+        imu=log.imu.slice(log.imu.t <= t_end),
+        odometer=log.odometer.slice(log.odometer.t <= t_end),
+        mag=log.mag.slice(log.mag.t <= t_end),
+        markers=[m for m in log.markers if m.t <= t_end],
+    )
+    cfg = NavConfig.from_dict({**sc.estimator_settings(), "mag_update": True})
+    t0 = time.process_time()
+    replay_log(cut, cfg)
+    cpu = time.process_time() - t0
+    n = len(cut.imu)
+    return {
+        "imu_samples": float(n),
+        "us_per_imu_sample": 1e6 * cpu / n,
+        "x_real_time": seconds / cpu,
+    }
+
+
+def run(
+    out_dir: str | Path = "bench_out",
+    length_km: float = 10.0,
+    imu_rate_hz: float = 200.0,
+    quick: bool = False,
+) -> dict:
+    """All speed figures for one field run length: the stages and the online engine
+    (``field``, ``online``) and one row per bag form (``forms``; ``quick``: four forms, one
+    read each instead of the best of two, no serial-read smooth process)."""
+    d = Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    forms = QUICK_FORMS if quick else FORMS
+    bags, duration = field_bags(d, length_km, imu_rate_hz, forms)
+    bag = bags[forms[0]]
+    stages = smooth_stages(bag, duration)
+    rb_s, rb_n = _rosbags_read_seconds(bag)
+    total_msgs = rb_n
+    stages["rosbags_read_s_extrapolated"] = rb_s * (total_msgs / min(total_msgs, 200_000))
+    stages["length_km"] = length_km
+    rows = []
+    for f in forms:
+        print(f"pipe-nav bench: speed, {f.name}", file=sys.stderr, flush=True)
+        rows.append(form_figures(bags[f], f, duration, repeat=1 if quick else 2))
+    stages["peak_rss_mb"] = rows[0]["peak_rss_mb"]
+    stages["cli_wall_s"] = rows[0]["cli_wall_s"]
+    if not quick and read_workers():
+        _, wall = peak_memory_mb(bag, {READ_WORKERS_ENV: "0"})
+        stages["cli_wall_serial_read_s"] = wall
+    online = online_cost()
+    return {"field": stages, "online": online, "forms": rows}
+
+
+def markdown(res: dict, command: str) -> str:
+    """The speed section of BENCHMARKS.md."""
+    f, o = res["field"], res["online"]
+    dur = f["duration_s"]
+    rows = [
+        ("read + decode the bag", f["read_decode_s"]),
+        ("one forward filter pass", f["forward_pass_s"]),
+        (f"smoother, all passes ({f['passes']:.0f})", f["smooth_total_s"]),
+        ("outputs (bag, CSV, GeoJSON, KML, PNG)", f["outputs_s"]),
+        ("whole `pipe-nav smooth` process", f["cli_wall_s"]),
+        ("rosbags: read + deserialize (reference floor)", f["rosbags_read_s_extrapolated"]),
+    ]
+    floor = f["rosbags_read_s_extrapolated"]
+    lines = [
+        "## Speed and memory",
+        "",
+        f"Simulated field run of {f['length_km']:g} km, {f['imu_messages']:.0f} IMU messages, "
+        f"{dur / 3600:.2f} h of pig time. Produced by:",
+        "",
+        "```",
+        command,
+        "```",
+        "",
+        "| stage | x real time | x rosbags read |",
+        "|---|---|---|",
+    ]
+    lines += [f"| {name} | {dur / s:.0f} | {s / floor:.2f} |" for name, s in rows]
+    lines += [
+        "",
+        f"Peak resident memory of `pipe-nav smooth`: {f['peak_rss_mb']:.0f} MB.",
+    ]
+    if "cli_wall_serial_read_s" in f:
+        lines += [
+            "",
+            f"Whole `pipe-nav smooth` process with the bag read in one thread "
+            f"({READ_WORKERS_ENV}=0): {dur / f['cli_wall_serial_read_s']:.0f} x real time.",
+        ]
+    lines += [
+        "",
+        f"Online engine (ekf_node's code path), 1 kHz IMU with odometer and magnetometer: "
+        f"{o['us_per_imu_sample']:.0f} us of CPU per IMU sample, "
+        f"{o['x_real_time']:.1f} x real time.",
+        "",
+    ]
+    if res.get("forms"):
+        lines += forms_markdown(res["forms"])
+    return "\n".join(lines)
+
+
+def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
+    """The bag-form table (lines): per form the read + decode time serially and with the
+    worker threads and the whole ``pipe-nav smooth`` process, as x real time, the process's
+    time over the pooled read's, and its peak memory."""
+    r0 = rows[0]
+    workers = int(r0["read_workers"])
+    plural = "" if workers == 1 else "s"
+    chunk = f"{r0['chunk_size'] / 2**20:g} MiB"
+    lines = [
+        "### Bag forms",
+        "",
+        f"The same run ({r0['duration_s'] / 3600:.2f} h; IMU 200 Hz, odometer 50 Hz, "
+        f"magnetometer {FIELD_MAG_RATE_HZ:g} Hz unless without) written as others write it: "
+        f"chunks of {chunk} of records, as rosbag2's MCAP storage writes them (zstd by "
+        "default). Read + decode: `read_bag` (every check included), in one thread "
+        f"(`workers=0`) and as by default, with {workers} worker thread{plural} decompressing "
+        f"and CRC-checking the zstd chunks ahead ({os.cpu_count()} cores); smooth: the whole "
+        "`pipe-nav smooth` process (imports and outputs included); smooth / read: the "
+        "process's time over the default read's.",
+        "",
+        "| bag form | MB | messages | read + decode, 1 thread: x real time "
+        f"| read + decode, {workers} worker{plural}: x real time "
+        "| whole `pipe-nav smooth`: x real time | smooth / read | peak MB |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        dur = r["duration_s"]
+        lines.append(
+            f"| {r['name']} | {r['size_mb']:.0f} | {r['messages']:.0f} "
+            f"| {dur / r['read_serial_s']:.0f} | {dur / r['read_pooled_s']:.0f} "
+            f"| {dur / r['cli_wall_s']:.0f} | {r['cli_wall_s'] / r['read_pooled_s']:.1f} "
+            f"| {r['peak_rss_mb']:.0f} |"
+        )
+    lines.append("")
+    return lines

@@ -1,0 +1,70 @@
+"""The quality verdict of a smoothed run: OK, DEGRADED (with its reasons) or FAILED.
+
+A centreline is only worth its verdict: FAILED when the solution is physically absurd (an
+odometer scale factor far from 1, position sigmas of kilometres, nothing finite) or nothing
+tied it to the ground; DEGRADED when something the engineer must know about happened (the IMU
+model did not fit, markers were rejected or left out, the heading is not anchored, messages
+were skipped, the bag was cut short); else OK. ``pipe-nav smooth`` prints it, writes it into
+the smoothed bag (MCAP metadata ``pipe_nav``) and, with ``--strict``, exits 3 unless OK.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipe_nav_core.types import Trajectory
+
+OK, DEGRADED, FAILED = "OK", "DEGRADED", "FAILED"
+SCALE_LIMITS = (0.8, 1.25)  # odometer scale factors outside: a wrong solution, not a wheel
+MAX_SIGMA_H_M = 1000.0  # m, a horizontal sigma beyond which the centreline locates nothing
+
+
+@dataclass
+class Verdict:
+    """status: OK | DEGRADED | FAILED; reasons: one line each (empty when OK)."""
+
+    status: str = OK
+    reasons: list[str] = field(default_factory=list)
+
+    def line(self) -> str:
+        """``OK``, or ``DEGRADED: reason; reason``."""
+        return self.status + (f": {'; '.join(self.reasons)}" if self.reasons else "")
+
+
+def judge(
+    summary: dict[str, object],
+    centreline: Trajectory,
+    warnings: Sequence[str] = (),
+    failures: Sequence[str] = (),
+) -> Verdict:
+    """The verdict of a smoothing summary (smooth.centreline.summarize), its centreline, the
+    warnings of reading the bag and of the model check, and faults known to spoil the answer."""
+    failed: list[str] = list(failures)
+    degraded: list[str] = []
+    scale = float(summary.get("odometer_scale", 1.0))  # type: ignore[arg-type]
+    if not (math.isfinite(scale) and SCALE_LIMITS[0] <= scale <= SCALE_LIMITS[1]):
+        failed.append(
+            f"odometer scale factor {scale:.3f} outside {SCALE_LIMITS[0]}-{SCALE_LIMITS[1]}"
+        )
+    c = centreline
+    finite = bool(np.isfinite(c.lat).all() and np.isfinite(c.lon).all() and np.isfinite(c.h).all())
+    if not finite or len(c.t) == 0:
+        failed.append("the centreline has non-finite positions")
+    if c.sigma_enu is not None and len(c.t):
+        sig_h = np.hypot(c.sigma_enu[:, 0], c.sigma_enu[:, 1])
+        worst = float(np.nanmax(sig_h)) if np.isfinite(sig_h).any() else math.inf
+        if not worst <= MAX_SIGMA_H_M:
+            failed.append(f"horizontal sigma up to {worst:.0f} m")
+    if int(summary.get("markers_used", 0)) == 0:  # type: ignore[call-overload]
+        failed.append("no marker was used: nothing ties the run to the ground")
+    rejected = int(summary.get("markers_rejected", 0))  # type: ignore[call-overload]
+    if rejected:
+        degraded.append(f"{rejected} marker(s) rejected")
+    degraded += list(warnings)
+    if failed:
+        return Verdict(FAILED, failed + degraded)
+    return Verdict(DEGRADED, degraded) if degraded else Verdict()

@@ -1,0 +1,126 @@
+"""Magnetic heading (seed 001 eq. 10): the horizontal direction of the measured field, rotated
+into ENU with the estimated attitude, equals magnetic north (declination east of true north
+positive), rad.
+
+Applied with the magnetometer enabled, a reference field known and a sample in the epoch,
+unless the field is disturbed (counted): its magnitude off the reference by more than
+mag_magnitude_gate (relative), or its dip off the reference dip by more than mag_dip_gate.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.jit import kernel
+from pipe_nav_core.model.measurements.context import (
+    C_MAG_DISTURBED,
+    K_MAG,
+    P_MAG_DECL,
+    P_MAG_DIP,
+    P_MAG_DIP_GATE,
+    P_MAG_NORM_GATE,
+    P_MAG_ON,
+    P_MAG_REF,
+    P_MAG_REF_OK,
+    P_MAG_SIGMA,
+    Array,
+    Context,
+    Factor,
+    Index,
+    Measurement,
+    Model,
+    factor,
+    update,
+)
+from pipe_nav_core.model.state import L_ATT, L_N, Layout, NavState
+
+if TYPE_CHECKING:
+    from pipe_nav_core.filter.epoch import EpochOutputs
+
+OFF, GATED, ON = 0, 1, 2  # inputs_k's verdicts
+
+
+@kernel
+def magnetic_heading_k(
+    sv: Array, L: Index, field_b: Array, c_nb: Array, declination: float, sigma: float
+) -> Model:
+    """:func:`magnetic_heading` on a flat state."""
+    m = c_nb @ field_b
+    rho2 = m[0] ** 2 + m[1] ** 2
+    x = np.arctan2(m[0], m[1]) - declination
+    h = np.array([np.arctan2(np.sin(x), np.cos(x))])
+    g = np.array([m[1], -m[0], 0.0]) / rho2
+    H = np.zeros((1, L[L_N]))
+    a = L[L_ATT]
+    H[0, a : a + 3] = -(g @ att.skew_k(m))
+    return -h, H, np.array([[sigma**2]])
+
+
+def magnetic_heading(
+    s: NavState,
+    layout: Layout,
+    *,
+    field_b: Array,
+    c_nb: Array,
+    declination: float,
+    sigma: float,
+) -> Measurement:
+    """The update for a NavState. field_b: hard-iron corrected field in base_link (tesla);
+    c_nb: the attitude at the magnetometer sample time."""
+    r, H, R = magnetic_heading_k(
+        s.vector(),
+        layout.index,
+        np.asarray(field_b, dtype=np.float64),
+        np.ascontiguousarray(c_nb, dtype=np.float64),
+        float(declination),
+        float(sigma),
+    )
+    return Measurement("mag", r, H, R)
+
+
+@kernel
+def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, float, float]]:
+    """OFF, GATED (disturbed) or ON, and magnetic_heading_k's inputs after sv, L: the field
+    and the mechanized attitude at the first sample not before the magnetometer's."""
+    prm = c.prm
+    cnb = np.empty((3, 3))
+    m_b = np.zeros(3)
+    if not (prm[P_MAG_ON] != 0.0 and c.mag_i >= 0 and prm[P_MAG_REF_OK] != 0.0):
+        return OFF, (m_b, cnb, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
+    n = c.imu_t.shape[0]
+    j = 0
+    while j < n - 1 and c.imu_t[j] < c.mag_t[c.mag_i]:
+        j += 1
+    att.dcm_into((c.q[j, 0], c.q[j, 1], c.q[j, 2], c.q[j, 3]), cnb)
+    m_b = c.mag_f[c.mag_i].copy()
+    m_n = cnb @ m_b
+    dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
+    norm = np.sqrt(np.sum(m_b**2))
+    args = (m_b, cnb, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
+    if (
+        abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
+        or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE]
+    ):
+        return GATED, args
+    return ON, args
+
+
+@kernel
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
+    """The update, or the disturbed field counted, as :func:`inputs_k` says."""
+    verdict, args = inputs_k(c)
+    if verdict == GATED:
+        out.counts[C_MAG_DISTURBED] += 1
+    elif verdict == ON:
+        field_b, c_nb, declination, sigma = args
+        r, H, R = magnetic_heading_k(c.s, c.L, field_b, c_nb, declination, sigma)
+        update(K_MAG, r, H, R, x, P, c.prm, out)
+
+
+def factors(c: Context) -> list[Factor]:
+    """The update :func:`apply` makes at this context, as a model of the state."""
+    verdict, args = inputs_k(c)
+    return [factor(K_MAG, magnetic_heading_k, *args)] if verdict == ON else []

@@ -1,0 +1,192 @@
+"""Ahead-of-time kernels (pipe_nav_core.aot, jit): a command runs them without importing numba,
+with results identical to numba's JIT kernels, and any call they do not fit turns the process
+to numba instead of computing a wrong answer."""
+
+from __future__ import annotations
+
+import collections
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipe_nav_core import aot, jit
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "bags" / "sample.mcap"
+
+Pair = collections.namedtuple("Pair", "a b")
+
+
+def _python(code: str, **env: str) -> dict:
+    """Run code in a fresh interpreter (the last line it prints is JSON) and parse it."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, **env}, timeout=600, check=True)  # fmt: skip
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _spec(t: str, nd: int = 1, layout: str = "C", ro: bool = False) -> dict:
+    return {"k": "a", "dt": t, "nd": nd, "l": layout, "ro": ro}
+
+
+def test_the_type_check_is_as_strict_as_numba_dispatch():
+    check = aot._checker([_spec("float64"), {"k": "f"}, {"k": "i"}, {"k": "b"}])
+    x = np.zeros(3)
+    assert check(x, 1.0, 2, True)
+    assert check(x, np.float64(1.0), np.int64(2), np.bool_(False))
+    assert not check(x, 1, 2, True)  # an int is int64 to numba: another specialization
+    assert not check(x, 1.0, 2.0, True)
+    assert not check(x, 1.0, True, True)  # a bool is not an int64
+    assert not check(x.astype(np.float32), 1.0, 2, True)
+    assert not check(x.astype(np.int64), 1.0, 2, True)  # same item size, other dtype
+    assert not check(np.zeros((3, 1)), 1.0, 2, True)
+    assert not check(np.zeros(6)[::2], 1.0, 2, True)  # not C-contiguous
+    ro = np.zeros(3)
+    ro.flags.writeable = False
+    assert not check(ro, 1.0, 2, True)
+    assert not check(list(x), 1.0, 2, True)
+
+
+def test_named_and_plain_tuples_are_checked_item_by_item():
+    nt = {"k": "nt", "cls": f"{__name__}.Pair", "items": [{"k": "f"}, _spec("int64", 2)]}
+    check = aot._checker([nt, {"k": "t", "items": [{"k": "f"}, {"k": "f"}]}])
+    good = Pair(1.0, np.zeros((2, 2), dtype=np.int64))
+    assert check(good, (1.0, 2.0))
+    assert not check((1.0, good.b), (1.0, 2.0))  # a plain tuple is not the named one
+    assert not check(Pair(1.0, np.zeros((2, 2))), (1.0, 2.0))
+    assert not check(good, (1.0, 2.0, 3.0))
+    assert not check(good, [1.0, 2.0])
+
+
+def test_only_layout_and_write_flag_are_coerced():
+    specs = [_spec("float64", 2), {"k": "f"}]
+    strided = np.arange(12.0).reshape(3, 4)[:, ::2]
+    fitted = aot.coerced((strided, 1.0), specs)
+    assert fitted is not None and fitted[0].flags.c_contiguous
+    np.testing.assert_array_equal(fitted[0], strided)
+    ro = np.zeros((2, 2))
+    ro.flags.writeable = False
+    fitted = aot.coerced((ro, 1.0), specs)
+    assert fitted is not None and fitted[0].flags.writeable and fitted[0] is not ro
+    assert aot.coerced((strided.astype(np.float32), 1.0), specs) is None
+    assert aot.coerced((np.zeros(3), 1.0), specs) is None
+
+
+def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
+    _skip_without_a_compiler()
+    from numba import njit
+
+    @njit
+    def scaled(x, k):  # noqa: ANN001, ANN202
+        return x * k, np.sum(x)
+
+    x = np.arange(4.0)
+    want = scaled(x, 2.5)
+    scaled(np.arange(4), 2.5)  # an int64 specialization too
+    (tmp_path / "__pycache__").mkdir()
+    assert aot.build(tmp_path, "stamp", [("toy:scaled", scaled)]) == 2
+    exports = aot.load(tmp_path, "stamp")
+    assert exports is not None and len(exports["toy:scaled"]) == 2
+    assert aot.load(tmp_path, "another stamp") is None
+    ran = 0
+    for check, fn, _, _ in exports["toy:scaled"]:
+        if check(x, 2.5):
+            got = fn(x, 2.5)
+            np.testing.assert_array_equal(got[0], want[0])
+            assert got[1] == want[1]
+            ran += 1
+    assert ran == 1
+
+
+def _aot_built() -> bool:
+    return not _python("import json; from pipe_nav_core import jit; "
+                       "print(json.dumps(jit.JIT_REASON))")  # fmt: skip
+
+
+def _skip_without_a_compiler() -> None:
+    """Where the warm-up found the AOT module cannot be built (no C compiler: it said so and
+    the kernels stay numba's), the tests of what it builds skip, naming why; CI, which has a
+    compiler, fails on any skip (PIPE_NAV_REQUIRE_ROS, tests/conftest.py)."""
+    from pipe_nav_core import warmup
+
+    try:
+        said = warmup._marker().read_text(encoding="utf-8").partition("\n")[2]
+    except OSError:
+        return
+    if said.startswith("aot: failed"):
+        pytest.skip(f"this install cannot build the AOT module ({said})")
+
+
+def test_the_installed_package_has_its_ahead_of_time_kernels():
+    """What .ci/bootstrap leaves: a fresh process runs the AOT exports."""
+    _skip_without_a_compiler()
+    assert _aot_built(), "no AOT module for these sources: run python -m pipe_nav_core.warmup"
+
+
+SMOOTH = """
+import json, sys
+from pipe_nav_core import jit
+from pipe_nav_core.app import cli
+code = cli.main(["smooth", sys.argv[1] if len(sys.argv) > 1 else {bag!r}, "--out", {out!r},
+                 "--quiet"])
+print(json.dumps({{"code": code, "jit": jit.JIT_REASON, "numba": "numba" in sys.modules,
+                  "scipy.linalg": "scipy.linalg" in sys.modules,
+                  "lapack": "scipy.linalg.cython_lapack" in sys.modules}}))
+"""
+
+
+def test_the_sample_smooth_runs_without_numba_and_equals_the_jit_kernels(tmp_path):
+    _skip_without_a_compiler()
+    aot_out, jit_out = tmp_path / "aot", tmp_path / "jit"
+    ran = _python(SMOOTH.format(bag=str(SAMPLE), out=f"{aot_out}/"))
+    # numba's LAPACK module preloaded on its own: scipy.linalg's package never imported
+    assert ran == {"code": 0, "jit": None, "numba": False, "scipy.linalg": False, "lapack": True}
+    ran = _python(SMOOTH.format(bag=str(SAMPLE), out=f"{jit_out}/"), PIPE_NAV_KERNELS="jit")
+    assert ran["code"] == 0 and ran["numba"] and ran["jit"]
+    names = sorted(p.name for p in aot_out.iterdir())
+    assert names == sorted(p.name for p in jit_out.iterdir()) and len(names) >= 9
+    for name in names:
+        assert (aot_out / name).read_bytes() == (jit_out / name).read_bytes(), name
+
+
+def test_a_call_no_export_fits_turns_the_process_to_numba():
+    _skip_without_a_compiler()
+    code = """
+import json
+import numpy as np
+import pytest
+from pipe_nav_core import jit
+from pipe_nav_core.geo import attitude, earth
+before = jit.JIT_REASON
+g = float(earth._gravity(0.7, 100.0))        # an exported specialization
+n = attitude.qnormalize((2, 0, 0, 0))  # integers: no export takes them
+after = jit.JIT_REASON
+g2 = float(earth._gravity(0.7, 100.0))       # now numba's dispatcher
+print(json.dumps({"before": before, "after": after, "g": g, "g2": g2, "n": list(n),
+                  "rebound": type(earth._gravity).__name__}))
+"""
+    r = _python(code, PIPE_NAV_AOT_DEBUG="1")
+    assert r["before"] is None and "qnormalize called with other argument types" in r["after"]
+    assert r["g"] == r["g2"] and 9.7 < r["g"] < 9.9
+    assert r["n"] == [1.0, 0.0, 0.0, 0.0]
+    assert r["rebound"] == "CPUDispatcher"
+
+
+def test_the_aot_kernels_are_said_in_the_warm_marker(tmp_path, monkeypatch):
+    from pipe_nav_core import warmup
+
+    marker = tmp_path / "kernels_warm.txt"
+    monkeypatch.setattr(warmup, "_marker", lambda: marker)
+    marker.write_text(jit._package_stamp())  # a marker written before the AOT module existed
+    assert not warmup.is_warm()
+    marker.write_text(f"{jit._package_stamp()}\naot: 12 exports (warm-up {warmup.WARM_UP})")
+    assert warmup.is_warm() is jit.AOT_LOADED  # built, and loaded here (else: build again)
+    marker.write_text(f"{jit._package_stamp()}\naot: failed (no compiler) (warm-up "
+                      f"{warmup.WARM_UP})")  # fmt: skip
+    assert warmup.is_warm()  # tried for these sources: the JIT kernels serve
+    marker.write_text(f"{jit._package_stamp()}\naot: 12 exports (warm-up 1)")
+    assert not warmup.is_warm()  # an older warm-up: its module lacks what this one adds

@@ -1,0 +1,108 @@
+"""The speed benchmark measures what it says (its figures themselves are not asserted: they
+depend on the machine)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from pipe_nav_core.bench import speed
+
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
+
+
+def test_peak_memory_is_the_smooth_process_own():
+    speed.peak_memory_mb(SAMPLE)  # a cold numba cache compiles (hundreds of MB) in this one
+    # neither an earlier, larger child nor this (large) process may count: the rusage of
+    # children reports the largest child, and a child starts from its parent's peak at fork
+    code = "b = bytearray(1500 * 2**20); b[::4096] = b'x' * len(b[::4096])"
+    subprocess.run([sys.executable, "-c", code], check=True)
+    ballast = np.ones(1500 * 2**17)  # 1.5 GB resident in this process
+    peak, wall = speed.peak_memory_mb(SAMPLE)
+    assert ballast[-1] == 1.0
+    assert 50.0 < peak < 1200.0
+    assert wall > 0.0
+
+
+def test_markdown_reports_ratios_to_real_time_and_to_rosbags():
+    field = {
+        "duration_s": 100.0,
+        "imu_messages": 1000.0,
+        "read_decode_s": 0.5,
+        "forward_pass_s": 1.0,
+        "smooth_total_s": 2.0,
+        "passes": 2.0,
+        "outputs_s": 0.25,
+        "cli_wall_s": 4.0,
+        "rosbags_read_s_extrapolated": 2.0,
+        "peak_rss_mb": 512.0,
+        "length_km": 1.0,
+    }
+    online = {"us_per_imu_sample": 7.0, "x_real_time": 140.0}
+    md = speed.markdown({"field": field, "online": online}, "pipe-nav bench --speed-only")
+    assert "| whole `pipe-nav smooth` process | 25 | 2.00 |" in md
+    assert "| read + decode the bag | 200 | 0.25 |" in md
+    assert "512 MB" in md and "140.0 x real time" in md
+
+
+def test_field_bags_in_every_form_are_written_once(tmp_path):
+    from pipe_nav_core.io import bag_info, read_bag
+    from pipe_nav_core.io.mcapread import read_summary
+
+    forms = (speed.FORMS[6], speed.FORMS[3], speed.FORMS[4])  # directory; lz4 no mag; none
+    bags, duration = speed.field_bags(tmp_path, 0.3, 200.0, forms)
+    assert 300.0 < duration < 600.0
+    d = bags[forms[0]]
+    assert d.is_dir() and (d / "metadata.yaml").is_file()
+    comps = {}
+    for f, p in bags.items():
+        one = next(p.glob("*.mcap")) if p.is_dir() else p
+        s = read_summary(one)
+        comps[f.name] = {ci.compression for ci in s.chunk_indexes}
+        assert len(s.chunk_indexes) > 3  # 1 MiB chunks, not one chunk
+        assert ("/imu/mag" in bag_info(p).topics) == f.mag
+    assert comps == {forms[0].name: {"zstd"}, forms[1].name: {"lz4"}, forms[2].name: {""}}
+    a, _ = read_bag(bags[forms[0]])
+    b, _ = read_bag(bags[forms[1]])
+    assert np.array_equal(a.imu.gyro, b.imu.gyro) and len(a.mag) > 0 and len(b.mag) == 0
+    stamp = {f: p.stat().st_mtime_ns for f, p in bags.items()}
+    again, _ = speed.field_bags(tmp_path, 0.3, 200.0, forms)
+    assert again == bags and {f: p.stat().st_mtime_ns for f, p in again.items()} == stamp
+
+
+def test_markdown_has_a_row_per_bag_form():
+    row = {
+        "name": "zstd",
+        "chunk_size": float(1 << 20),
+        "size_mb": 101.4,
+        "messages": 1000.0,
+        "duration_s": 100.0,
+        "read_workers": 2.0,
+        "read_serial_s": 0.5,
+        "read_pooled_s": 0.25,
+        "cli_wall_s": 1.0,
+        "peak_rss_mb": 700.0,
+    }
+    lz4 = {**row, "name": "lz4", "read_serial_s": 0.4, "cli_wall_s": 0.8}
+    lines = speed.forms_markdown([row, lz4])
+    assert "| read + decode, 2 workers: x real time |" in lines[4]
+    assert "| zstd | 101 | 1000 | 200 | 400 | 100 | 4.0 | 700 |" in lines
+    assert "| lz4 | 101 | 1000 | 250 | 400 | 125 | 3.2 | 700 |" in lines
+    field = {
+        "duration_s": 100.0,
+        "imu_messages": 1000.0,
+        "read_decode_s": 0.5,
+        "forward_pass_s": 1.0,
+        "smooth_total_s": 2.0,
+        "passes": 2.0,
+        "outputs_s": 0.25,
+        "cli_wall_s": 4.0,
+        "cli_wall_serial_read_s": 5.0,
+        "rosbags_read_s_extrapolated": 2.0,
+        "peak_rss_mb": 512.0,
+        "length_km": 1.0,
+    }
+    online = {"us_per_imu_sample": 7.0, "x_real_time": 140.0}
+    md = speed.markdown({"field": field, "online": online, "forms": [row]}, "pipe-nav bench")
+    assert "### Bag forms" in md and "| zstd | 101 |" in md
+    assert "(PIPE_NAV_READ_WORKERS=0): 20 x real time" in md

@@ -1,0 +1,57 @@
+"""The quality verdict of a smoothed run (pipe_nav_core.faults.quality) and pipe-nav smooth --strict."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from pipe_nav_core.faults.quality import DEGRADED, FAILED, OK, judge
+from pipe_nav_core.types import Trajectory
+
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
+
+
+def _line(n: int = 5, sigma: float = 0.02) -> Trajectory:
+    z = np.zeros(n)
+    t = np.arange(n, dtype=float)
+    return Trajectory(t=t, lat=z + 0.7, lon=z + 2.0, h=z, vel_n=np.zeros((n, 3)),
+                      quat_nb=np.tile([0, 0, 0, 1.0], (n, 1)), distance=t,
+                      sigma_enu=np.full((n, 3), sigma))  # fmt: skip
+
+
+def test_verdicts():
+    good = {"odometer_scale": 1.001, "markers_used": 3, "markers_rejected": 0}
+    assert judge(good, _line()).status == OK and judge(good, _line()).reasons == []
+    v = judge({**good, "markers_rejected": 1}, _line(), ["marker agm_9 passes 5 s after"])
+    assert v.status == DEGRADED and v.reasons == ["1 marker(s) rejected",
+                                                  "marker agm_9 passes 5 s after"]  # fmt: skip
+    assert judge({**good, "odometer_scale": -40.0}, _line()).status == FAILED
+    assert judge(good, _line(sigma=52_000.0)).status == FAILED
+    assert judge({**good, "markers_used": 0}, _line()).status == FAILED
+    nan = dataclasses.replace(_line(), h=np.array([0, 0, np.nan, 0, 0]))
+    v = judge(good, nan)
+    assert v.status == FAILED and "non-finite" in v.line()
+
+
+def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tmp_path):
+    out = tmp_path / "o.mcap"
+    cmd = [sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(SAMPLE), "--out", str(out)]
+    r = subprocess.run([*cmd, "--strict"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and "quality             OK" in r.stdout, r.stderr
+    with open(out, "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert meta["pipe_nav"]["quality"] == "OK" and meta["pipe_nav"]["markers_used"] == "4"
+    # a consumer IMU smoothed as industrial does not fit: DEGRADED, and --strict exits 3
+    from pipe_nav_core.app.cli import main
+
+    run = tmp_path / "run.mcap"
+    assert main(["simulate", "--scenario", "drag180", "--seed", "1", "--out", str(run)]) == 0
+    cmd = [sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(run), "--out", str(out)]
+    r = subprocess.run([*cmd, "--strict", "--imu-grade", "industrial"], capture_output=True,
+                       text=True, timeout=300)  # fmt: skip
+    assert "quality DEGRADED" in r.stderr, r.stdout + r.stderr
+    assert r.returncode == 3 and out.exists()

@@ -1,0 +1,107 @@
+"""The report PNG: written headless, complete, atomic."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from pipe_nav_core.app.plots import marker_residuals_enu, plot_report
+from pipe_nav_core.io import interpolate_trajectory
+from pipe_nav_core.types import Marker
+from test_io_support import DATUM, make_traj
+
+
+def _png_size(data: bytes) -> tuple[int, int]:
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    w, h = struct.unpack(">II", data[16:24])
+    return w, h
+
+
+def _markers(traj, times, offset_m=0.0):
+    est = interpolate_trajectory(traj, times)
+    dlat = offset_m / 6.37e6
+    return [
+        Marker(
+            f"agm_{i:02d}",
+            float(t),
+            float(est.lat[i]) + dlat,
+            float(est.lon[i]),
+            float(est.h[i]) - offset_m,
+        )
+        for i, t in enumerate(times)
+    ]
+
+
+def test_plot_report_writes_png(tmp_path):
+    traj = make_traj(n=2001, seconds=200.0)
+    mk = _markers(traj, [0.0, 50.0, 120.0, 200.0], offset_m=0.03)
+    p = tmp_path / "report.png"
+    plot_report(p, traj, DATUM, mk, title="unit test")
+    data = p.read_bytes()
+    w, h = _png_size(data)
+    assert w >= 1200 and h >= 900
+    assert len(data) > 50_000  # four panels with content, not a blank canvas
+    assert [x.name for x in tmp_path.iterdir()] == ["report.png"]
+
+
+def test_residuals_default_to_estimate_minus_survey():
+    traj = make_traj(n=201, seconds=20.0)
+    mk = _markers(traj, [5.0, 10.0], offset_m=0.05)  # survey 5 cm north and 5 cm lower
+    res = marker_residuals_enu(traj, DATUM, mk)
+    assert res.shape == (2, 3)
+    np.testing.assert_allclose(res[:, 1], -0.05, atol=2e-3)
+    np.testing.assert_allclose(res[:, 2], 0.05, atol=1e-3)
+
+
+@pytest.mark.parametrize("sigma", [True, False])
+def test_plot_report_degenerate_inputs(tmp_path, sigma):
+    traj = make_traj(n=3, seconds=1.0, with_sigma=sigma)
+    p = tmp_path / "r.png"
+    plot_report(p, traj, DATUM)  # no markers, tiny trajectory
+    assert _png_size(p.read_bytes())[0] > 0
+    big = make_traj(n=60001, seconds=6000.0, with_sigma=sigma)  # decimated for drawing
+    mk = _markers(big, [100.0, 3000.0])
+    plot_report(p, big, DATUM, mk, marker_residuals=np.array([[0.01, -0.02, 0.5], [0, 0, 0]]))
+    assert _png_size(p.read_bytes())[0] > 0
+
+
+def test_plot_report_failure_keeps_old_file(tmp_path):
+    p = tmp_path / "r.png"
+    p.write_bytes(b"old")
+    traj = make_traj(n=11)
+    with pytest.raises(ValueError):
+        plot_report(p, traj, DATUM, _markers(traj, [0.5]), marker_residuals=np.zeros((2, 2)))
+    assert p.read_bytes() == b"old"
+    assert [x.name for x in tmp_path.iterdir()] == ["r.png"]
+
+
+def test_the_plot_process_draws_what_plot_report_draws(tmp_path):
+    from pipe_nav_core.app.plot_process import PlotProcess
+
+    traj = make_traj(n=2001, seconds=200.0)
+    mk = _markers(traj, [10.0, 150.0], offset_m=0.02)
+    inline, child = tmp_path / "inline.png", tmp_path / "child.png"
+    plot_report(inline, traj, DATUM, mk, title="r")
+    with PlotProcess.start() as plotter:
+        assert plotter._process is not None and plotter._process.is_alive()  # forked
+        plotter.submit(child, traj, DATUM, mk, title="r")
+        plotter.wait()
+        process = plotter._process
+    assert not process.is_alive()  # ended with the context
+    assert child.read_bytes() == inline.read_bytes()
+
+
+def test_a_failing_plot_in_the_plot_process_is_raised_and_writes_nothing(tmp_path):
+    from pipe_nav_core.app.plot_process import PlotProcess
+
+    p = tmp_path / "r.png"
+    traj = make_traj(n=11)
+    with PlotProcess.start() as plotter:
+        plotter.submit(p, traj, DATUM, _markers(traj, [0.5]), marker_residuals=np.zeros((2, 2)))
+        with pytest.raises(RuntimeError, match="the report plot failed: ValueError"):
+            plotter.wait()
+        plotter.submit(p, traj, DATUM)  # the child serves the next request
+        plotter.wait()
+    assert _png_size(p.read_bytes())[0] > 0
+    assert [x.name for x in tmp_path.iterdir()] == ["r.png"]

@@ -1,0 +1,153 @@
+"""The compact Recording: packed covariances and transitions read back exactly, from memory or
+spilled to disk, and the RTS over its chunks equals the RTS over the full matrices."""
+
+import gc
+import os
+
+import numpy as np
+import pytest
+from pipe_nav_core.model.state import SV_SIZE, Layout
+from pipe_nav_core.smooth import recording
+from pipe_nav_core.smooth.recording import Recording, phi_rows
+from pipe_nav_core.smooth.rts import rts, rts_packed
+
+
+def _epochs(layout: Layout, K: int, seed: int = 0):
+    """K random epochs of consistent (positive-definite) covariances and transitions."""
+    rng = np.random.default_rng(seed)
+    n = layout.n
+    rows = phi_rows(layout)
+    out = []
+    P = np.eye(n)
+    for _ in range(K):
+        phi = np.eye(n)
+        phi[rows] += rng.normal(size=(len(rows), n)) * 0.05
+        a = rng.normal(size=(n, n)) * 0.05
+        P_pred = phi @ P @ phi.T + a @ a.T + 1e-3 * np.eye(n)
+        P = 0.9 * P_pred  # a stand-in for an update
+        out.append((rng.normal(size=SV_SIZE), rng.normal(size=n), P.copy(), P_pred, phi))
+    return out
+
+
+@pytest.mark.parametrize("budget", [recording.RAM_BUDGET_BYTES, 0])
+def test_recording_reads_back_what_was_stored(monkeypatch, budget):
+    """With a budget of 0 all but the two newest chunks go to disk; the values are the same,
+    and the temporary directory goes when the recording is closed."""
+    monkeypatch.setattr(recording, "CHUNK_EPOCHS", 16)
+    layout = Layout("ins", gyro_errors=True)
+    epochs = _epochs(layout, 75)
+    rec = Recording(layout, ram_budget=budget)
+    for state, dx, P_upd, P_pred, phi in epochs:
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+    rec._rows.flush()  # the spilled chunks are read back from their files
+    spill_dir = rec._rows._dir
+    assert (spill_dir is not None) == (budget == 0)
+    assert len(rec) == 75
+    np.testing.assert_array_equal(rec.states, [x[0] for x in epochs])
+    for k in (0, 17, 74, 3):
+        _, _, P_upd, P_pred, phi = epochs[k]
+        np.testing.assert_array_equal(rec.P_upd(k), np.triu(P_upd) + np.triu(P_upd, 1).T)
+        np.testing.assert_array_equal(rec.P_pred(k), np.triu(P_pred) + np.triu(P_pred, 1).T)
+        np.testing.assert_array_equal(rec.phi(k), phi)
+    np.testing.assert_array_equal(rec.variances(), [np.diag(x[2]) for x in epochs])
+    e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
+    P_upd, P_pred, phi = ([x[i] for x in epochs] for i in (2, 3, 4))
+    e_ref, P_ref = rts(P_upd, P_pred, phi, rec.dx)
+    np.testing.assert_allclose(e, e_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(var, np.diagonal(P_ref, axis1=1, axis2=2), rtol=1e-12)
+    rec.close()
+    if spill_dir is not None:
+        assert not os.path.exists(spill_dir)
+
+
+def test_spilled_chunks_go_with_the_recording(monkeypatch):
+    monkeypatch.setattr(recording, "CHUNK_EPOCHS", 4)
+    layout = Layout("dr")
+    rec = Recording(layout, ram_budget=0)
+    for state, dx, P_upd, P_pred, phi in _epochs(layout, 20):
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+    rec._rows.flush()
+    spill_dir = rec._rows._dir
+    assert spill_dir is not None and os.listdir(spill_dir)
+    del rec
+    gc.collect()
+    assert not os.path.exists(spill_dir)
+
+
+def test_transition_rows_outside_the_stored_ones_must_be_identity():
+    layout = Layout("ins")
+    rec = Recording(layout)
+    phi = np.eye(layout.n)
+    phi[layout.bg.start, layout.pos.start] = 1e-3  # a row the recording does not keep
+    with pytest.raises(ValueError, match="identity"):
+        rec.add_epoch(np.zeros(SV_SIZE), dx=np.zeros(layout.n), P_upd=phi, P_pred=phi, phi=phi)
+        rec.variances()  # packed in a second thread: its error comes with the next read
+
+
+def test_an_epoch_is_stored_as_it_was_given_while_the_caller_goes_on():
+    """The covariances are packed in a second thread: add_epoch's arrays are the caller's to
+    change at once (the engine updates its covariance in place right after the alignment)."""
+    layout = Layout("ins", gyro_errors=True)
+    epochs = _epochs(layout, 40)
+    rec = Recording(layout)
+    given = []
+    for state, dx, P_upd, P_pred, phi in epochs:
+        given.append(P_upd.copy())
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+        P_upd *= 3.0  # as the filter's next prediction would
+    for k in (0, 21, 39):
+        P = given[k]
+        np.testing.assert_array_equal(rec.P_upd(k), np.triu(P) + np.triu(P, 1).T)
+
+
+def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
+    """A chunk being spilled is read back whole, and its rows stay as they were while the
+    caller reads the chunk before it: its array returns to the pool only once its file is
+    complete, and reading waits for that (else the next read could refill it)."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    held = threading.Event()
+
+    class SlowWriter(ThreadPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):  # the write waits until the test lets it
+            return super().submit(lambda: (held.wait(5.0), fn(*args, **kwargs)))
+
+    monkeypatch.setattr(recording, "ThreadPoolExecutor", SlowWriter)
+    recording.drop_spare()
+    width, n = 3, 5
+    rows = recording._Chunks(width, budget=0)  # two chunks in memory, older ones spill
+    for k in range(n):
+        for a, b, view in rows.claim(recording.CHUNK_EPOCHS):
+            view[:] = k  # chunk k's rows all hold k
+    threading.Timer(0.2, held.set).start()
+    last_spilled = n - 3
+    got = rows.chunk(last_spilled)  # asked for while its write is held back
+    time.sleep(0.5)  # the writes are done: their arrays are spare
+    before = rows.chunk(last_spilled - 1)  # read back into a spare array
+    assert np.all(got == last_spilled) and np.all(before == last_spilled - 1)
+    rows.close()
+
+
+def test_reading_back_in_any_order_keeps_the_last_chunks_asked_for():
+    """The RTS pass reads the chunks from the last back, holding the one it is at while it asks
+    for the one before; a forward read (the variances) may have left other chunks in the read
+    buffers. A buffer is reused only for the chunk asked for least recently, so the one the
+    caller holds is never refilled under it."""
+    recording.drop_spare()
+    rows = recording._Chunks(2, budget=0)  # two chunks in memory, the older ones spill
+    n = 7
+    for k in range(n):
+        for a, b, view in rows.claim(recording.CHUNK_EPOCHS):
+            view[:] = k
+    for i in range(n):  # forward, as Recording.variances reads them
+        assert np.all(rows.chunk(i) == i)
+    held = None
+    for i in range(n - 1, -1, -1):  # backward, as rts_packed reads them
+        here = rows.chunk(i)
+        if held is not None:
+            assert np.all(held == i + 1), f"chunk {i + 1} refilled while held"
+        assert np.all(here == i)
+        held = here
+    rows.close()

@@ -1,0 +1,43 @@
+"""One filter pass over a log (smooth.forward.run_forward): fed in time slices, telling its
+progress, with the estimates of the whole log at once."""
+
+from __future__ import annotations
+
+import numpy as np
+from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.navigator import Navigator, PassOptions
+from pipe_nav_core.sim import simulate
+from pipe_nav_core.smooth import forward
+from pipe_nav_core.smooth.forward import run_forward
+
+
+class _Fractions:
+    """A Progress that keeps the fractions it is told."""
+
+    def __init__(self) -> None:
+        self.seen: list[float] = []
+
+    def stage(self, text: str) -> None:
+        raise AssertionError(f"a filter pass names no stage ({text})")
+
+    def fraction(self, done: float) -> None:
+        self.seen.append(done)
+
+
+def test_progress_slices_give_identical_results(monkeypatch):
+    """A forward pass feeds the log in time slices (and tells the caller's Progress the
+    fraction done after each): the estimates are those of the whole log at once."""
+    monkeypatch.setattr(forward, "SLICE_MIN_S", 5.0)  # slices of 5 s of data: many
+    run = simulate("sag104", seed=6)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    nav = Navigator(cfg, run.log.markers, PassOptions(record=True))
+    nav.run(run.log)
+    whole = nav.recording
+    told = _Fractions()
+    sliced = run_forward(run.log, cfg, progress=told).recording
+    seen = told.seen
+    assert seen[-1] == 1.0 and len(seen) > 10 and seen == sorted(seen)
+    np.testing.assert_array_equal(whole.states, sliced.states)
+    np.testing.assert_array_equal(
+        whole.covariances(np.arange(len(whole))), sliced.covariances(np.arange(len(sliced)))
+    )
