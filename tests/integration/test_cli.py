@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pipe_nav_core.app.cli import _load_config, main
+from pipe_nav_core.app.cli import main
+from pipe_nav_core.app.commands import load_config
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.io import CENTRELINE_HEADER, read_centreline_csv
 
@@ -210,7 +211,7 @@ def test_simulated_run_smooths_with_its_settings_file(tmp_path: Path, capsys):
     config = tmp_path / "run.config.yaml"
     assert f"--config {config.name}" in capsys.readouterr().out
     parser_args = argparse.Namespace(config=str(config), set=None, mode=None, imu_grade=None)
-    assert _load_config(parser_args) == NavConfig.from_dict(
+    assert load_config(parser_args) == NavConfig.from_dict(
         get_scenario("drag180").estimator_settings()
     )
     line = tmp_path / "c.csv"
@@ -271,7 +272,7 @@ def test_bench_makes_its_output_folders_and_fails_at_once_on_a_bad_path(
 def test_set_accepts_every_triple_syntax(raw: str):
     args = argparse.Namespace(config=None, set=[f"odometer_lever_arm={raw}"], mode=None,
                               imu_grade=None, mount_rpy_deg=None)  # fmt: skip
-    assert _load_config(args).odometer_lever_arm == pytest.approx((0.0, 0.0, -0.05))
+    assert load_config(args).odometer_lever_arm == pytest.approx((0.0, 0.0, -0.05))
 
 
 def test_setting_errors_name_the_option_typed(tmp_path: Path):

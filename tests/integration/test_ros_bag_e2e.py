@@ -29,7 +29,8 @@ pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy) is not installed here")
 highlevel = pytest.importorskip("rosbags.highlevel")
 
 # the command line itself and the fixtures' internals (not the API a ROS integrator uses)
-from pipe_nav_core.app.cli import SIM_EPOCH, main
+from pipe_nav_core.app.cli import main
+from pipe_nav_core.app.commands import SIM_EPOCH
 from pipe_nav_core.bench.evaluation import trajectory_enu
 from pipe_nav_core.sim import get_scenario  # noqa: E402
 from pipe_nav_core.smooth.logs import slice_log  # noqa: E402

@@ -6,7 +6,8 @@ import argparse
 import re
 
 import pytest
-from pipe_nav_core.app.cli import _load_config, main
+from pipe_nav_core.app.cli import main
+from pipe_nav_core.app.commands import load_config
 from pipe_nav_core.app.settings_template import TOOL_FIELDS
 from pipe_nav_core.config import SETTINGS, NavConfig
 from pipe_nav_core.model.sensors import GRADES
@@ -15,7 +16,7 @@ from pipe_nav_core.model.sensors import GRADES
 def _config_of(path) -> NavConfig:
     ns = argparse.Namespace(config=str(path), set=None, mode=None, imu_grade=None,
                             mount_rpy_deg=None)  # fmt: skip
-    return _load_config(ns)
+    return load_config(ns)
 
 
 def test_the_template_reads_back_as_the_defaults_and_documents_every_key(tmp_path, capsys):
