@@ -7,7 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pipe_nav_core.app.pipeline import Outputs, load_log, replay_log, smooth_bag
+from pipe_nav_core.app.outputs import Outputs
+from pipe_nav_core.app.pipeline import load_log, smooth_bag
+from pipe_nav_core.app.replay import replay_log
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.faults.gaps import fill_holes_at_rest, find_holes, remove_clock_steps

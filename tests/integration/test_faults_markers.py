@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pipe_nav_core.app.pipeline import Outputs, load_log, smooth_bag
+from pipe_nav_core.app.outputs import Outputs
+from pipe_nav_core.app.pipeline import load_log, smooth_bag
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
 from pipe_nav_core.sim.faults import marker_late, marker_moved

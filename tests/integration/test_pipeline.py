@@ -40,7 +40,8 @@ def test_mount_rotation_is_the_extrinsic_xyz_euler_rotation():
 def test_markers_outside_the_data_are_left_out_and_named(tmp_path):
     from pathlib import Path
 
-    from pipe_nav_core.app.pipeline import Outputs, smooth_bag
+    from pipe_nav_core.app.outputs import Outputs
+    from pipe_nav_core.app.pipeline import smooth_bag
     from pipe_nav_core.io import read_markers_csv, write_markers_csv
 
     bags = Path(__file__).resolve().parents[2] / "bags"
@@ -62,7 +63,8 @@ def test_markers_outside_the_data_are_left_out_and_named(tmp_path):
 def test_a_run_with_no_marker_inside_its_data_is_refused(tmp_path):
     from pathlib import Path
 
-    from pipe_nav_core.app.pipeline import Outputs, load_log, smooth_bag
+    from pipe_nav_core.app.outputs import Outputs
+    from pipe_nav_core.app.pipeline import load_log, smooth_bag
     from pipe_nav_core.io import read_markers_csv, write_markers_csv
     from pipe_nav_core.io.bagwrite import write_sensor_bag
 

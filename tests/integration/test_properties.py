@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from pipe_nav_core.app.pipeline import Outputs, load_log, smooth_bag
+from pipe_nav_core.app.outputs import Outputs
+from pipe_nav_core.app.pipeline import load_log, smooth_bag
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import read_bag, read_centreline_csv, write_sensor_bag
@@ -140,7 +141,7 @@ def test_the_live_engine_stays_finite_and_honest(short_log, truth, d):
     """The same damage through the live engine as ekf_node feeds it (replay_log): no exception,
     every estimate finite, and the estimates it publishes inside their sigmas (or it says it
     is lost and publishes nothing after)."""
-    from pipe_nav_core.app.pipeline import estimates_to_trajectory, replay_log
+    from pipe_nav_core.app.replay import estimates_to_trajectory, replay_log
 
     r = replay_log(damaged(short_log, d), NavConfig())
     traj = estimates_to_trajectory(r.estimates)

@@ -2,7 +2,7 @@
 
 The ekf_node path here is its message core (EkfCore) fed the bag's messages in log order, as
 rosbags deserializes them (the node receives the same messages from ``ros2 bag play``); the
-other path is pipe_nav_core.app.pipeline.replay_bag, what ``pipe-nav replay`` runs.
+other path is pipe_nav_core.app.replay.replay_bag, what ``pipe-nav replay`` runs.
 """
 
 from __future__ import annotations

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pipe_nav_core.app.pipeline import Outputs, load_log, smooth_bag
+from pipe_nav_core.app.outputs import Outputs
+from pipe_nav_core.app.pipeline import load_log, smooth_bag
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.faults.odometer import find_odometer_faults, without_faults

@@ -92,7 +92,7 @@ def test_a_model_that_does_not_fit_is_refitted_and_said(monkeypatch):
 
 @pytest.mark.parametrize("name", ["drag180", "sag104"])
 def test_the_live_filter_chooses_at_its_initial_rest(name):
-    from pipe_nav_core.app.pipeline import replay_log
+    from pipe_nav_core.app.replay import replay_log
 
     run = simulate(name, 1)
     settings = run.scenario.estimator_settings()

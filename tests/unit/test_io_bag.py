@@ -604,7 +604,7 @@ def test_glitch_on_the_first_stamp_does_not_block_the_topic(tmp_path):
 
 
 def test_anyreader_opens_written_bag_via_its_directory(tmp_path, log):
-    from pipe_nav_core.io.bagwrite import write_rosbag2_metadata
+    from pipe_nav_core.io.rosbag2_metadata import write_rosbag2_metadata
     from rosbags.highlevel import AnyReader
 
     d = tmp_path / "as_dir"

@@ -19,12 +19,12 @@ from pathlib import Path
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 from pipe_nav_core.io import write_output_bag, write_rosbag2_metadata, write_sensor_bag
-from pipe_nav_core.io.bagwrite import (
+from pipe_nav_core.io.mcapwrite import McapWriter, Stream
+from pipe_nav_core.io.rosbag2_metadata import (
     TOPIC_QOS,
     qos_profiles_from_text,
     yaml_text,
 )
-from pipe_nav_core.io.mcapwrite import McapWriter, Stream
 from ruamel.yaml import YAML
 from test_io_support import DATUM, make_log, make_traj
 

@@ -13,7 +13,8 @@ import pytest
 from pipe_nav_core.app.plots import _envelope, plot_report
 from pipe_nav_core.io import bag_info, write_geojson, write_kml, write_output_bag
 from pipe_nav_core.io import rosmsg as R
-from pipe_nav_core.io.bagwrite import message_definition, write_rosbag2_metadata
+from pipe_nav_core.io.bagwrite import message_definition
+from pipe_nav_core.io.rosbag2_metadata import write_rosbag2_metadata
 from pipe_nav_core.io.rosmsg import jazzy_typestore
 from pipe_nav_core.io.stamps import sec_to_ns_scalar
 from pipe_nav_core.products.bends import PipeBend

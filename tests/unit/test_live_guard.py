@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pipe_nav_core.app.pipeline import estimates_to_trajectory, load_log, replay_log
+from pipe_nav_core.app.pipeline import load_log
+from pipe_nav_core.app.replay import estimates_to_trajectory, replay_log
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import read_centreline_csv

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from pipe_nav_core.app.pipeline import estimates_to_trajectory
+from pipe_nav_core.app.replay import estimates_to_trajectory
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator, PassOptions

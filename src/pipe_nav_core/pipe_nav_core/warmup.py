@@ -38,9 +38,9 @@ def _warmup_run() -> tuple[SensorLog, NavConfig]:
 
 
 def warm_live() -> float:
-    """Run the live Navigator over the warm-up run as a bag plays (pipeline.replay_log), s of
+    """Run the live Navigator over the warm-up run as a bag plays (replay.replay_log), s of
     wall time taken."""
-    from pipe_nav_core.app.pipeline import replay_log
+    from pipe_nav_core.app.replay import replay_log
 
     t0 = time.perf_counter()
     replay_log(*_warmup_run())

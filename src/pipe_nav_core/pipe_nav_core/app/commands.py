@@ -173,7 +173,8 @@ def _out_is_dir(out: str) -> bool:
 
 
 def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
-    from pipe_nav_core.app.pipeline import Outputs, smooth_bag
+    from pipe_nav_core.app.outputs import Outputs
+    from pipe_nav_core.app.pipeline import smooth_bag
 
     cfg = load_config(args)
     out = Path(args.out)
@@ -268,7 +269,7 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from pipe_nav_core.app.pipeline import replay_bag
+    from pipe_nav_core.app.replay import replay_bag
 
     cfg = load_config(args)
     warm_kernels()

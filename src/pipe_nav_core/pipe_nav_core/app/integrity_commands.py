@@ -20,7 +20,8 @@ from pipe_nav_core.app.commands import CliError, load_config, warm_kernels
 
 
 def cmd_bends(args: argparse.Namespace) -> int:
-    from pipe_nav_core.app.pipeline import Outputs, products_of_file
+    from pipe_nav_core.app.outputs import Outputs
+    from pipe_nav_core.app.replay import products_of_file
 
     for name, value in (
         ("curvature_window", args.window),

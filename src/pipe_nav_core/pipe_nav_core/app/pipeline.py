@@ -1,4 +1,4 @@
-"""Bag in, products out: what ``pipe-nav smooth`` / ``pipe-nav replay`` and the smoother node run.
+"""Bag in, smoothed run out: what ``pipe-nav smooth`` and the smoother node run.
 
 Reads a bag (single .mcap or rosbag2 directory), merges a marker CSV, runs the engine, and
 writes the outputs atomically (temporary file, then rename). Never modifies the input and
@@ -10,11 +10,10 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
+from pipe_nav_core.app.outputs import Outputs, Say, write_products
 from pipe_nav_core.app.plot_process import PlotProcess
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import AUTO_GRADE, NavConfig
@@ -28,109 +27,26 @@ from pipe_nav_core.faults.gaps import (
 from pipe_nav_core.faults.imu import without_imu_faults
 from pipe_nav_core.faults.markers import smooth_without_outliers
 from pipe_nav_core.faults.odometer import find_odometer_faults, without_faults
-from pipe_nav_core.filter.estimates import NavEstimate
-from pipe_nav_core.filter.live_guard import GuardedNavigator
 from pipe_nav_core.io import (
     BagReport,
     TopicNames,
     merge_markers,
     read_bag,
     read_markers_csv,
-    resample_by_chainage,
-    write_centreline_csv,
-    write_geojson,
-    write_kml,
-    write_output_bag,
 )
-from pipe_nav_core.io.atomic import all_or_none, check_output, ensure_not_input
-from pipe_nav_core.io.centreline import concat, pieces_of, read_centreline_csv
-from pipe_nav_core.io.products_csv import (
-    write_bends_csv,
-    write_strain_csv,
-    write_strain_features_csv,
-)
-from pipe_nav_core.io.smoothed_bag import read_smoothed_bag, smoothed_attachments
-from pipe_nav_core.io.welds_csv import write_welds_csv
 from pipe_nav_core.model import imu_noise as imu_model
-from pipe_nav_core.model.sensors import GRADES
-from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
+from pipe_nav_core.products import integrity_report, read_bends_reference
 from pipe_nav_core.products.welds import Weld, detect_welds
 from pipe_nav_core.smooth.centreline import SmoothResult
 from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.smooth.recording import drop_spare
 from pipe_nav_core.smooth.segments import smooth_segments
-from pipe_nav_core.types import Datum, Marker, SensorLog, Trajectory
+from pipe_nav_core.types import Marker, SensorLog
 
-Say = Callable[[str], None]  # told each stage as it begins (Progress.stage)
 MAX_BRIDGED_M = 0.5  # m: the filter carries a gap the pig moved less in; else segments
+
+
 DEFAULT_TOPICS = TopicNames()
-
-
-@dataclass
-class Outputs:
-    """Where to write what (None = do not write)."""
-
-    bag: str | None = None
-    csv: str | None = None
-    geojson: str | None = None
-    kml: str | None = None
-    plot: str | None = None
-    strain: str | None = None  # the integrity products (products/), named like the centreline
-    bends: str | None = None
-    strain_features: str | None = None
-    welds: str | None = None  # RUN_welds.csv, written when the run has a magnetometer
-
-    # the command-line option that names each output, for messages
-    OPTIONS = {"bag": "--out", "csv": "--csv", "geojson": "--geojson", "kml": "--kml",
-               "plot": "--plot", "strain": "--csv/--out", "bends": "--csv/--out",
-               "strain_features": "--csv/--out", "welds": "--csv/--out"}  # fmt: skip
-
-    def paths(self) -> list[str]:
-        return [p for p in (getattr(self, name) for name in self.OPTIONS) if p]
-
-    def with_products(self) -> Outputs:
-        """These outputs plus the integrity products beside the centreline CSV (else beside
-        the bag): ``RUN_strain.csv``, ``RUN_bends.csv``, ``RUN_strain_features.csv``,
-        ``RUN_welds.csv`` where RUN is the CSV's (or bag's) name without ``_centerline``
-        (``_smoothed``) and suffix."""
-        base = self.csv or self.bag
-        if not base:
-            return self
-        stem = str(Path(base).with_suffix(""))
-        for tail in ("_centerline", "_centreline", "_smoothed"):
-            if stem.endswith(tail):
-                stem = stem[: -len(tail)]
-                break
-        return replace(self, strain=f"{stem}_strain.csv", bends=f"{stem}_bends.csv",
-                       strain_features=f"{stem}_strain_features.csv",
-                       welds=f"{stem}_welds.csv")  # fmt: skip
-
-    def check(self, inputs: Sequence[str | os.PathLike[str]], spacing: float) -> None:
-        """Before any work: every output writable, none an input, no two the same file, and
-        the CSV spacing a positive number; ValueError naming the option otherwise."""
-        if not (math.isfinite(spacing) and spacing > 0.0):
-            raise ValueError(f"--spacing must be a positive number of metres, not {spacing}")
-        seen: dict[str, str] = {}
-        for name, option in self.OPTIONS.items():
-            path = getattr(self, name)
-            if not path:
-                continue
-            check_output(path, option)
-            ensure_not_input(path, inputs)
-            real = os.path.realpath(path)
-            if real in seen:
-                raise ValueError(f"{seen[real]} and {option} name the same file {path}")
-            seen[real] = option
-
-
-@dataclass
-class ReplayResult:
-    """Forward estimates of the online engine over a bag, its datum and its diagnostics."""
-
-    estimates: list[NavEstimate]
-    datum: Datum | None
-    diagnostics: dict[str, object] = field(default_factory=dict)
-    warnings: list[str] = field(default_factory=list)  # Navigator.model_warnings
 
 
 def load_log(
@@ -228,7 +144,7 @@ def smooth_bag(
     say = told.stage
     say("reading bag")
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
-    _require_imu(log, report, bag, topics)
+    require_imu(log, report, bag, topics)
     if not log.markers:
         left = [w for w in report.warnings if w.startswith("marker ")]
         why = f" ({left[0]}{f' and {len(left) - 1} more' if len(left) > 1 else ''})" if left else ""
@@ -352,19 +268,7 @@ def smooth_with_imu_model(
     return result
 
 
-def centreline_rows(result: SmoothResult, spacing: float) -> Trajectory:
-    """The centreline resampled every ``spacing`` m of chainage plus a row at every marker;
-    a centreline in pieces (segments across data gaps) gets no row across its holes."""
-    c = result.centreline
-    pieces = pieces_of(c)
-    rows = []
-    for p in pieces:
-        times = [m.t for m in result.markers if p.t[0] <= m.t <= p.t[-1]]
-        rows.append(resample_by_chainage(p, spacing, times))
-    return rows[0] if len(rows) == 1 else concat(rows)
-
-
-def _require_imu(
+def require_imu(
     log: SensorLog, report: BagReport, bag: str | os.PathLike[str], topics: TopicNames
 ) -> None:
     """ValueError when the bag gave no IMU sample, naming the type its IMU topic carries."""
@@ -388,230 +292,3 @@ def weld_summary(welds: Sequence[Weld]) -> dict[str, object]:
     joints = [w.joint_length for w in welds if math.isfinite(w.joint_length)]
     return {"count": len(welds), "filled": sum(w.confidence == 0.0 for w in welds),
             "median_joint_m": float(np.median(joints)) if joints else None}  # fmt: skip
-
-
-def write_products(
-    result: SmoothResult,
-    outputs: Outputs,
-    *,
-    spacing: float = 0.5,
-    progress: Say | None = None,
-    plotter: PlotProcess | None = None,
-    meanwhile: Callable[[], None] | None = None,
-) -> Trajectory:
-    """Write the bag, CSV, GeoJSON, KML and plot of a smoothing result: all of them or, if
-    one fails (or the run is interrupted), none (io.atomic.all_or_none). ``plotter``: a
-    child process that draws the plot meanwhile (else it is drawn here); ``meanwhile``: the
-    last work on ``result`` that the other outputs need and the plot does not (the welds),
-    done while the plot is drawn."""
-    say = progress or (lambda _m: None)
-    rows = centreline_rows(result, spacing)
-    with all_or_none(outputs.paths()) as staged:
-        _write_staged(result, outputs, rows, staged, say, plotter, meanwhile)
-    return rows
-
-
-def run_metadata(summary: dict[str, object]) -> dict[str, str]:
-    """What the smoothed bag records of its run (MCAP metadata ``pipe_nav``): the quality
-    verdict and its reasons, the IMU model and why, the markers used and rejected, and for the
-    graph smoother its iterations and whether it converged."""
-    q = summary.get("quality") or {}
-    model = summary.get("imu_model") or {}
-    return {
-        "quality": str(q.get("status", "")),  # type: ignore[union-attr]
-        "quality_reasons": "; ".join(q.get("reasons", [])),  # type: ignore[union-attr]
-        "imu_model": str(model.get("grade", "")),  # type: ignore[union-attr]
-        "imu_model_reason": str(model.get("reason", "")),  # type: ignore[union-attr]
-        "markers_used": str(summary.get("markers_used", "")),
-        "markers_rejected": str(summary.get("markers_rejected", "")),
-        **(
-            {
-                "method": "graph",
-                "graph_iterations": str(summary["graph_iterations"]),
-                "graph_converged": str(bool(summary.get("graph_converged"))).lower(),
-            }
-            if "graph_iterations" in summary
-            else {}
-        ),  # fmt: skip
-    }
-
-
-def _write_staged(
-    result: SmoothResult,
-    outputs: Outputs,
-    rows: Trajectory,
-    staged: dict[str, Path],
-    say: Say,
-    plotter: PlotProcess | None,
-    meanwhile: Callable[[], None] | None,
-) -> None:
-    products = result.products
-    bends = products.bends if products else []
-    if outputs.plot:  # first: a child process draws it while the others are written
-        say("plotting")
-        _submit_plot(result, rows, staged[outputs.plot], Path(outputs.plot).stem, plotter)
-    if meanwhile is not None:
-        meanwhile()
-    features = products.features if products else []
-    if outputs.bag:
-        say("writing bag")
-        write_output_bag(staged[outputs.bag], path=rows, datum=result.datum,
-                         odometry=result.forward, file_name=Path(outputs.bag).name,
-                         run_metadata=run_metadata(result.summary), bends=bends,
-                         attachments=smoothed_attachments(rows, result.datum,
-                                                          result.welds))  # fmt: skip
-    if outputs.csv:
-        write_centreline_csv(staged[outputs.csv], rows, result.datum)
-    welds = result.welds or []
-    bridges = result.summary.get("bridges") or []  # across data gaps (segments.Bridge)
-    if outputs.geojson:
-        write_geojson(staged[outputs.geojson], rows, result.markers, bends=bends,
-                      strain_features=features, welds=welds, bridges=bridges)  # fmt: skip
-    if outputs.kml:
-        write_kml(staged[outputs.kml], rows, result.markers, bends=bends,
-                  strain_features=features, welds=welds, bridges=bridges)  # fmt: skip
-    if result.products is not None:
-        _write_products_csv(result.products, outputs, staged)
-    if outputs.welds and result.welds is not None:
-        write_welds_csv(staged[outputs.welds], result.welds)
-    if plotter is not None:
-        plotter.wait()
-
-
-def _submit_plot(
-    result: SmoothResult, rows: Trajectory, path: Path, title: str, plotter: PlotProcess | None
-) -> None:
-    from pipe_nav_core.app.plots import plot_report
-
-    markers = [m for m in result.markers if m.name in result.marker_residuals]
-    res = np.array([result.marker_residuals[m.name] for m in markers]).reshape(-1, 3)
-    args = (path, rows, result.datum, markers, res if len(res) else None)
-    kwargs = {"title": title, "integrity": result.products}
-    if plotter is None:
-        plot_report(*args, **kwargs)
-    else:
-        plotter.submit(*args, **kwargs)
-
-
-def _write_products_csv(report: IntegrityReport, outputs: Outputs, staged: dict[str, Path]) -> None:
-    if outputs.strain:
-        write_strain_csv(staged[outputs.strain], report.profile, report.strain_pct,
-                         report.sigma_strain_pct)  # fmt: skip
-    if outputs.bends:
-        write_bends_csv(staged[outputs.bends], report.bends)
-    if outputs.strain_features:
-        write_strain_features_csv(staged[outputs.strain_features], report.features)
-
-
-def replay_log(
-    log: SensorLog, config: NavConfig, declared: dict[str, list[float]] | None = None
-) -> ReplayResult:
-    """Run the online engine over a log exactly as ekf_node does: samples pushed one by one in
-    stamp order (the engine's reorder buffer makes arrival order within its window irrelevant).
-    declared: the per-sample IMU variances the Imu messages declare (imu_grade auto)."""
-    nav = GuardedNavigator(config)
-    nav.declared_imu_noise = declared
-    events: list[tuple[float, int, int]] = []
-    events += [(t, 0, i) for i, t in enumerate(log.imu.t)]
-    events += [(t, 1, i) for i, t in enumerate(log.odometer.t)]
-    events += [(t, 2, i) for i, t in enumerate(log.mag.t)]
-    events += [(m.t, 3, i) for i, m in enumerate(log.markers)]
-    events.sort()
-    out: list[NavEstimate] = []
-    imu, odo, mag = log.imu, log.odometer, log.mag
-    for _t, kind, i in events:
-        if kind == 0:
-            nav.push_imu(imu.t[i], imu.gyro[i], imu.accel[i])
-        elif kind == 1:
-            nav.push_odometer(odo.t[i], odo.distance[i], odo.speed[i])
-        elif kind == 2:
-            nav.push_mag(mag.t[i], mag.field[i])
-        else:
-            nav.push_marker(log.markers[i])
-        out.extend(nav.poll())
-    out.extend(nav.finish())
-    return ReplayResult(out, nav.datum, dict(nav.diagnostics()), nav.model_warnings())
-
-
-def estimates_to_trajectory(estimates: Sequence[NavEstimate]) -> Trajectory:
-    """Forward estimates as a Trajectory (sigmas from the covariance diagonals)."""
-    cov = np.array([e.cov_pose for e in estimates]).reshape(-1, 6, 6)
-    var = np.einsum("kii->ki", cov)
-    return Trajectory(
-        t=np.array([e.t for e in estimates]),
-        lat=np.array([e.lat for e in estimates]),
-        lon=np.array([e.lon for e in estimates]),
-        h=np.array([e.h for e in estimates]),
-        vel_n=np.array([e.vel_n for e in estimates]).reshape(-1, 3),
-        quat_nb=np.array([e.quat_nb for e in estimates]).reshape(-1, 4),
-        distance=np.array([e.distance for e in estimates]),
-        sigma_enu=np.sqrt(np.maximum(var[:, :3], 0.0)),
-        sigma_att=np.sqrt(np.maximum(var[:, 3:], 0.0)),
-        cov_pose=cov,
-    )
-
-
-def replay_bag(
-    bag: str | os.PathLike[str],
-    out: str | os.PathLike[str],
-    *,
-    config: NavConfig,
-    markers_csv: str | os.PathLike[str] | None = None,
-    topics: TopicNames = DEFAULT_TOPICS,
-) -> tuple[ReplayResult, BagReport]:
-    """`pipe-nav replay`: the online estimator over a bag; writes /pipe_nav/odometry."""
-    ensure_not_input(out, [bag] + ([markers_csv] if markers_csv else []))
-    log, report = load_log(bag, topics=topics, markers_csv=markers_csv, repair=False)
-    _require_imu(log, report, bag, topics)
-    auto = config.imu_grade == AUTO_GRADE
-    result = replay_log(log, config, report.imu_noise_declared if auto else None)
-    if not result.estimates:
-        raise ValueError(
-            f"{bag}: the estimator produced no estimate (no static start or no marker)"
-        )
-    traj = estimates_to_trajectory(result.estimates)
-    datum = result.datum or Datum(traj.lat[0], traj.lon[0], traj.h[0])
-    write_output_bag(out, path=None, datum=datum, odometry=traj)
-    report.warnings += result.warnings
-    if "lost_since" in result.diagnostics:
-        d = result.diagnostics
-        report.warnings.append(
-            f"the live solution was lost at t = {float(d['lost_since']):.3f} s "  # type: ignore[arg-type]
-            f"({d['lost_reason']}): {d.get('withheld_lost', 0)} estimates after it withheld"
-        )
-    return result, report
-
-
-def products_of_file(
-    source: str | os.PathLike[str],
-    outputs: Outputs,
-    *,
-    config: NavConfig,
-    spacing: float = 0.5,
-    bends_reference: str | os.PathLike[str] | None = None,
-) -> tuple[IntegrityReport, list[str]]:
-    """`pipe-nav bends`: the integrity products of a run already smoothed, from its smoothed
-    MCAP bag or its centreline CSV, with other settings; writes ``outputs``' product files
-    (all or none). Returns the report and the notes for the user. The sigmas use the IMU model
-    the bag's metadata records when ``config.imu_grade`` is auto (industrial for a CSV)."""
-    inputs = [source] + ([bends_reference] if bends_reference else [])
-    outputs.check(inputs, spacing)
-    reference = read_bends_reference(bends_reference) if bends_reference else None
-    notes: list[str] = []
-    if str(source).lower().endswith(".csv"):
-        traj, _ = read_centreline_csv(source, warn=notes.append)
-        model = ""
-    else:
-        traj, _, metadata = read_smoothed_bag(source)
-        model = metadata.get("imu_model", "").split("+")[0]
-        notes.append(f"{source}: chainage is the arc length of its path (a Path has no distance_m)")
-    if config.imu_grade == AUTO_GRADE:
-        grade = model if model in GRADES else "industrial"
-        config = replace(config, imu_grade=grade)
-        hint = "" if model else " (give --imu-grade)"
-        notes.append(f"sigmas from the {grade} IMU model{hint}")
-    report = integrity_report(traj, config, spacing=spacing, reference=reference)
-    notes += report.notes
-    with all_or_none(outputs.paths()) as staged:
-        _write_products_csv(report, outputs, staged)
-    return report, notes

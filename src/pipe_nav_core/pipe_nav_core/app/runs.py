@@ -177,7 +177,8 @@ def fuse_files(
 def smooth_one(job: tuple[str, str, NavConfig]) -> str:
     """Smooth job = (bag, output .mcap, settings) with every product beside the output, as
     ``pipe-nav smooth BAG --out OUT`` does; returns the output path."""
-    from pipe_nav_core.app.pipeline import Outputs, smooth_bag
+    from pipe_nav_core.app.outputs import Outputs
+    from pipe_nav_core.app.pipeline import smooth_bag
 
     bag, out, config = job
     smooth_bag(bag, Outputs(bag=out).with_products(), config=config)

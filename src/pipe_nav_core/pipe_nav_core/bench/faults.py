@@ -14,13 +14,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from pipe_nav_core.app.pipeline import (
-    Outputs,
-    estimates_to_trajectory,
-    load_log,
-    replay_log,
-    smooth_bag,
-)
+from pipe_nav_core.app.outputs import Outputs
+from pipe_nav_core.app.pipeline import load_log, smooth_bag
+from pipe_nav_core.app.replay import estimates_to_trajectory, replay_log
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import read_centreline_csv, write_sensor_bag

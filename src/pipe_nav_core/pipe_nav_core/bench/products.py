@@ -12,6 +12,9 @@ Bends are matched one to one by apex chainage (nearest first, within half the tr
 length plus half a window, at least ``APEX_TOL_M``) against every true bend or sag lobe turning
 by at least ``MATCH_MIN_ANGLE``; an estimated bend matching none is a false bend, one matching a
 true bend under the listing angle is counted apart (``extra``: found, but below the threshold).
+
+About 430 lines, one module on purpose: one benchmark table, its runs, its scoring against
+the simulator's truth and its Markdown, read together.
 """
 
 from __future__ import annotations

@@ -22,7 +22,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from pipe_nav_core.app.pipeline import Outputs, replay_log, write_products
+from pipe_nav_core.app.outputs import Outputs, write_products
+from pipe_nav_core.app.replay import replay_log
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import bag_info, read_bag, write_rosbag2_metadata, write_sensor_bag
 from pipe_nav_core.io.bagread import READ_WORKERS_ENV, read_workers

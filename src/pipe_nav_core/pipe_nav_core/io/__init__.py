@@ -14,7 +14,7 @@ from pipe_nav_core.io.atomic import OutputIsInputError, atomic_path, atomic_writ
 from pipe_nav_core.io.bagfiles import bag_files
 from pipe_nav_core.io.baginfo import BagInfo, TopicInfo, bag_info, bag_time_range
 from pipe_nav_core.io.bagread import concat_logs, iter_bag, read_bag
-from pipe_nav_core.io.bagwrite import write_output_bag, write_rosbag2_metadata, write_sensor_bag
+from pipe_nav_core.io.bagwrite import write_output_bag, write_sensor_bag
 from pipe_nav_core.io.centreline import (
     CENTRELINE_COLUMNS,
     CENTRELINE_HEADER,
@@ -32,6 +32,7 @@ from pipe_nav_core.io.markers_csv import (
     read_markers_csv,
     write_markers_csv,
 )
+from pipe_nav_core.io.rosbag2_metadata import write_rosbag2_metadata
 from pipe_nav_core.io.topics import BagError, BagReport, TopicNames
 
 __all__ = [

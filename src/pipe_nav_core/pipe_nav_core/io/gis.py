@@ -6,6 +6,9 @@ above the WGS84 ellipsoid in metres (4 decimals). GeoJSON defines its third coor
 exactly that. KML's ``absolute`` altitude mode is nominally relative to mean sea level, so
 viewers such as Google Earth draw our ellipsoidal heights offset by the geoid undulation (tens
 of metres); the KML document says so in its description. Files are written atomically.
+
+About 410 lines, one module on purpose: GeoJSON and KML write the same features (centreline,
+markers, bends, strain features, welds, bridges) from one set of helpers.
 """
 
 from __future__ import annotations

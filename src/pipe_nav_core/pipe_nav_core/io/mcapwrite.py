@@ -13,6 +13,9 @@ The few records written once per file or per chunk (Header, Schema, Channel, Met
 Attachment, their indexes, Statistics, ChunkIndex, SummaryOffset, DataEnd, Footer) are built by
 the ``mcap`` library's record classes (:mod:`mcap.records`); the Message, Chunk and
 MessageIndex records, which carry every message, are assembled here with numpy.
+
+About 430 lines, one module on purpose: the MCAP record layouts and the chunked writer that
+emits them are one format, read together with the specification.
 """
 
 from __future__ import annotations

@@ -10,6 +10,10 @@ which both rosbags and rclpy accept.
 Frames and units follow INTERFACES.md: SI units; quaternions scalar-last [x, y, z, w] rotating
 base_link into map (ENU); NavSatFix latitude/longitude in degrees (ROS convention), altitude
 ellipsoidal metres; inside the core latitude/longitude are radians.
+
+About 520 lines, one module on purpose: two dozen converters, most in matching pairs
+(``imu_to_msg`` / ``imu_from_msg``), public as one module (``pipe_nav_core.rosmsg``) so that a
+ROS integrator finds both directions of every message in one place.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 run's chainage, WGS84 position and sigmas.
 
 1. The tally's weld sequence (vendor log distances, m) is matched to the run's detected welds
-   by their joint lengths (:func:`.welds.align_sequences`: tolerant to missed and extra welds on
+   by their joint lengths (:func:`.joints.align_sequences`: tolerant to missed and extra welds on
    either side and to the vendor odometer's scale error).
 2. Vendor log distance -> run chainage: piecewise linear through the matched welds (so each
    joint has its own scale: wheel slip of either odometer stays local), extended beyond the
@@ -29,7 +29,8 @@ from numpy.typing import NDArray
 from pipe_nav_core.geo.attitude import dcm_from_quat
 from pipe_nav_core.io.centreline import interpolate_trajectory
 from pipe_nav_core.io.tally_csv import Tally, TallyRow
-from pipe_nav_core.products.welds import Weld, align_sequences
+from pipe_nav_core.products.joints import align_sequences
+from pipe_nav_core.products.welds import Weld
 from pipe_nav_core.types import Trajectory
 
 FloatArray = NDArray[np.float64]

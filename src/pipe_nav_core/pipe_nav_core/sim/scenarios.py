@@ -8,6 +8,9 @@ and of the sensors; :func:`~pipe_nav_core.sim.simulate` draws one run from it fo
 The named scenarios follow the source papers (see /work/shared/seeds/README.md):
 ``drag180`` (seed 001), ``sag104``/``sag104_deep`` (seed 000), ``undulation90`` (seed 002),
 ``field10k``/``field10k_sparse`` (seed 003) and ``demo`` (the bundled sample bag).
+
+About 650 lines, one module on purpose: the :class:`Scenario` record and the named scenarios,
+each a page of physical parameters taken from its paper; they are read side by side.
 """
 
 from __future__ import annotations

@@ -1,0 +1,156 @@
+"""The forward estimates of the online engine over a bag (``pipe-nav replay``, the replay
+launch file) and the integrity products of a centreline file (``pipe-nav bends``).
+
+The replay runs the live engine (:class:`pipe_nav_core.filter.live_guard.GuardedNavigator`) on
+the bag's samples in arrival order, as ekf_node would; positions geodetic (WGS84) and ENU
+metres about the first fix, attitude base_link -> ENU.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from pipe_nav_core.app.outputs import Outputs, write_products_csv
+from pipe_nav_core.app.pipeline import DEFAULT_TOPICS, load_log, require_imu
+from pipe_nav_core.config import AUTO_GRADE, NavConfig
+from pipe_nav_core.filter.estimates import NavEstimate
+from pipe_nav_core.filter.live_guard import GuardedNavigator
+from pipe_nav_core.io import (
+    BagReport,
+    TopicNames,
+    write_output_bag,
+)
+from pipe_nav_core.io.atomic import all_or_none, ensure_not_input
+from pipe_nav_core.io.centreline import read_centreline_csv
+from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
+from pipe_nav_core.model.sensors import GRADES
+from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
+from pipe_nav_core.types import Datum, SensorLog, Trajectory
+
+
+@dataclass
+class ReplayResult:
+    """Forward estimates of the online engine over a bag, its datum and its diagnostics."""
+
+    estimates: list[NavEstimate]
+    datum: Datum | None
+    diagnostics: dict[str, object] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)  # Navigator.model_warnings
+
+
+def replay_log(
+    log: SensorLog, config: NavConfig, declared: dict[str, list[float]] | None = None
+) -> ReplayResult:
+    """Run the online engine over a log exactly as ekf_node does: samples pushed one by one in
+    stamp order (the engine's reorder buffer makes arrival order within its window irrelevant).
+    declared: the per-sample IMU variances the Imu messages declare (imu_grade auto)."""
+    nav = GuardedNavigator(config)
+    nav.declared_imu_noise = declared
+    events: list[tuple[float, int, int]] = []
+    events += [(t, 0, i) for i, t in enumerate(log.imu.t)]
+    events += [(t, 1, i) for i, t in enumerate(log.odometer.t)]
+    events += [(t, 2, i) for i, t in enumerate(log.mag.t)]
+    events += [(m.t, 3, i) for i, m in enumerate(log.markers)]
+    events.sort()
+    out: list[NavEstimate] = []
+    imu, odo, mag = log.imu, log.odometer, log.mag
+    for _t, kind, i in events:
+        if kind == 0:
+            nav.push_imu(imu.t[i], imu.gyro[i], imu.accel[i])
+        elif kind == 1:
+            nav.push_odometer(odo.t[i], odo.distance[i], odo.speed[i])
+        elif kind == 2:
+            nav.push_mag(mag.t[i], mag.field[i])
+        else:
+            nav.push_marker(log.markers[i])
+        out.extend(nav.poll())
+    out.extend(nav.finish())
+    return ReplayResult(out, nav.datum, dict(nav.diagnostics()), nav.model_warnings())
+
+
+def estimates_to_trajectory(estimates: Sequence[NavEstimate]) -> Trajectory:
+    """Forward estimates as a Trajectory (sigmas from the covariance diagonals)."""
+    cov = np.array([e.cov_pose for e in estimates]).reshape(-1, 6, 6)
+    var = np.einsum("kii->ki", cov)
+    return Trajectory(
+        t=np.array([e.t for e in estimates]),
+        lat=np.array([e.lat for e in estimates]),
+        lon=np.array([e.lon for e in estimates]),
+        h=np.array([e.h for e in estimates]),
+        vel_n=np.array([e.vel_n for e in estimates]).reshape(-1, 3),
+        quat_nb=np.array([e.quat_nb for e in estimates]).reshape(-1, 4),
+        distance=np.array([e.distance for e in estimates]),
+        sigma_enu=np.sqrt(np.maximum(var[:, :3], 0.0)),
+        sigma_att=np.sqrt(np.maximum(var[:, 3:], 0.0)),
+        cov_pose=cov,
+    )
+
+
+def replay_bag(
+    bag: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    config: NavConfig,
+    markers_csv: str | os.PathLike[str] | None = None,
+    topics: TopicNames = DEFAULT_TOPICS,
+) -> tuple[ReplayResult, BagReport]:
+    """`pipe-nav replay`: the online estimator over a bag; writes /pipe_nav/odometry."""
+    ensure_not_input(out, [bag] + ([markers_csv] if markers_csv else []))
+    log, report = load_log(bag, topics=topics, markers_csv=markers_csv, repair=False)
+    require_imu(log, report, bag, topics)
+    auto = config.imu_grade == AUTO_GRADE
+    result = replay_log(log, config, report.imu_noise_declared if auto else None)
+    if not result.estimates:
+        raise ValueError(
+            f"{bag}: the estimator produced no estimate (no static start or no marker)"
+        )
+    traj = estimates_to_trajectory(result.estimates)
+    datum = result.datum or Datum(traj.lat[0], traj.lon[0], traj.h[0])
+    write_output_bag(out, path=None, datum=datum, odometry=traj)
+    report.warnings += result.warnings
+    if "lost_since" in result.diagnostics:
+        d = result.diagnostics
+        report.warnings.append(
+            f"the live solution was lost at t = {float(d['lost_since']):.3f} s "  # type: ignore[arg-type]
+            f"({d['lost_reason']}): {d.get('withheld_lost', 0)} estimates after it withheld"
+        )
+    return result, report
+
+
+def products_of_file(
+    source: str | os.PathLike[str],
+    outputs: Outputs,
+    *,
+    config: NavConfig,
+    spacing: float = 0.5,
+    bends_reference: str | os.PathLike[str] | None = None,
+) -> tuple[IntegrityReport, list[str]]:
+    """`pipe-nav bends`: the integrity products of a run already smoothed, from its smoothed
+    MCAP bag or its centreline CSV, with other settings; writes ``outputs``' product files
+    (all or none). Returns the report and the notes for the user. The sigmas use the IMU model
+    the bag's metadata records when ``config.imu_grade`` is auto (industrial for a CSV)."""
+    inputs = [source] + ([bends_reference] if bends_reference else [])
+    outputs.check(inputs, spacing)
+    reference = read_bends_reference(bends_reference) if bends_reference else None
+    notes: list[str] = []
+    if str(source).lower().endswith(".csv"):
+        traj, _ = read_centreline_csv(source, warn=notes.append)
+        model = ""
+    else:
+        traj, _, metadata = read_smoothed_bag(source)
+        model = metadata.get("imu_model", "").split("+")[0]
+        notes.append(f"{source}: chainage is the arc length of its path (a Path has no distance_m)")
+    if config.imu_grade == AUTO_GRADE:
+        grade = model if model in GRADES else "industrial"
+        config = replace(config, imu_grade=grade)
+        hint = "" if model else " (give --imu-grade)"
+        notes.append(f"sigmas from the {grade} IMU model{hint}")
+    report = integrity_report(traj, config, spacing=spacing, reference=reference)
+    notes += report.notes
+    with all_or_none(outputs.paths()) as staged:
+        write_products_csv(report, outputs, staged)
+    return report, notes
