@@ -26,8 +26,6 @@ import numpy as np
 import pytest
 
 pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy) is not installed here")
-highlevel = pytest.importorskip("rosbags.highlevel")
-
 # the command line itself and the fixtures' internals (not the API a ROS integrator uses)
 from pipe_nav_core.app.cli import main
 from pipe_nav_core.app.commands import SIM_EPOCH
@@ -36,6 +34,7 @@ from pipe_nav_core.sim import get_scenario  # noqa: E402
 from pipe_nav_core.smooth.logs import slice_log  # noqa: E402
 from pipe_nav_ros.params import nav_params_from_config, params_yaml  # noqa: E402
 from ros_graph import LoggedProcess, ros2_with_workspace  # noqa: E402
+from rosbags import highlevel
 from ruamel.yaml import YAML  # noqa: E402
 
 from pipe_nav_core import (  # noqa: E402

@@ -11,11 +11,9 @@ import math
 
 import numpy as np
 import pytest
-
-highlevel = pytest.importorskip("rosbags.highlevel")
-
 from pipe_nav_core.smooth.logs import slice_log  # noqa: E402  (a fixture's internal)
 from pipe_nav_ros.ekf_core import EkfCore  # noqa: E402
+from rosbags import highlevel
 
 from pipe_nav_core import (  # noqa: E402
     NavConfig,

@@ -10,6 +10,10 @@ Metadata record named ``rosbag2`` (key ``serialized_metadata``), which is where 
 storage reads the distro and the metadata version from (``ros2 bag info``); a full summary. The
 sensor topics are serialized with numpy (:mod:`.cdr`), so a 1.5-million-message bag is written
 in seconds. Files are written atomically (temporary file + rename).
+
+About 480 lines, one module on purpose: the sensor bag and the smoothed bag are written by one
+builder (schemas, channels with their QoS, streams, the rosbag2 record) and share its message
+encoders.
 """
 
 from __future__ import annotations
