@@ -504,8 +504,8 @@ def test_a_bug_is_an_internal_error_and_debug_shows_its_traceback(tmp_path, monk
     # an input error stays one line, and every one of them is a PipeNavError
     r = _run_cli("smooth", str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "Traceback" not in r.stderr and "missing.mcap" in r.stderr
+    from pipe_nav_core.errors import MarkerCsvError
     from pipe_nav_core.io import BagError
-    from pipe_nav_core.io.markers_csv import MarkerCsvError
 
     assert issubclass(BagError, errors.PipeNavError)
     assert issubclass(MarkerCsvError, errors.InputError) and issubclass(MarkerCsvError, ValueError)

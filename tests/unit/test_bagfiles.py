@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from pipe_nav_core.errors import BagError
 from pipe_nav_core.io.bagfiles import bag_files
-from pipe_nav_core.io.topics import BagError
 
 
 def _metadata(folder, files, storage="mcap", compression=""):

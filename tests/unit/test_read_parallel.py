@@ -13,13 +13,13 @@ from unittest import mock
 
 import numpy as np
 import pytest
+from pipe_nav_core.errors import BagError
 from pipe_nav_core.io import BagReport, iter_bag, mcapread, read_bag, write_sensor_bag
 from pipe_nav_core.io import rosmsg as R
 from pipe_nav_core.io.bagread import READ_WORKERS_ENV, read_workers
 from pipe_nav_core.io.mcapread import McapScanner, read_summary
 from pipe_nav_core.io.rosmsg import jazzy_typestore
 from pipe_nav_core.io.stamps import sec_to_ns_scalar
-from pipe_nav_core.io.topics import BagError
 from pipe_nav_core.types import SensorLog
 from test_io_support import log_messages, make_log, write_rosbags_dir
 

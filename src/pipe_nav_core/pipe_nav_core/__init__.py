@@ -45,7 +45,7 @@ _API = {
     "PipeNavError": "errors",
     "InputError": "errors",
     "ConfigError": "errors",
-    "BagError": "io",
+    "BagError": "errors",
     "SensorLog": "types",
     "ImuSamples": "types",
     "OdometerSamples": "types",

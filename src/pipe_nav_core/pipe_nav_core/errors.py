@@ -1,4 +1,5 @@
-"""The errors pipe_nav_core raises about what it is given (a bag, a CSV, a setting, a path).
+"""The errors pipe_nav_core raises about what it is given (a bag, a CSV, a setting, a path):
+every exception class of the package, in this one module.
 
 Every one derives from :class:`PipeNavError`, so a caller catches them all in one clause and
 tells them from a bug; the command line prints each as one line naming the input and exits 2,
@@ -25,4 +26,25 @@ class ConfigError(InputError):
 
 class McapFormatError(PipeNavError):
     """The file is not MCAP at all (a one-line reason, without the path: the bag reader adds
-    it when it turns this into a :class:`~pipe_nav_core.io.topics.BagError`)."""
+    it when it turns this into a :class:`BagError`)."""
+
+
+class BagError(PipeNavError):
+    """A bag cannot be read or written. The message is one human-readable line, starting with
+    the path, e.g. ``bags/x.mcap: not an MCAP file (bad magic)``."""
+
+
+class CentrelineCsvError(InputError):
+    """A centreline CSV file is malformed; the message names the file and the line."""
+
+
+class MarkerCsvError(InputError):
+    """A marker CSV file is malformed; the message names the file and the line."""
+
+
+class OutputIsInputError(InputError):
+    """The requested output path would overwrite an input."""
+
+
+class CliError(PipeNavError):
+    """A user error with a one-line message."""

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pipe_nav_core.config import ConfigError, NavConfig
-from pipe_nav_core.errors import PipeNavError
+from pipe_nav_core.errors import CliError
 
 if TYPE_CHECKING:
     from pipe_nav_core.app.plot_process import PlotProcess
@@ -35,8 +35,6 @@ EXIT_INTERNAL = 70  # an internal error (EX_SOFTWARE): a bug, not the input
 SIM_EPOCH = 1780272000.0  # 2026-06-01T00:00:00Z: simulated bags carry realistic stamps
 
 
-class CliError(PipeNavError):
-    """A user error with a one-line message."""
 
 
 def one_line(exc: BaseException) -> str:

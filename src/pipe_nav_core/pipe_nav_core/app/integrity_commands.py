@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from pipe_nav_core.products import IntegrityReport
-from pipe_nav_core.app.commands import CliError, load_config, warm_kernels
+from pipe_nav_core.app.commands import load_config, warm_kernels
+from pipe_nav_core.errors import CliError
 
 
 def cmd_bends(args: argparse.Namespace) -> int:

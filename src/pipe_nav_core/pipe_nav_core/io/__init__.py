@@ -10,7 +10,8 @@ Modules: :mod:`.topics` (names, BagError, BagReport), :mod:`.stamps` (exact ns <
 
 from __future__ import annotations
 
-from pipe_nav_core.io.atomic import OutputIsInputError, atomic_path, atomic_write, ensure_not_input
+from pipe_nav_core.errors import BagError, CentrelineCsvError, MarkerCsvError, OutputIsInputError
+from pipe_nav_core.io.atomic import atomic_path, atomic_write, ensure_not_input
 from pipe_nav_core.io.bagfiles import bag_files
 from pipe_nav_core.io.baginfo import BagInfo, TopicInfo, bag_info, bag_time_range
 from pipe_nav_core.io.bagread import concat_logs, iter_bag, read_bag
@@ -18,7 +19,6 @@ from pipe_nav_core.io.bagwrite import write_output_bag, write_sensor_bag
 from pipe_nav_core.io.centreline import (
     CENTRELINE_COLUMNS,
     CENTRELINE_HEADER,
-    CentrelineCsvError,
     interpolate_trajectory,
     read_centreline_csv,
     resample_by_chainage,
@@ -27,13 +27,12 @@ from pipe_nav_core.io.centreline import (
 from pipe_nav_core.io.gis import write_geojson, write_kml
 from pipe_nav_core.io.markers_csv import (
     MARKER_COLUMNS,
-    MarkerCsvError,
     merge_markers,
     read_markers_csv,
     write_markers_csv,
 )
 from pipe_nav_core.io.rosbag2_metadata import write_rosbag2_metadata
-from pipe_nav_core.io.topics import BagError, BagReport, TopicNames
+from pipe_nav_core.io.topics import BagReport, TopicNames
 
 __all__ = [
     "CENTRELINE_COLUMNS",

@@ -19,11 +19,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from pipe_nav_core.errors import InputError
-
-
-class OutputIsInputError(InputError):
-    """The requested output path would overwrite an input."""
+from pipe_nav_core.errors import OutputIsInputError
 
 
 def _same(a: Path, b: Path) -> bool:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from pathlib import Path, PurePath
 
-from pipe_nav_core.io.topics import BagError
+from pipe_nav_core.errors import BagError
 
 
 def bag_files(path: str | os.PathLike[str]) -> list[Path]:

@@ -18,12 +18,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pipe_nav_core.errors import McapFormatError
+from pipe_nav_core.errors import BagError, McapFormatError
 from pipe_nav_core.io.bagdecode import declared_noise
 from pipe_nav_core.io.bagfiles import bag_files
 from pipe_nav_core.io.mcapread import McapScanner, MessageBatch, chunk_messages, read_summary
 from pipe_nav_core.io.stamps import NS_PER_S, ns_to_sec
-from pipe_nav_core.io.topics import ROLE_TYPES, BagError, normalize_type
+from pipe_nav_core.io.topics import ROLE_TYPES, normalize_type
 
 
 @dataclass

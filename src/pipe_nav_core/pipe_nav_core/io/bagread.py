@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipe_nav_core.errors import InputError, McapFormatError
+from pipe_nav_core.errors import BagError, InputError, McapFormatError
 from pipe_nav_core.io.bagdecode import decode_role
 from pipe_nav_core.io.bagfiles import bag_files
 from pipe_nav_core.io.mcapread import McapScanner, MessageBatch
@@ -41,7 +41,6 @@ from pipe_nav_core.io.topics import (
     SKIP_NON_MONOTONIC,
     SKIP_TIME_JUMP,
     SKIP_UNKNOWN_TYPE,
-    BagError,
     BagReport,
     TopicNames,
     normalize_type,

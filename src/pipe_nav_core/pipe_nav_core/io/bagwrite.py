@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core import __version__
+from pipe_nav_core.errors import BagError
 from pipe_nav_core.geo.attitude import dcm_from_quat
 from pipe_nav_core.io import cdr
 from pipe_nav_core.io.atomic import atomic_write, ensure_not_input
@@ -65,7 +66,6 @@ from pipe_nav_core.io.topics import (
     OUTPUT_PATH_TOPIC,
     PATH_TYPE,
     POSE_ARRAY_TYPE,
-    BagError,
     TopicNames,
 )
 from pipe_nav_core.types import Datum, Marker, SensorLog, Trajectory

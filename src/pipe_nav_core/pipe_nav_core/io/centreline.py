@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pipe_nav_core.errors import InputError
+from pipe_nav_core.errors import CentrelineCsvError
 from pipe_nav_core.geo.attitude import (
     dcm_from_quat,
     euler_from_dcm,
@@ -65,8 +65,6 @@ _FORMATS = {
 }
 
 
-class CentrelineCsvError(InputError):
-    """A centreline CSV file is malformed; the message names the file and the line."""
 
 
 # ----------------------------------------------------------------------------- interpolation

@@ -16,7 +16,7 @@ import math
 import os
 from collections.abc import Iterable, Sequence
 
-from pipe_nav_core.errors import InputError
+from pipe_nav_core.errors import MarkerCsvError
 from pipe_nav_core.io.atomic import atomic_write
 from pipe_nav_core.io.rosmsg import DEFAULT_MARKER_SIGMA_M
 from pipe_nav_core.types import Marker, markers_sorted
@@ -33,8 +33,6 @@ MARKER_COLUMNS = [
 _REQUIRED = MARKER_COLUMNS[:5]
 
 
-class MarkerCsvError(InputError):
-    """A marker CSV file is malformed; the message names the file and the line."""
 
 
 def _num(path: str, line: int, col: str, text: str, default: float | None = None) -> float:

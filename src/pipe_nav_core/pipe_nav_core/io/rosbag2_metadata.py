@@ -15,10 +15,8 @@ import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from pipe_nav_core.errors import BagError
 from pipe_nav_core.io.atomic import atomic_write
-from pipe_nav_core.io.topics import (
-    BagError,
-)
 
 ROS_DISTRO = "jazzy"  # what the bags are written for (rosbag2 metadata ros_distro)
 

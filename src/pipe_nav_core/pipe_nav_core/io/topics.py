@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from pipe_nav_core.errors import PipeNavError
-
 IMU_TYPE = "sensor_msgs/msg/Imu"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 MAG_TYPE = "sensor_msgs/msg/MagneticField"
@@ -68,9 +66,6 @@ def normalize_type(name: str) -> str:
     return name.strip()
 
 
-class BagError(PipeNavError):
-    """A bag cannot be read or written. The message is one human-readable line, starting with
-    the path, e.g. ``bags/x.mcap: not an MCAP file (bad magic)``."""
 
 
 @dataclass
