@@ -14,7 +14,7 @@ from unittest import mock
 import numpy as np
 import pytest
 from pipe_nav_core.errors import BagError
-from pipe_nav_core.io import BagReport, iter_bag, mcapread, read_bag, write_sensor_bag
+from pipe_nav_core.io import BagReport, iter_bag, mcapchunks, mcapread, read_bag, write_sensor_bag
 from pipe_nav_core.io import rosmsg as R
 from pipe_nav_core.io.bagread import READ_WORKERS_ENV, read_workers
 from pipe_nav_core.io.mcapread import McapScanner, read_summary
@@ -237,13 +237,13 @@ def test_the_pool_works_in_its_own_threads_and_goes_away(tmp_path, log, monkeypa
     p = tmp_path / "run.mcap"
     write_sensor_bag(p, log, chunk_size=SMALL_CHUNK)
     seen: list[str] = []
-    unpack = mcapread.unpack_chunk
+    unpack = mcapchunks.unpack_chunk
 
     def spy(content: bytes) -> bytes:
         seen.append(threading.current_thread().name)
         return unpack(content)
 
-    monkeypatch.setattr(mcapread, "unpack_chunk", spy)
+    monkeypatch.setattr(mcapchunks, "unpack_chunk", spy)
     batches = list(McapScanner(p, lambda _: None).batches(2))
     assert len(batches) == len(seen) == _chunks(p)
     assert all(name.startswith("mcap-chunk") for name in seen)

@@ -45,7 +45,7 @@ from mcap.records import (
 )
 from numpy.typing import NDArray
 
-from pipe_nav_core.io.mcapread import (
+from pipe_nav_core.io.mcaprecords import (
     MAGIC,
     MESSAGE_HEADER_SIZE,
     OP_ATTACHMENT_INDEX,
