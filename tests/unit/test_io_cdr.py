@@ -130,8 +130,11 @@ CASES = [
 
 
 @pytest.mark.parametrize(("layout", "make"), CASES, ids=lambda x: getattr(x, "typename", ""))
-def test_decode_batch_matches_rosbags(layout, make):
-    msgs = [make(k) for k in range(40) for _ in range(2)]  # frame ids of 0..39 characters
+@pytest.mark.parametrize("lengths", ["mixed", "one"])
+def test_decode_batch_matches_rosbags(layout, make, lengths):
+    """Frame ids of 0..39 characters, or all of 8 (the decoder's one-offset path)."""
+    ks = range(40) if lengths == "mixed" else [8] * 40
+    msgs = [make(k) for k in ks for _ in range(2)]
     raws = [bytes(TS.serialize_cdr(m, layout.typename)) for m in msgs]
     # Put them in one buffer with odd gaps between them, as in an MCAP chunk.
     buf = bytearray(b"\xee" * 3)
@@ -208,6 +211,14 @@ def test_decode_refuses_big_endian_and_short_payloads():
     vals, ok = cdr.decode_batch(cdr.MAGNETIC_FIELD, np.frombuffer(buf, np.uint8), starts, sizes)
     assert ok.tolist() == [True, False, False, False]
     assert vals["magnetic_field"].shape == (1, 3)
+    # among messages whose frame ids are all of one length, as in a field bag
+    buf2 = le + be + le + short + le
+    starts2 = np.cumsum([0, len(le), len(be), len(le), len(short)])
+    sizes2 = np.array([len(le), len(be), len(le), len(short), len(le)])
+    mixed = np.frombuffer(buf2, np.uint8)
+    vals2, ok2 = cdr.decode_batch(cdr.MAGNETIC_FIELD, mixed, starts2, sizes2)
+    assert ok2.tolist() == [True, False, True, False, True]
+    assert (vals2["magnetic_field"] == vals["magnetic_field"][0]).all()
     # the big-endian one is still readable by the generic fallback
     ref = TS.deserialize_cdr(be, "sensor_msgs/msg/MagneticField")
     assert ref.magnetic_field.x == m.magnetic_field.x

@@ -62,8 +62,8 @@ class Pieces:
     ns: NDArray[np.int64]
     values: dict[str, NDArray]
 
-    def take(self, idx: NDArray) -> Pieces:
-        """The samples at ``idx`` (indices or a mask), in that order."""
+    def take(self, idx: NDArray | slice) -> Pieces:
+        """The samples at ``idx`` (indices or a mask, in that order; or a slice: views)."""
         return Pieces(self.ns[idx], {k: v[idx] for k, v in self.values.items()})
 
     def __len__(self) -> int:

@@ -3,14 +3,13 @@
 The scanner walks the data section record by record in file order (which is the recording
 order for rosbag2 and for our writer) and turns each chunk into a :class:`MessageBatch` (one
 chunk's messages as numpy arrays into its decompressed buffer: :mod:`.mcapchunks`). With
-``workers`` the chunks are decompressed, CRC-checked, located and handed to the caller's
-``prepare`` function (the bag reader decodes them there) by a thread pool a few chunks ahead,
-while what the chunks tell the scanner (channels, schemas, warnings, corrupt counts) is still
-taken in by the consumer's thread in file order: the same batches and warnings as without. It
-copes with files cut anywhere (the readable prefix is used, even the part of a chunk that a
-streaming decompressor recovers), with corrupt chunks (skipped, counted) and with files
-without a summary section (:mod:`.mcaprecords` reads the summary and the records outside the
-hot path).
+``workers`` the chunks are decompressed, CRC-checked and located by a thread pool a few chunks
+ahead, while what the chunks tell the scanner (channels, schemas, warnings, corrupt counts) is
+still taken in by the consumer's thread in file order: the same batches and warnings as
+without. It copes with files cut anywhere (the readable prefix is used, even the part of a
+chunk that a streaming decompressor recovers), with corrupt chunks (skipped, counted) and with
+files without a summary section (:mod:`.mcaprecords` reads the summary and the records outside
+the hot path).
 
 The names of both those modules that other modules use are re-exported here.
 
@@ -90,9 +89,11 @@ __all__ = [
 ]
 
 _LOOSE_BATCH_BYTES = 4 << 20
-# chunk compressions worth a worker thread: zstd decompression costs as much as a quarter of
-# reading; lz4 and stored chunks are unpacked faster than a thread hand-off pays back
-POOLED_COMPRESSIONS = frozenset({"zstd"})
+# chunk compressions unpacked by the worker threads: all of them. The decompression (zstd
+# costs three times lz4) and the CRC check (as much as lz4) release the GIL, so on a second
+# core they are off the consumer's path; the decoding and the checks hold the GIL and stay
+# in the consumer's thread (in a worker they would only take turns with it)
+POOLED_COMPRESSIONS = frozenset({"zstd", "lz4", ""})
 AHEAD_BYTES = 64 << 20  # compressed chunk bytes a pooled scanner reads ahead of its consumer
 
 # ----------------------------------------------------------------------------- scanner
@@ -197,12 +198,12 @@ class McapScanner:
 
         ``workers`` > 0: that many threads decompress and CRC-check the chunks compressed
         the :data:`POOLED_COMPRESSIONS` way and locate their messages from their message
-        indexes (zstandard and zlib's CRC release the GIL), at most ``2 * workers`` chunks
-        (and :data:`AHEAD_BYTES` of compressed data) ahead of the consumer; other chunks are
-        unpacked in this thread. Everything that touches the scanner (schemas, channels,
-        record scans, warnings, counts of corrupt chunks) still happens in this thread,
-        record by record in file order, so the batches, warnings and counts are exactly those
-        of ``workers=0``.
+        indexes (zstandard, lz4 and zlib's CRC release the GIL), at most ``2 * workers``
+        chunks (and :data:`AHEAD_BYTES` of compressed data) ahead of the consumer; other
+        chunks are unpacked in this thread. Everything that touches the scanner (schemas,
+        channels, record scans, warnings, counts of corrupt chunks) still happens in this
+        thread, record by record in file order, so the batches, warnings and counts are
+        exactly those of ``workers=0``.
         """
         self._ended = False
         if workers <= 0:

@@ -91,7 +91,7 @@ class TopicState:
             ahead_of_prev[0] = True  # the very first message: judged by its successor only
         spike = ahead_of_prev & (ns - nxt > jump)
         if hold_last:
-            self.pending = p.take(np.array([m - 1]))
+            self.pending = p.take(slice(m - 1, m))
             keep_n = m - 1
         else:
             keep_n = m
@@ -129,7 +129,9 @@ class TopicState:
             top = int(cm[-1])
             self.run_max = top if self.run_max is None else max(self.run_max, top)
         idx = np.flatnonzero(accept)
-        if len(idx):
+        if len(idx) == keep_n:  # all of them, as usual: views, not copies
+            self.buffer.append(p.take(slice(0, keep_n)))
+        elif len(idx):
             self.buffer.append(p.take(idx))
 
     def _ingest_markers(self, p: Pieces) -> None:
