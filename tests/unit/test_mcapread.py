@@ -1,11 +1,15 @@
-"""The MCAP record parsing of io.mcapread on damaged records (why it is not mcap.records)."""
+"""The MCAP record parsing of io.mcaprecords on damaged records: the data section's Schema and
+Channel records by our tolerant parser (why not mcap.records), the summary's Chunk Index by
+mcap.records, whole or not at all."""
 
 from __future__ import annotations
 
 import pytest
 from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Schema
-from pipe_nav_core.io.mcapread import parse_channel, parse_schema
+from pipe_nav_core.io import read_bag, write_sensor_bag
+from pipe_nav_core.io.mcaprecords import OP_CHUNK_INDEX, parse_channel, parse_schema, read_summary
+from test_io_support import assert_logs_equal, make_log
 
 
 def _content(record) -> bytearray:
@@ -26,3 +30,36 @@ def test_a_damaged_topic_name_is_read_with_a_replacement_character():
     content[2 + 2 + 4] = 0xFF  # the topic's one byte: not UTF-8
     ch = parse_channel(bytes(content))
     assert (ch.id, ch.topic, ch.message_encoding) == (3, "\ufffd", "cdr")
+
+
+def _summary_record(data: bytes, opcode: int) -> int:
+    """Byte offset of the content of the first record with ``opcode`` in the summary."""
+    footer = len(data) - 8 - 29  # opcode, length, summary start, summary offset start, CRC
+    pos = int.from_bytes(data[footer + 9 : footer + 17], "little")
+    while data[pos] != opcode:
+        pos += 9 + int.from_bytes(data[pos + 1 : pos + 9], "little")
+    return pos + 9
+
+
+def test_a_damaged_chunk_index_makes_the_summary_unusable_not_wrong(tmp_path):
+    """The summary's Chunk Index records are parsed by mcap.records: one that does not parse
+    is no summary (read_summary raises; the bag is read from its data section all the same)."""
+    log = make_log(seconds=6.0, seed=3)
+    p = tmp_path / "run.mcap"
+    write_sensor_bag(p, log, chunk_size=4096)
+    s = read_summary(p)
+    assert s is not None and len(s.chunk_indexes) > 3 and s.message_count
+    assert {ci.compression for ci in s.chunk_indexes} == {"zstd"}
+    data = bytearray(p.read_bytes())
+    at = _summary_record(bytes(data), OP_CHUNK_INDEX)
+    n_map = int.from_bytes(data[at + 32 : at + 36], "little")
+    name = at + 36 + n_map + 8 + 4  # the compression name's bytes
+    assert data[name : name + 4] == b"zstd"
+    data[name] = 0xFF  # not UTF-8
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="damaged ChunkIndex record"):
+        read_summary(bad)
+    got, rep = read_bag(bad, workers=0)
+    assert_logs_equal(got, read_bag(p, workers=0)[0])
+    assert not rep.truncated

@@ -4,9 +4,9 @@ peak resident memory of a whole ``pipe-nav smooth`` process, and the online engi
 IMU sample with a 1 kHz IMU. The same run written in the bag forms others write (:data:`FORMS`:
 zstd, lz4 and uncompressed 1 MiB chunks as rosbag2's MCAP storage writes them, with and
 without a magnetometer, and the rosbag2 directory form) gives one row each: reading and
-decoding it with our reader, serially and as by default (zstd chunks unpacked by a worker
-thread ahead of the decoding), and the whole ``pipe-nav smooth`` process on it. Absolute times
-are noisy on shared machines; the ratios are what to compare.
+decoding it with our reader, serially and as by default (the chunks decompressed and
+CRC-checked by a worker thread ahead of the decoding), and the whole ``pipe-nav smooth``
+process on it. Absolute times are noisy on shared machines; the ratios are what to compare.
 """
 
 from __future__ import annotations
@@ -370,7 +370,7 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
         f"chunks of {chunk} of records, as rosbag2's MCAP storage writes them (zstd by "
         "default). Read + decode: `read_bag` (every check included), in one thread "
         f"(`workers=0`) and as by default, with {workers} worker thread{plural} decompressing "
-        f"and CRC-checking the zstd chunks ahead ({os.cpu_count()} cores); smooth: the whole "
+        f"and CRC-checking the chunks ahead ({os.cpu_count()} cores); smooth: the whole "
         "`pipe-nav smooth` process (imports and outputs included); smooth / read: the "
         "process's time over the default read's.",
         "",

@@ -67,7 +67,7 @@ _MISSING_HINT = {
 
 
 def read_workers(workers: int | None = None) -> int:
-    """Threads that unpack the zstd chunks (decompress, CRC check, locate the messages) ahead
+    """Threads that unpack the chunks (decompress, CRC check, locate the messages) ahead
     of the decoding and the checks: ``workers`` when given (0: none, all in the calling
     thread), else the environment variable ``PIPE_NAV_READ_WORKERS``, else one when there are
     two cores or more (more do not pay: the decoding and the checks hold the GIL, and they are
@@ -313,7 +313,7 @@ def read_bag(
     message frame (imu_link), markers sorted by time. Problems are counted and described in
     the returned BagReport; a file that cannot be read at all raises BagError.
 
-    ``workers``: threads that decompress and check the zstd chunks a few ahead of the
+    ``workers``: threads that decompress and check the chunks a few ahead of the
     decoding (:func:`read_workers`; default one on two cores or more); everything else runs in
     this thread in file order, so the log and the report are exactly those of ``workers=0``.
     """

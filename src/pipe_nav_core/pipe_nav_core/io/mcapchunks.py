@@ -15,6 +15,7 @@ from collections.abc import Callable, Container
 from dataclasses import dataclass, field
 
 import numpy as np
+from mcap.records import ChunkIndex
 from numpy.typing import NDArray
 
 from pipe_nav_core.io.cdr import gather
@@ -28,7 +29,6 @@ from pipe_nav_core.io.mcaprecords import (
     U16,
     U32,
     ChannelRecord,
-    ChunkIndexRecord,
     SchemaRecord,
     _Cursor,
     parse_channel,
@@ -258,7 +258,7 @@ def checked_batch(buf: NDArray[np.uint8], offs: list[int]) -> MessageBatch:
     return batch
 
 
-def chunk_messages(path: str | os.PathLike[str], ci: ChunkIndexRecord) -> MessageBatch | None:
+def chunk_messages(path: str | os.PathLike[str], ci: ChunkIndex) -> MessageBatch | None:
     """Decompress one indexed chunk and locate its messages (used by bag_info)."""
     op, content = read_record_at(path, ci.chunk_start_offset)
     if op != OP_CHUNK:

@@ -1,22 +1,29 @@
-"""MCAP records outside the hot path: opcodes, the record types the reader keeps (Schema,
-Channel, Chunk Index), their tolerant parsing and the summary section.
+"""MCAP records outside the hot path: opcodes, the record types the reader keeps, their parsing
+and the summary section.
 
-The records are parsed here, not with :mod:`mcap.records`, because the reader must cope with
-damaged files: strings are decoded with replacement characters and a field that runs past the
-end of its record raises ValueError, where ``mcap.records`` raises UnicodeDecodeError on a
-damaged topic name and returns a cut-off field short without a word
-(tests/unit/test_mcapread.py). The hot path (chunks and their messages) is
-:mod:`pipe_nav_core.io.mcapchunks`; the scanner that walks a file is
-:mod:`pipe_nav_core.io.mcapread`.
+Schema and Channel records are parsed here, not with :mod:`mcap.records`, because the scanner
+meets them in the data section of damaged files and must cope: strings are decoded with
+replacement characters and a field that runs past the end of its record raises ValueError,
+where ``mcap.records`` raises UnicodeDecodeError on a damaged topic name and returns a cut-off
+string field short without a word (tests/unit/test_mcapread.py). The summary's Chunk Index and
+Statistics records are only used whole or not at all (a summary that does not parse is no
+summary: the scanner reads the data section instead), so ``mcap.records`` parses them. The hot
+path (chunks and their messages) is :mod:`pipe_nav_core.io.mcapchunks`; the scanner that walks
+a file is :mod:`pipe_nav_core.io.mcapread`.
 
 MCAP format: https://mcap.dev/spec (little-endian; records are opcode u8, length u64, content).
 """
 
 from __future__ import annotations
 
+import io
 import os
 import struct
 from dataclasses import dataclass, field
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile
+from mcap.records import ChunkIndex, McapRecord, Statistics
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -63,25 +70,13 @@ class ChannelRecord:
 
 
 @dataclass
-class ChunkIndexRecord:
-    message_start_time: int
-    message_end_time: int
-    chunk_start_offset: int
-    chunk_length: int
-    message_index_offsets: dict[int, int]
-    message_index_length: int
-    compression: str
-    compressed_size: int
-    uncompressed_size: int
-
-
-@dataclass
 class Summary:
-    """The summary section: schemas, channels, statistics (may be None) and chunk indexes."""
+    """The summary section: schemas, channels, statistics (may be None) and chunk indexes
+    (:class:`mcap.records.ChunkIndex`)."""
 
     schemas: dict[int, SchemaRecord] = field(default_factory=dict)
     channels: dict[int, ChannelRecord] = field(default_factory=dict)
-    chunk_indexes: list[ChunkIndexRecord] = field(default_factory=list)
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
     message_count: int | None = None
     message_start_time: int | None = None
     message_end_time: int | None = None
@@ -134,11 +129,6 @@ class _Cursor:
             out[k] = self.string()
         return out
 
-    def u16_u64_map(self) -> dict[int, int]:
-        nbytes = self.u32()
-        raw = self.raw(nbytes)
-        return {k: v for k, v in struct.iter_unpack("<HQ", raw[: nbytes - nbytes % 10])}
-
 
 def parse_schema(content: bytes | memoryview) -> SchemaRecord:
     c = _Cursor(content)
@@ -159,13 +149,13 @@ def parse_channel(content: bytes | memoryview) -> ChannelRecord:
     return ChannelRecord(cid, sid, topic, enc, meta)
 
 
-def parse_chunk_index(content: bytes | memoryview) -> ChunkIndexRecord:
-    c = _Cursor(content)
-    start, end, off, length = c.u64(), c.u64(), c.u64(), c.u64()
-    mi = c.u16_u64_map()
-    mil = c.u64()
-    comp = c.string()
-    return ChunkIndexRecord(start, end, off, length, mi, mil, comp, c.u64(), c.u64())
+def parse_whole(kind: type[McapRecord], content: bytes | memoryview) -> McapRecord:
+    """A record's content parsed by :mod:`mcap.records` (``kind``: e.g. ChunkIndex);
+    ValueError when a field runs past the end of the record or a string is not UTF-8."""
+    try:
+        return kind.read(ReadDataStream(io.BytesIO(content)))
+    except (EndOfFile, struct.error, UnicodeDecodeError) as exc:
+        raise ValueError(f"damaged {kind.__name__} record ({exc!r})") from None
 
 
 def read_summary(path: str | os.PathLike[str]) -> Summary | None:
@@ -197,18 +187,13 @@ def read_summary(path: str | os.PathLike[str]) -> Summary | None:
             ch = parse_channel(content)
             out.channels[ch.id] = ch
         elif op == OP_CHUNK_INDEX:
-            out.chunk_indexes.append(parse_chunk_index(content))
+            out.chunk_indexes.append(parse_whole(ChunkIndex, content))
         elif op == OP_STATISTICS:
-            c = _Cursor(content)
-            out.message_count = c.u64()
-            c.u16()
-            c.u32()
-            c.u32()
-            c.u32()
-            c.u32()
-            out.message_start_time = c.u64()
-            out.message_end_time = c.u64()
-            out.channel_message_counts = c.u16_u64_map()
+            st = parse_whole(Statistics, content)
+            out.message_count = st.message_count
+            out.message_start_time = st.message_start_time
+            out.message_end_time = st.message_end_time
+            out.channel_message_counts = st.channel_message_counts
         pos += 9 + length
     return out
 
