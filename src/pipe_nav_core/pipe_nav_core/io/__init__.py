@@ -2,7 +2,8 @@
 centreline CSV, GeoJSON and KML; ROS message conversion lives in :mod:`.rosmsg`.
 
 Modules: :mod:`.topics` (names, BagError, BagReport), :mod:`.stamps` (exact ns <-> s),
-:mod:`.cdr` (vectorized CDR), :mod:`.mcapread` / :mod:`.mcapwrite` (MCAP records),
+:mod:`.cdr` (vectorized CDR), :mod:`.mcapread` (the MCAP scanner, with :mod:`.mcaprecords`
+and :mod:`.mcapchunks`) / :mod:`.mcapwrite` (MCAP records),
 :mod:`.bagread` (the reader, with :mod:`.bagfiles`, :mod:`.bagdecode`, :mod:`.topic_checks`),
 :mod:`.baginfo` (cheap metadata), :mod:`.bagwrite`, :mod:`.rosmsg`, :mod:`.markers_csv`,
 :mod:`.centreline`, :mod:`.gis`, :mod:`.atomic`.
