@@ -80,14 +80,16 @@ def test_markdown_has_a_row_per_bag_form():
         "read_workers": 2.0,
         "read_serial_s": 0.5,
         "read_pooled_s": 0.25,
+        "read_pooled_thread_cpu_s": 0.2,
         "cli_wall_s": 1.0,
         "peak_rss_mb": 700.0,
     }
     lz4 = {**row, "name": "lz4", "read_serial_s": 0.4, "cli_wall_s": 0.8}
     lines = speed.forms_markdown([row, lz4])
     assert "| read + decode, 2 workers: x real time |" in lines[4]
-    assert "| zstd | 101 | 1000 | 200 | 400 | 100 | 4.0 | 700 |" in lines
-    assert "| lz4 | 101 | 1000 | 250 | 400 | 125 | 3.2 | 700 |" in lines
+    assert "| reading thread's CPU: x real time |" in lines[4]
+    assert "| zstd | 101 | 1000 | 200 | 400 | 500 | 100 | 4.0 | 700 |" in lines
+    assert "| lz4 | 101 | 1000 | 250 | 400 | 500 | 125 | 3.2 | 700 |" in lines
     field = {
         "duration_s": 100.0,
         "imu_messages": 1000.0,
