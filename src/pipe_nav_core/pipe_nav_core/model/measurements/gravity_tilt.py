@@ -21,9 +21,6 @@ from pipe_nav_core.jit import kernel
 from pipe_nav_core.model.measurements.context import (
     C_TILT_GATED,
     K_TILT,
-    P_TILT_GATE,
-    P_TILT_ON,
-    P_TILT_SIGMA,
     Array,
     Context,
     Factor,
@@ -98,12 +95,12 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, Array, float, Array]]
     T = c.T
     accel_n = (c.dp / T - c.prev_vel) / T
     f_mean_n = c.f_mean_n
-    args = (f_mean_n, c.sums[:, :3] / T, accel_n, c.prm[P_TILT_SIGMA], c.sums[:, 3:] / T)
-    if not (c.prm[P_TILT_ON] != 0.0 and c.odo_ok and c.has_prev_vel):
+    args = (f_mean_n, c.sums[:, :3] / T, accel_n, c.prm.tilt_sigma, c.sums[:, 3:] / T)
+    if not (c.prm.tilt_on and c.odo_ok and c.has_prev_vel):
         return OFF, args
     g = earth._gravity(c.s[SV_LAT], c.s[SV_H])
     f_norm = np.sqrt(np.sum(f_mean_n**2))
-    gate = c.prm[P_TILT_GATE]
+    gate = c.prm.tilt_gate
     if abs(f_norm - g) > gate or np.sqrt(np.sum(accel_n**2)) > gate:
         return GATED, args
     return ON, args

@@ -18,14 +18,6 @@ from pipe_nav_core.jit import kernel
 from pipe_nav_core.model.measurements.context import (
     C_MAG_DISTURBED,
     K_MAG,
-    P_MAG_DECL,
-    P_MAG_DIP,
-    P_MAG_DIP_GATE,
-    P_MAG_NORM_GATE,
-    P_MAG_ON,
-    P_MAG_REF,
-    P_MAG_REF_OK,
-    P_MAG_SIGMA,
     Array,
     Context,
     Factor,
@@ -88,8 +80,8 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, float, float]]:
     prm = c.prm
     cnb = np.empty((3, 3))
     m_b = np.zeros(3)
-    if not (prm[P_MAG_ON] != 0.0 and c.mag_i >= 0 and prm[P_MAG_REF_OK] != 0.0):
-        return OFF, (m_b, cnb, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
+    if not (prm.mag_on and c.mag_i >= 0 and prm.mag_ref_ok):
+        return OFF, (m_b, cnb, prm.mag_decl, prm.mag_sigma)
     n = c.imu_t.shape[0]
     j = 0
     while j < n - 1 and c.imu_t[j] < c.mag_t[c.mag_i]:
@@ -99,10 +91,10 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, float, float]]:
     m_n = cnb @ m_b
     dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
     norm = np.sqrt(np.sum(m_b**2))
-    args = (m_b, cnb, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
+    args = (m_b, cnb, prm.mag_decl, prm.mag_sigma)
     if (
-        abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
-        or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE]
+        abs(norm / prm.mag_ref - 1.0) > prm.mag_norm_gate
+        or abs(dip - prm.mag_dip) > prm.mag_dip_gate
     ):
         return GATED, args
     return ON, args

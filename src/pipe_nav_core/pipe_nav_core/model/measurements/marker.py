@@ -21,7 +21,6 @@ from pipe_nav_core.geo import earth
 from pipe_nav_core.jit import kernel
 from pipe_nav_core.model.measurements.context import (
     K_MARKER,
-    P_MARKER_TIME,
     Array,
     Context,
     Factor,
@@ -111,7 +110,7 @@ def inflation(
 def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
     """Each passage of the epoch (c.markers) in turn, its residual written to out.marker_res."""
     for j in range(c.markers.shape[0]):
-        r, H, R = marker_fix_k(c.s, c.L, c.markers[j], c.prm[P_MARKER_TIME])
+        r, H, R = marker_fix_k(c.s, c.L, c.markers[j], c.prm.marker_time)
         out.marker_res[j] = r
         update(K_MARKER, r, H, R, x, P, c.prm, out)
 
@@ -119,6 +118,6 @@ def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
 def factors(c: Context) -> list[Factor]:
     """The updates :func:`apply` makes at this context, as models of the state (in the order
     of c.markers)."""
-    time_sigma = float(c.prm[P_MARKER_TIME])
+    time_sigma = float(c.prm.marker_time)
     return [factor(K_MARKER, marker_fix_k, np.array(row, dtype=np.float64), time_sigma)
             for row in c.markers]  # fmt: skip

@@ -23,10 +23,6 @@ from pipe_nav_core.model.measurements.context import (
     K_NHC,
     K_ODO,
     KINDS,
-    P_LEVER_KNOWN,
-    P_NHC_SIGMA,
-    P_ODO_SIGMA,
-    P_PIPE_D,
     Array,
     Context,
     Factor,
@@ -141,12 +137,12 @@ def inputs_k(c: Context) -> tuple[bool, Inputs]:
     """Whether the epoch has the odometer updates (INS mode, odometer data) and velocity_k's
     inputs: the speed and NHC noise for the epoch's duration, the speed's with the bend term."""
     prm = c.prm
-    lever_known = prm[P_LEVER_KNOWN] != 0.0
-    bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * c.w_yz
+    lever_known = prm.lever_known
+    bend = 0.0 if lever_known else 0.5 * prm.pipe_d * c.w_yz
     over = np.sqrt(NOISE_EPOCH_S / max(c.T, 1e-3))  # NavConfig.over_epoch
-    sigma_speed = np.hypot(prm[P_ODO_SIGMA] * over, bend)
+    sigma_speed = np.hypot(prm.odo_sigma * over, bend)
     vel_b_offset = c.mean_vel_b - c_nb_k(c.s1).T @ c.s1[I_VEL : I_VEL + 3]
-    args = (c.speed, vel_b_offset, c.lever_rate, sigma_speed, prm[P_NHC_SIGMA] * over, c.v_jac,
+    args = (c.speed, vel_b_offset, c.lever_rate, sigma_speed, prm.nhc_sigma * over, c.v_jac,
             c.T)  # fmt: skip
     return c.ins and c.odo_ok, args
 

@@ -14,9 +14,6 @@ from pipe_nav_core.geo import earth
 from pipe_nav_core.jit import kernel
 from pipe_nav_core.model.measurements.context import (
     K_ZARU,
-    P_ARW,
-    P_EARTH_SIGN,
-    P_ZARU,
     Array,
     Context,
     Factor,
@@ -69,8 +66,8 @@ def zero_rate(
 def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, bool]]:
     """Whether the epoch has the update (stopped) and zero_rate_k's inputs after sv, L."""
     prm = c.prm
-    sigma = np.sqrt(prm[P_ARW] ** 2 / c.T + prm[P_ZARU] ** 2)
-    return c.stopped, (c.gyro_mean, sigma, prm[P_EARTH_SIGN], c.free)
+    sigma = np.sqrt(prm.imu[0] ** 2 / c.T + prm.zaru**2)
+    return c.stopped, (c.gyro_mean, sigma, prm.earth_sign, c.free)
 
 
 @kernel

@@ -9,7 +9,6 @@ import numpy as np
 from pipe_nav_core.jit import kernel
 from pipe_nav_core.model.measurements.context import (
     K_ZUPT,
-    P_ZUPT,
     Array,
     Context,
     Factor,
@@ -43,7 +42,7 @@ def zero_velocity(s: NavState, layout: Layout, sigma: float) -> Measurement:
 @kernel
 def inputs_k(c: Context) -> tuple[bool, float]:
     """Whether the epoch has the update (stopped, INS mode) and its noise (m/s)."""
-    return c.stopped and c.ins, c.prm[P_ZUPT]
+    return c.stopped and c.ins, c.prm.zupt
 
 
 @kernel
