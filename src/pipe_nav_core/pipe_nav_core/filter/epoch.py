@@ -34,22 +34,9 @@ from numpy.typing import NDArray
 
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.kalman import chi2_threshold, predict_k
-from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements import (
-    gravity_tilt,
-    magnetic_heading,
-    marker,
-    odometer,
-    zero_rate,
-    zero_velocity,
-)
-from pipe_nav_core.model.measurements.context import (
-    C_EPOCHS,
-    COUNTERS,
-    KINDS,
-    Context,
-    Settings,
-)
+from pipe_nav_core.jit import kernel, literal_unroll
+from pipe_nav_core.model.measurements import C_EPOCHS, COUNTERS, KINDS, UPDATES
+from pipe_nav_core.model.measurements.context import Context, Settings
 from pipe_nav_core.model.mechanization import dr_step_k, ins_step_k
 from pipe_nav_core.model.process import discretize_k, imu_noise, process_noise_k, system_matrix_k
 from pipe_nav_core.model.sensors import ImuSpec
@@ -485,12 +472,8 @@ def _updates(
     has_ref = ref.shape[0] > 0
     c = _context(out.ws, out.ws_i, out.ws_sv, out.ws_m, dyn, dyn_i, L, prm, inp.imu_t, out.q,
                  inp.mag_t, inp.mag_f, markers)  # fmt: skip
-    odometer.apply(c, x, P, out)
-    zero_velocity.apply(c, x, P, out)
-    zero_rate.apply(c, x, P, out)
-    gravity_tilt.apply(c, x, P, out)
-    magnetic_heading.apply(c, x, P, out)
-    marker.apply(c, x, P, out)
+    for u in literal_unroll(UPDATES):  # straight calls, in their order: (kind, event, apply)
+        u[2](c, x, P, out, u[0], u[1])
     s, s1, T, speed, stopped, dp = c.s, c.s1, c.T, c.speed, c.stopped, c.dp
     omega = out.ws[W_OMEGA : W_OMEGA + 3]
     v_jac = c.v_jac

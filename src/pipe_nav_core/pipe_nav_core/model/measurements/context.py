@@ -1,5 +1,5 @@
-"""What every measurement shares: the epoch's context it reads, the settings indices, the
-update kinds and event counters, and the one gated update it applies.
+"""What every measurement shares: the epoch's context it reads, the settings, and the one
+gated update it applies.
 
 Frames: ENU navigation frame, base_link body frame (FLU). Units SI, angles rad.
 """
@@ -23,19 +23,6 @@ Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 Model = tuple[Array, Array, Array]  # residual (m,), H (m, n), R (m, m)
 Factor = tuple[str, Callable[[Array, Index], Model]]  # kind, model at a flat state and layout
-
-# measurement kinds (rows of the update statistics)
-KINDS = ("nhc", "odometer", "zupt", "zaru", "tilt", "mag", "marker")
-K_NHC, K_ODO, K_ZUPT, K_ZARU, K_TILT, K_MAG, K_MARKER = range(7)
-# event counters
-COUNTERS = (
-    "epochs",
-    "epochs_without_odometer",
-    "odometer_excluded",
-    "tilt_gated_motion",
-    "mag_disturbed",
-)
-C_EPOCHS, C_NO_ODO, C_EXCLUDED, C_TILT_GATED, C_MAG_DISTURBED = range(5)
 
 
 class Settings(NamedTuple):
@@ -159,10 +146,10 @@ def update(
     out.dof[kind] += m
 
 
-def factor(kind: int, model_k: Callable[..., Model], *args: object) -> Factor:
-    """(the kind's name, its model at a flat state and layout): the kernel ``model_k`` called
-    with (sv, L) and then ``args``, the inputs its measurement's policy chose."""
-    return KINDS[kind], lambda sv, L: model_k(sv, L, *args)
+def factor(kind: str, model_k: Callable[..., Model], *args: object) -> Factor:
+    """(kind, its model at a flat state and layout): the kernel ``model_k`` called with
+    (sv, L) and then ``args``, the inputs its measurement's policy chose."""
+    return kind, lambda sv, L: model_k(sv, L, *args)
 
 
 @kernel

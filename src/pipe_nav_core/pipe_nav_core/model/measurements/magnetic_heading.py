@@ -15,22 +15,14 @@ import numpy as np
 
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    C_MAG_DISTURBED,
-    K_MAG,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    factor,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, update
 from pipe_nav_core.model.state import L_ATT, L_N, Layout, NavState
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("mag",), ("mag_disturbed",)  # its update (statistics), the events it counts
 
 OFF, GATED, ON = 0, 1, 2  # inputs_k's verdicts
 
@@ -101,18 +93,18 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, float, float]]:
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
-    """The update, or the disturbed field counted, as :func:`inputs_k` says."""
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """The update (counted under kind), or the disturbed field counted (event), as
+    :func:`inputs_k` says."""
     verdict, args = inputs_k(c)
     if verdict == GATED:
-        out.counts[C_MAG_DISTURBED] += 1
+        out.counts[event] += 1
     elif verdict == ON:
-        field_b, c_nb, declination, sigma = args
-        r, H, R = magnetic_heading_k(c.s, c.L, field_b, c_nb, declination, sigma)
-        update(K_MAG, r, H, R, x, P, c.prm, out)
+        r, H, R = magnetic_heading_k(c.s, c.L, *args)
+        update(kind, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     verdict, args = inputs_k(c)
-    return [factor(K_MAG, magnetic_heading_k, *args)] if verdict == ON else []
+    return [factor(KINDS[0], magnetic_heading_k, *args)] if verdict == ON else []

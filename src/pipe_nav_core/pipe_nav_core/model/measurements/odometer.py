@@ -17,21 +17,7 @@ import numpy as np
 from pipe_nav_core.config import NOISE_EPOCH_S
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    C_EXCLUDED,
-    C_NO_ODO,
-    K_NHC,
-    K_ODO,
-    KINDS,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    rows,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, rows, update
 from pipe_nav_core.model.state import (
     I_BORE,
     I_ODOQ,
@@ -51,9 +37,12 @@ from pipe_nav_core.model.state import (
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
 
-SPEED_ROWS, NHC_ROWS = (0, 1), (1, 3)  # rows of velocity_k: the odometer speed, the NHC
-Inputs = tuple[float, Array, float, float, float, Array, float]  # velocity_k's, after sv, L
+KINDS = ("nhc", "odometer")  # its updates (statistics): the NHC rows, the speed row
+EVENTS = ("epochs_without_odometer", "odometer_excluded")  # the events it counts
+NHC, SPEED = range(len(KINDS))
+NO_ODOMETER, EXCLUDED = range(len(EVENTS))
 
 
 @kernel
@@ -68,7 +57,8 @@ def velocity_k(
     vel_jac: Array,
     epoch_s: float,
 ) -> Model:
-    """:func:`velocity` on a flat state (vel_jac required)."""
+    """All three rows: the odometer speed (0) and the NHC (1-2) on a flat state (arguments:
+    :func:`speed`; sigma_speed and sigma_nhc m/s)."""
     c = c_nb_k(sv)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     k = sv[SV_K]
@@ -93,7 +83,73 @@ def velocity_k(
     return -h, H, R
 
 
-def velocity(
+@kernel
+def nhc_k(
+    sv: Array, L: Index, speed: float, vel_b_offset: Array, lever_rate: float,
+    sigma_speed: float, sigma_nhc: float, vel_jac: Array, epoch_s: float,
+) -> Model:  # fmt: skip
+    """The non-holonomic constraint: rows 1-2 of :func:`velocity_k` (same arguments)."""
+    r, H, R = velocity_k(sv, L, speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc,
+                         vel_jac, epoch_s)  # fmt: skip
+    return rows(r, H, R, 1, 3)
+
+
+@kernel
+def speed_k(
+    sv: Array, L: Index, speed: float, vel_b_offset: Array, lever_rate: float,
+    sigma_speed: float, sigma_nhc: float, vel_jac: Array, epoch_s: float,
+) -> Model:  # fmt: skip
+    """The odometer speed along the bore: row 0 of :func:`velocity_k` (same arguments)."""
+    r, H, R = velocity_k(sv, L, speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc,
+                         vel_jac, epoch_s)  # fmt: skip
+    return rows(r, H, R, 0, 1)
+
+
+def _navstate(
+    model_k: object,
+    kind: str,
+    s: NavState,
+    layout: Layout,
+    speed: float,
+    vel_b_offset: Array,
+    lever_rate: float,
+    sigma_speed: float,
+    sigma_nhc: float,
+    vel_jac: Array | None,
+    epoch_s: float,
+) -> Measurement:
+    assert layout.vel is not None
+    r, H, R = model_k(  # type: ignore[operator]
+        s.vector(),
+        layout.index,
+        float(speed),
+        np.asarray(vel_b_offset, dtype=np.float64),
+        float(lever_rate),
+        float(sigma_speed),
+        float(sigma_nhc),
+        np.asarray(s.vel_n if vel_jac is None else vel_jac, dtype=np.float64),
+        float(epoch_s),
+    )
+    return Measurement(kind, r, H, R)
+
+
+def nhc(
+    s: NavState,
+    layout: Layout,
+    *,
+    speed: float,
+    vel_b_offset: Array,
+    lever_rate: float,
+    sigma_nhc: float,
+    vel_jac: Array | None = None,
+    epoch_s: float = 0.0,
+) -> Measurement:
+    """The NHC update for a NavState, as :func:`apply` makes it (arguments: :func:`speed`)."""
+    return _navstate(nhc_k, KINDS[NHC], s, layout, speed, vel_b_offset, lever_rate, 0.0,
+                     sigma_nhc, vel_jac, epoch_s)  # fmt: skip
+
+
+def speed(
     s: NavState,
     layout: Layout,
     *,
@@ -101,11 +157,10 @@ def velocity(
     vel_b_offset: Array,
     lever_rate: float,
     sigma_speed: float,
-    sigma_nhc: float,
     vel_jac: Array | None = None,
     epoch_s: float = 0.0,
 ) -> Measurement:
-    """All three rows (speed, NHC) for a NavState.
+    """The odometer speed update for a NavState, as :func:`apply` makes it.
 
     speed is the raw mean odometer speed (distance increment / epoch duration), lever_rate the
     mean (omega x d)_x of the wheel contact point, vel_b_offset the difference between the
@@ -117,28 +172,17 @@ def velocity(
     has odometer reading errors (odoq, m), speed is corrected by -(odoq_end - odoq_start) /
     epoch_s (the quantization of the readings at both ends of the epoch).
     """
-    assert layout.vel is not None
-    r, H, R = velocity_k(
-        s.vector(),
-        layout.index,
-        float(speed),
-        np.asarray(vel_b_offset, dtype=np.float64),
-        float(lever_rate),
-        float(sigma_speed),
-        float(sigma_nhc),
-        np.asarray(s.vel_n if vel_jac is None else vel_jac, dtype=np.float64),
-        float(epoch_s),
-    )
-    return Measurement("odometer", r, H, R)
+    return _navstate(speed_k, KINDS[SPEED], s, layout, speed, vel_b_offset, lever_rate,
+                     sigma_speed, 0.0, vel_jac, epoch_s)  # fmt: skip
 
 
 @kernel
-def inputs_k(c: Context) -> tuple[bool, Inputs]:
-    """Whether the epoch has the odometer updates (INS mode, odometer data) and velocity_k's
-    inputs: the speed and NHC noise for the epoch's duration, the speed's with the bend term."""
+def inputs_k(c: Context) -> tuple[bool, tuple[float, Array, float, float, float, Array, float]]:
+    """Whether the epoch has the odometer updates (INS mode, odometer data) and the models'
+    inputs after sv, L: the speed and NHC noise for the epoch's duration, the speed's with the
+    bend term."""
     prm = c.prm
-    lever_known = prm.lever_known
-    bend = 0.0 if lever_known else 0.5 * prm.pipe_d * c.w_yz
+    bend = 0.0 if prm.lever_known else 0.5 * prm.pipe_d * c.w_yz
     over = np.sqrt(NOISE_EPOCH_S / max(c.T, 1e-3))  # NavConfig.over_epoch
     sigma_speed = np.hypot(prm.odo_sigma * over, bend)
     vel_b_offset = c.mean_vel_b - c_nb_k(c.s1).T @ c.s1[I_VEL : I_VEL + 3]
@@ -148,24 +192,21 @@ def inputs_k(c: Context) -> tuple[bool, Inputs]:
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
     """The NHC update, then the speed update unless excluded (counted, as epochs without
-    odometer data are)."""
+    odometer data are); kind, event: where its KINDS and EVENTS start in the statistics."""
     if not c.odo_ok:
-        out.counts[C_NO_ODO] += 1
+        out.counts[event + NO_ODOMETER] += 1
     on, args = inputs_k(c)
     if not on:
         return
-    speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc, v_jac, T = args
-    r, H, R = velocity_k(c.s, c.L, speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc,
-                         v_jac, T)  # fmt: skip
-    rn, Hn, Rn = rows(r, H, R, NHC_ROWS[0], NHC_ROWS[1])
-    update(K_NHC, rn, Hn, Rn, x, P, c.prm, out)
+    r, H, R = nhc_k(c.s, c.L, *args)
+    update(kind + NHC, r, H, R, x, P, c.prm, out)
     if c.excluded:
-        out.counts[C_EXCLUDED] += 1
+        out.counts[event + EXCLUDED] += 1
     else:
-        rs, Hs, Rs = rows(r, H, R, SPEED_ROWS[0], SPEED_ROWS[1])
-        update(K_ODO, rs, Hs, Rs, x, P, c.prm, out)
+        r, H, R = speed_k(c.s, c.L, *args)
+        update(kind + SPEED, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
@@ -173,11 +214,5 @@ def factors(c: Context) -> list[Factor]:
     on, args = inputs_k(c)
     if not on:
         return []
-
-    def nhc(sv: Array, L: Index) -> Model:
-        return rows(*velocity_k(sv, L, *args), NHC_ROWS[0], NHC_ROWS[1])
-
-    def speed(sv: Array, L: Index) -> Model:
-        return rows(*velocity_k(sv, L, *args), SPEED_ROWS[0], SPEED_ROWS[1])
-
-    return [(KINDS[K_NHC], nhc)] + ([] if c.excluded else [(KINDS[K_ODO], speed)])
+    nhc_f = factor(KINDS[NHC], nhc_k, *args)
+    return [nhc_f] if c.excluded else [nhc_f, factor(KINDS[SPEED], speed_k, *args)]

@@ -7,21 +7,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    K_ZUPT,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    factor,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, update
 from pipe_nav_core.model.state import I_VEL, L_N, L_VEL, Layout, NavState
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("zupt",), ()  # its update (statistics), the events it counts
 
 
 @kernel
@@ -46,15 +39,15 @@ def inputs_k(c: Context) -> tuple[bool, float]:
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
-    """The update where :func:`inputs_k` says so."""
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """The update where :func:`inputs_k` says so, counted under kind."""
     on, sigma = inputs_k(c)
     if on:
         r, H, R = zero_velocity_k(c.s, c.L, sigma)
-        update(K_ZUPT, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     on, sigma = inputs_k(c)
-    return [factor(K_ZUPT, zero_velocity_k, sigma)] if on else []
+    return [factor(KINDS[0], zero_velocity_k, sigma)] if on else []
