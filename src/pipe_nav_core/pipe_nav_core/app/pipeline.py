@@ -56,8 +56,8 @@ from pipe_nav_core.model.sensors import GRADES
 from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
 from pipe_nav_core.products.welds import Weld, detect_welds
 from pipe_nav_core.smooth.centreline import SmoothResult
+from pipe_nav_core.smooth.chunks import drop_spare
 from pipe_nav_core.smooth.passes import smooth_log
-from pipe_nav_core.smooth.recording import drop_spare
 from pipe_nav_core.smooth.segments import smooth_segments
 from pipe_nav_core.types import Datum, Marker, SensorLog, Trajectory
 

@@ -99,37 +99,24 @@ def parameters(
 ) -> Settings:
     """The settings of the kernels (every number a float, every flag a bool: one compiled
     specialization whatever types the configuration holds)."""
-    c = config
-    f = float
+    c, f = config, float
+    ref, dip = (0.0, 0.0) if mag_ref is None else (f(mag_ref[0]), f(mag_ref[1]))
     return Settings(
-        earth_sign=f(earth_sign),
-        pipe_d=f(c.pipe_diameter),
-        lever=np.array(lever_arm, dtype=np.float64),
-        lever_known=bool(np.any(lever_arm)),
-        stop_speed=f(c.stop_speed_threshold),
-        stop_gyro=f(c.stop_gyro_threshold),
-        odo_sigma=f(c.odometer_speed_sigma),
-        nhc_sigma=f(c.nhc_sigma),
-        zupt=f(c.zupt_sigma),
-        zaru=f(c.zaru_sigma),
-        tilt_on=bool(c.tilt_enabled()),
-        tilt_gate=f(c.tilt_gate),
-        tilt_sigma=f(c.tilt_sigma),
-        mag_on=bool(c.mag_update),
-        mag_norm_gate=f(c.mag_magnitude_gate),
-        mag_dip_gate=f(c.mag_dip_gate),
-        mag_decl=f(c.mag_declination),
-        mag_sigma=f(c.mag_heading_sigma),
-        mag_ref=0.0 if mag_ref is None else f(mag_ref[0]),
-        mag_dip=0.0 if mag_ref is None else f(mag_ref[1]),
-        mag_ref_ok=mag_ref is not None,
-        scale_rw=f(c.odometer_scale_rw),
-        dr_along=f(c.odometer_distance_sigma),
-        dr_lateral=f(c.dr_lateral_sigma),
+        earth_sign=f(earth_sign), pipe_d=f(c.pipe_diameter),
+        lever=np.array(lever_arm, dtype=np.float64), lever_known=bool(np.any(lever_arm)),
+        stop_speed=f(c.stop_speed_threshold), stop_gyro=f(c.stop_gyro_threshold),
+        odo_sigma=f(c.odometer_speed_sigma), nhc_sigma=f(c.nhc_sigma),
+        zupt=f(c.zupt_sigma), zaru=f(c.zaru_sigma),
+        tilt_on=bool(c.tilt_enabled()), tilt_gate=f(c.tilt_gate), tilt_sigma=f(c.tilt_sigma),
+        mag_on=bool(c.mag_update), mag_norm_gate=f(c.mag_magnitude_gate),
+        mag_dip_gate=f(c.mag_dip_gate), mag_decl=f(c.mag_declination),
+        mag_sigma=f(c.mag_heading_sigma), mag_ref=ref, mag_dip=dip,
+        mag_ref_ok=mag_ref is not None, scale_rw=f(c.odometer_scale_rw),
+        dr_along=f(c.odometer_distance_sigma), dr_lateral=f(c.dr_lateral_sigma),
         marker_time=f(c.marker_time_sigma),
         chi2=np.array([chi2_threshold(c.gate_probability, m) for m in (1, 2, 3)]),
         imu=np.array(imu_noise(imu), dtype=np.float64),
-    )
+    )  # fmt: skip
 
 
 class Filter(NamedTuple):

@@ -92,6 +92,8 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, float, float]]:
     return ON, args
 
 
+# apply and factors have the shape of the other measurements' on purpose: numba takes no kernel
+# as an argument without losing its disk cache, so each measurement calls its own model itself
 @kernel
 def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
     """The update (counted under kind), or the disturbed field counted (event), as

@@ -42,6 +42,7 @@ if TYPE_CHECKING:
 KINDS = ("nhc", "odometer")  # its updates (statistics): the NHC rows, the speed row
 EVENTS = ("epochs_without_odometer", "odometer_excluded")  # the events it counts
 NHC, SPEED = range(len(KINDS))
+ROWS = ((1, 3), (0, 1))  # velocity_k's rows lo:hi of each update of KINDS
 NO_ODOMETER, EXCLUDED = range(len(EVENTS))
 
 
@@ -49,6 +50,8 @@ NO_ODOMETER, EXCLUDED = range(len(EVENTS))
 def velocity_k(
     sv: Array,
     L: Index,
+    lo: int,
+    hi: int,
     speed: float,
     vel_b_offset: Array,
     lever_rate: float,
@@ -57,8 +60,8 @@ def velocity_k(
     vel_jac: Array,
     epoch_s: float,
 ) -> Model:
-    """All three rows: the odometer speed (0) and the NHC (1-2) on a flat state (arguments:
-    :func:`speed`; sigma_speed and sigma_nhc m/s)."""
+    """Rows lo:hi of the three, the odometer speed (0) and the NHC (1-2), on a flat state
+    (ROWS; the other arguments: :func:`velocity`, sigma_speed and sigma_nhc m/s)."""
     c = c_nb_k(sv)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     k = sv[SV_K]
@@ -80,87 +83,24 @@ def velocity_k(
             H[r, L[L_ODOQ]] = -u[r] * (1.0 + k) / epoch_s
             H[r, L[L_ODOQ] + 1] = u[r] * (1.0 + k) / epoch_s
     R = np.diag(np.array([sigma_speed**2, sigma_nhc**2, sigma_nhc**2]))
-    return -h, H, R
+    return rows(-h, H, R, lo, hi)
 
 
-@kernel
-def nhc_k(
-    sv: Array, L: Index, speed: float, vel_b_offset: Array, lever_rate: float,
-    sigma_speed: float, sigma_nhc: float, vel_jac: Array, epoch_s: float,
-) -> Model:  # fmt: skip
-    """The non-holonomic constraint: rows 1-2 of :func:`velocity_k` (same arguments)."""
-    r, H, R = velocity_k(sv, L, speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc,
-                         vel_jac, epoch_s)  # fmt: skip
-    return rows(r, H, R, 1, 3)
-
-
-@kernel
-def speed_k(
-    sv: Array, L: Index, speed: float, vel_b_offset: Array, lever_rate: float,
-    sigma_speed: float, sigma_nhc: float, vel_jac: Array, epoch_s: float,
-) -> Model:  # fmt: skip
-    """The odometer speed along the bore: row 0 of :func:`velocity_k` (same arguments)."""
-    r, H, R = velocity_k(sv, L, speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc,
-                         vel_jac, epoch_s)  # fmt: skip
-    return rows(r, H, R, 0, 1)
-
-
-def _navstate(
-    model_k: object,
+def velocity(
+    s: NavState,
+    layout: Layout,
     kind: str,
-    s: NavState,
-    layout: Layout,
-    speed: float,
-    vel_b_offset: Array,
-    lever_rate: float,
-    sigma_speed: float,
-    sigma_nhc: float,
-    vel_jac: Array | None,
-    epoch_s: float,
-) -> Measurement:
-    assert layout.vel is not None
-    r, H, R = model_k(  # type: ignore[operator]
-        s.vector(),
-        layout.index,
-        float(speed),
-        np.asarray(vel_b_offset, dtype=np.float64),
-        float(lever_rate),
-        float(sigma_speed),
-        float(sigma_nhc),
-        np.asarray(s.vel_n if vel_jac is None else vel_jac, dtype=np.float64),
-        float(epoch_s),
-    )
-    return Measurement(kind, r, H, R)
-
-
-def nhc(
-    s: NavState,
-    layout: Layout,
     *,
     speed: float,
     vel_b_offset: Array,
     lever_rate: float,
-    sigma_nhc: float,
+    sigma_speed: float = 0.0,
+    sigma_nhc: float = 0.0,
     vel_jac: Array | None = None,
     epoch_s: float = 0.0,
 ) -> Measurement:
-    """The NHC update for a NavState, as :func:`apply` makes it (arguments: :func:`speed`)."""
-    return _navstate(nhc_k, KINDS[NHC], s, layout, speed, vel_b_offset, lever_rate, 0.0,
-                     sigma_nhc, vel_jac, epoch_s)  # fmt: skip
-
-
-def speed(
-    s: NavState,
-    layout: Layout,
-    *,
-    speed: float,
-    vel_b_offset: Array,
-    lever_rate: float,
-    sigma_speed: float,
-    vel_jac: Array | None = None,
-    epoch_s: float = 0.0,
-) -> Measurement:
-    """The odometer speed update for a NavState, as :func:`apply` makes it.
+    """The update ``kind`` of KINDS ("nhc": rows 1-2, or "odometer": the speed row 0) for a
+    NavState, as :func:`apply` makes it (sigma_speed, sigma_nhc m/s).
 
     speed is the raw mean odometer speed (distance increment / epoch duration), lever_rate the
     mean (omega x d)_x of the wheel contact point, vel_b_offset the difference between the
@@ -172,8 +112,22 @@ def speed(
     has odometer reading errors (odoq, m), speed is corrected by -(odoq_end - odoq_start) /
     epoch_s (the quantization of the readings at both ends of the epoch).
     """
-    return _navstate(speed_k, KINDS[SPEED], s, layout, speed, vel_b_offset, lever_rate,
-                     sigma_speed, 0.0, vel_jac, epoch_s)  # fmt: skip
+    assert layout.vel is not None
+    lo, hi = ROWS[KINDS.index(kind)]
+    r, H, R = velocity_k(
+        s.vector(),
+        layout.index,
+        lo,
+        hi,
+        float(speed),
+        np.asarray(vel_b_offset, dtype=np.float64),
+        float(lever_rate),
+        float(sigma_speed),
+        float(sigma_nhc),
+        np.asarray(s.vel_n if vel_jac is None else vel_jac, dtype=np.float64),
+        float(epoch_s),
+    )
+    return Measurement(kind, r, H, R)
 
 
 @kernel
@@ -200,12 +154,14 @@ def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: i
     on, args = inputs_k(c)
     if not on:
         return
-    r, H, R = nhc_k(c.s, c.L, *args)
+    lo, hi = ROWS[NHC]
+    r, H, R = velocity_k(c.s, c.L, lo, hi, *args)
     update(kind + NHC, r, H, R, x, P, c.prm, out)
     if c.excluded:
         out.counts[event + EXCLUDED] += 1
     else:
-        r, H, R = speed_k(c.s, c.L, *args)
+        lo, hi = ROWS[SPEED]
+        r, H, R = velocity_k(c.s, c.L, lo, hi, *args)
         update(kind + SPEED, r, H, R, x, P, c.prm, out)
 
 
@@ -214,5 +170,5 @@ def factors(c: Context) -> list[Factor]:
     on, args = inputs_k(c)
     if not on:
         return []
-    nhc_f = factor(KINDS[NHC], nhc_k, *args)
-    return [nhc_f] if c.excluded else [nhc_f, factor(KINDS[SPEED], speed_k, *args)]
+    ups = (NHC,) if c.excluded else (NHC, SPEED)
+    return [factor(KINDS[u], velocity_k, *ROWS[u], *args) for u in ups]
