@@ -9,7 +9,7 @@ heading re-anchoring and covariance recovery at a marker passage) stay in Python
 :func:`run_epochs` with ``stop`` (prediction only) and with ``resume`` (updates only). Every
 model is the shared one (:mod:`process`, :mod:`measurements`, :mod:`kalman`, :mod:`state`).
 
-Arrays and indices (all float64 unless said):
+Arrays (float64 unless said):
 - :class:`Filter`: the filter's nominal state, mean error, covariance and memory, updated in
   place;
 - ``prm`` the settings (:class:`Settings`, :func:`parameters`); ``L`` the layout
@@ -20,9 +20,14 @@ Arrays and indices (all float64 unless said):
 - :class:`EpochOutputs` (a :class:`Batch`'s arrays): per epoch, per sample (lat, lon, h, q_nb,
   odometer reading) and the update statistics.
 
-About 500 lines, one module on purpose: the compiled epoch loop, its array records and their
-index constants are read together, and numba compiles the loop with every function it calls
-(a split would only move the constants away from the loop that reads them).
+The records passed between the prediction, the Python between a stopped and a resumed call,
+and the updates are flat arrays whose fields are declared once with their size
+(:class:`pipe_nav_core.records.Fields`: D_* the filter's memory, W_* the prediction's
+results; integers and flags in int64 arrays); the settings are a typed :class:`Settings`.
+
+About 500 lines, one module on purpose: the compiled epoch loop and its records are read
+together, and numba compiles the loop with every function it calls (a split would only move
+the records away from the loop that reads them).
 """
 
 from __future__ import annotations
