@@ -154,15 +154,14 @@ def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: i
     on, args = inputs_k(c)
     if not on:
         return
+    r, H, R = velocity_k(c.s, c.L, 0, 3, *args)  # the model once, both updates' rows
     lo, hi = ROWS[NHC]
-    r, H, R = velocity_k(c.s, c.L, lo, hi, *args)
-    update(kind + NHC, r, H, R, x, P, c.prm, out)
+    update(kind + NHC, *rows(r, H, R, lo, hi), x, P, c.prm, out)
     if c.excluded:
         out.counts[event + EXCLUDED] += 1
     else:
         lo, hi = ROWS[SPEED]
-        r, H, R = velocity_k(c.s, c.L, lo, hi, *args)
-        update(kind + SPEED, r, H, R, x, P, c.prm, out)
+        update(kind + SPEED, *rows(r, H, R, lo, hi), x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
