@@ -161,19 +161,27 @@ import numpy as np
 import pytest
 from pipe_nav_core import jit
 from pipe_nav_core.geo import attitude, earth
+from pipe_nav_core.filter import epoch
+from pipe_nav_core.model import measurements
 before = jit.JIT_REASON
+stand_in = epoch.literal_unroll is jit.literal_unroll
 g = float(earth._gravity(0.7, 100.0))        # an exported specialization
 n = attitude.qnormalize((2, 0, 0, 0))  # integers: no export takes them
 after = jit.JIT_REASON
 g2 = float(earth._gravity(0.7, 100.0))       # now numba's dispatcher
+import numba
 print(json.dumps({"before": before, "after": after, "g": g, "g2": g2, "n": list(n),
-                  "rebound": type(earth._gravity).__name__}))
+                  "rebound": type(earth._gravity).__name__, "stand_in": stand_in,
+                  "unroll": epoch.literal_unroll is numba.literal_unroll,
+                  "registry": sorted({type(u[2]).__name__ for u in measurements.UPDATES})}))
 """
     r = _python(code, PIPE_NAV_AOT_DEBUG="1")
     assert r["before"] is None and "qnormalize called with other argument types" in r["after"]
     assert r["g"] == r["g2"] and 9.7 < r["g"] < 9.9
     assert r["n"] == [1.0, 0.0, 0.0, 0.0]
     assert r["rebound"] == "CPUDispatcher"
+    # the registry of updates (a tuple of kernels) and numba's literal_unroll rebound too
+    assert r["stand_in"] and r["unroll"] and r["registry"] == ["CPUDispatcher"]
 
 
 def test_the_aot_kernels_are_said_in_the_warm_marker(tmp_path, monkeypatch):

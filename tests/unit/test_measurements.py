@@ -27,10 +27,20 @@ def test_flat_state_vector_round_trip_and_batch_injection(mode):
     assert not np.allclose(many[0], v)  # the corrections did move the state
 
 
-def test_the_epoch_applies_the_measurements_in_their_order():
-    """epoch._updates calls each measurement's apply once, in measurements.ORDER (the order
-    the batch solver's factors follow)."""
-    src = inspect.getsource(epoch._updates.py_func if hasattr(epoch._updates, "py_func")
-                            else epoch._updates)  # fmt: skip
-    calls = re.findall(r"^    (\w+)\.apply\(c, x, P, out\)$", src, re.MULTILINE)
-    assert calls == [m.__name__.rpartition(".")[2] for m in measurements.ORDER]
+def test_the_registry_derives_the_epoch_updates_and_the_statistics():
+    """One line (measurements.MEASUREMENTS) registers a measurement: the epoch's update
+    sequence, the statistics' kinds and counters derive from it, each measurement's statistics
+    at its own rows; the names are those the reports have always used."""
+    regs = measurements.MEASUREMENTS
+    assert [u[2] for u in measurements.UPDATES] == [m.apply for m in regs]
+    for (kind, event, _), m in zip(measurements.UPDATES, regs, strict=True):
+        assert measurements.KINDS[kind : kind + len(m.KINDS)] == m.KINDS
+        assert measurements.COUNTERS[event : event + len(m.EVENTS)] == m.EVENTS
+    assert measurements.KINDS == ("nhc", "odometer", "zupt", "zaru", "tilt", "mag", "marker")
+    assert measurements.COUNTERS == ("epochs", "epochs_without_odometer", "odometer_excluded",
+                                     "tilt_gated_motion", "mag_disturbed")  # fmt: skip
+    assert measurements.COUNTERS[measurements.C_EPOCHS] == "epochs"
+    # the epoch loops over the registry: no measurement is named in it
+    src = inspect.getsource(epoch._updates.py_func)
+    assert "literal_unroll(UPDATES)" in src
+    assert not re.search(r"\b(" + "|".join(m.__name__.rpartition(".")[2] for m in regs) + r")\.", src)

@@ -1,5 +1,6 @@
-"""The compact Recording: packed covariances and transitions read back exactly, from memory or
-spilled to disk, and the RTS over its chunks equals the RTS over the full matrices."""
+"""The compact Recording and its chunked storage (smooth.chunks): packed covariances and
+transitions read back exactly, from memory or spilled to disk, and the RTS over its chunks
+equals the RTS over the full matrices."""
 
 import gc
 import os
@@ -7,7 +8,7 @@ import os
 import numpy as np
 import pytest
 from pipe_nav_core.model.state import SV_SIZE, Layout
-from pipe_nav_core.smooth import recording
+from pipe_nav_core.smooth import chunks, recording
 from pipe_nav_core.smooth.recording import Recording, phi_rows
 from pipe_nav_core.smooth.rts import rts, rts_packed
 
@@ -29,10 +30,11 @@ def _epochs(layout: Layout, K: int, seed: int = 0):
     return out
 
 
-@pytest.mark.parametrize("budget", [recording.RAM_BUDGET_BYTES, 0])
+@pytest.mark.parametrize("budget", [chunks.RAM_BUDGET_BYTES, 0])
 def test_recording_reads_back_what_was_stored(monkeypatch, budget):
     """With a budget of 0 all but the two newest chunks go to disk; the values are the same,
     and the temporary directory goes when the recording is closed."""
+    monkeypatch.setattr(chunks, "CHUNK_EPOCHS", 16)
     monkeypatch.setattr(recording, "CHUNK_EPOCHS", 16)
     layout = Layout("ins", gyro_errors=True)
     epochs = _epochs(layout, 75)
@@ -61,6 +63,7 @@ def test_recording_reads_back_what_was_stored(monkeypatch, budget):
 
 
 def test_spilled_chunks_go_with_the_recording(monkeypatch):
+    monkeypatch.setattr(chunks, "CHUNK_EPOCHS", 4)
     monkeypatch.setattr(recording, "CHUNK_EPOCHS", 4)
     layout = Layout("dr")
     rec = Recording(layout, ram_budget=0)
@@ -114,12 +117,12 @@ def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
         def submit(self, fn, /, *args, **kwargs):  # the write waits until the test lets it
             return super().submit(lambda: (held.wait(5.0), fn(*args, **kwargs)))
 
-    monkeypatch.setattr(recording, "ThreadPoolExecutor", SlowWriter)
-    recording.drop_spare()
+    monkeypatch.setattr(chunks, "ThreadPoolExecutor", SlowWriter)
+    chunks.drop_spare()
     width, n = 3, 5
-    rows = recording._Chunks(width, budget=0)  # two chunks in memory, older ones spill
+    rows = chunks.Chunks(width, budget=0)  # two chunks in memory, older ones spill
     for k in range(n):
-        for a, b, view in rows.claim(recording.CHUNK_EPOCHS):
+        for a, b, view in rows.claim(chunks.CHUNK_EPOCHS):
             view[:] = k  # chunk k's rows all hold k
     threading.Timer(0.2, held.set).start()
     last_spilled = n - 3
@@ -135,11 +138,11 @@ def test_reading_back_in_any_order_keeps_the_last_chunks_asked_for():
     for the one before; a forward read (the variances) may have left other chunks in the read
     buffers. A buffer is reused only for the chunk asked for least recently, so the one the
     caller holds is never refilled under it."""
-    recording.drop_spare()
-    rows = recording._Chunks(2, budget=0)  # two chunks in memory, the older ones spill
+    chunks.drop_spare()
+    rows = chunks.Chunks(2, budget=0)  # two chunks in memory, the older ones spill
     n = 7
     for k in range(n):
-        for a, b, view in rows.claim(recording.CHUNK_EPOCHS):
+        for a, b, view in rows.claim(chunks.CHUNK_EPOCHS):
             view[:] = k
     for i in range(n):  # forward, as Recording.variances reads them
         assert np.all(rows.chunk(i) == i)

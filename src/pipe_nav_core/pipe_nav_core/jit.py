@@ -17,6 +17,7 @@ import inspect
 import os
 import sys
 import threading
+import warnings
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
@@ -155,14 +156,34 @@ def _install_package_locators() -> None:
 _NUMBA_READY = False
 
 
+def literal_unroll(container: Any) -> Any:
+    """numba's ``literal_unroll`` in a kernel: a loop over a tuple of differently typed items
+    (functions, say), compiled into straight code item by item; in Python the container.
+    This stand-in keeps numba unimported where the AOT kernels serve: numba's own replaces it
+    in the package's modules as soon as numba is imported (:func:`_numba_njit`), before any
+    kernel compiles."""
+    return container
+
+
 def _numba_njit(**options: Any) -> Any:
-    """numba.njit, numba imported (and this package's cache locators installed) on first use."""
+    """numba.njit, numba imported (and this package's cache locators installed, and its
+    literal_unroll bound in the package's modules) on first use."""
     global _NUMBA_READY
+    from numba import literal_unroll as numba_unroll
     from numba import njit as numba_njit
 
     if not _NUMBA_READY:
         if not os.environ.get("NUMBA_CACHE_LOCATOR_CLASSES"):
             _install_package_locators()
+        # typing a literal_unroll over a tuple of kernels (measurements.UPDATES) unifies their
+        # function types and says so; the calls stay direct, each to its own kernel
+        warnings.filterwarnings("ignore", "First-class function type feature is experimental")
+        stand_in = globals()["literal_unroll"]
+        for name, module in list(sys.modules.items()):
+            if module is not None and name.startswith(_PREFIX):
+                for attr, value in list(vars(module).items()):
+                    if value is stand_in:
+                        setattr(module, attr, numba_unroll)
         _NUMBA_READY = True
     return numba_njit(**options)
 
@@ -231,10 +252,27 @@ if _EXPORTS is None:
     JIT_REASON = "no ahead-of-time module for these sources"
 
 
+def _holds_kernels(value: Any) -> bool:
+    """Whether value is a tuple with an AOT kernel somewhere inside (a registry of kernels)."""
+    return type(value) is tuple and any(
+        isinstance(v, AotKernel) or _holds_kernels(v) for v in value
+    )
+
+
+def _rebound(value: Any) -> Any:
+    """value with each AOT kernel, also inside tuples, replaced by its numba dispatcher."""
+    if isinstance(value, AotKernel):
+        return value.dispatcher
+    if type(value) is tuple:
+        return tuple(_rebound(v) for v in value)
+    return value
+
+
 def to_jit(reason: str) -> None:
     """Turn this process to numba's JIT kernels: every AOT kernel gets its dispatcher and the
-    package's modules are rebound to the dispatchers (numba resolves a kernel's callees
-    through its module's globals). ``PIPE_NAV_AOT_DEBUG=1`` says why on stderr."""
+    package's modules are rebound to the dispatchers, also in tuples of kernels (numba
+    resolves a kernel's callees through its module's globals). ``PIPE_NAV_AOT_DEBUG=1`` says
+    why on stderr."""
     global _EXPORTS, JIT_REASON
     with _SWITCH:
         if _EXPORTS is None:
@@ -246,8 +284,8 @@ def to_jit(reason: str) -> None:
         for name, module in list(sys.modules.items()):
             if module is not None and name.startswith(_PREFIX):
                 for attr, value in list(vars(module).items()):
-                    if isinstance(value, AotKernel):
-                        setattr(module, attr, value.dispatcher)
+                    if isinstance(value, AotKernel) or _holds_kernels(value):
+                        setattr(module, attr, _rebound(value))
         _EXPORTS = None
         JIT_REASON = reason
 

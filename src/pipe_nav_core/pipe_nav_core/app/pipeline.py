@@ -38,8 +38,8 @@ from pipe_nav_core.model import imu_noise as imu_model
 from pipe_nav_core.products import integrity_report, read_bends_reference
 from pipe_nav_core.products.welds import Weld, detect_welds
 from pipe_nav_core.smooth.centreline import SmoothResult
+from pipe_nav_core.smooth.chunks import drop_spare
 from pipe_nav_core.smooth.passes import smooth_log
-from pipe_nav_core.smooth.recording import drop_spare
 from pipe_nav_core.smooth.segments import smooth_segments
 from pipe_nav_core.types import Marker, SensorLog
 

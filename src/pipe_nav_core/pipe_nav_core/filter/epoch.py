@@ -9,19 +9,25 @@ heading re-anchoring and covariance recovery at a marker passage) stay in Python
 :func:`run_epochs` with ``stop`` (prediction only) and with ``resume`` (updates only). Every
 model is the shared one (:mod:`process`, :mod:`measurements`, :mod:`kalman`, :mod:`state`).
 
-Arrays and indices (all float64 unless said):
+Arrays (float64 unless said):
 - :class:`Filter`: the filter's nominal state, mean error, covariance and memory, updated in
   place;
-- ``prm`` (P_SIZE,) settings (:func:`parameters`); ``L`` the layout (Layout.index);
+- ``prm`` the settings (:class:`Settings`, :func:`parameters`); ``L`` the layout
+  (Layout.index);
 - ``ref`` (K, SV_SIZE) the reference trajectory (empty without one) and ``k0`` the epoch number
   of the batch's first epoch;
 - :class:`Inputs`: the batch's IMU samples and per-epoch odometer and magnetometer data;
 - :class:`EpochOutputs` (a :class:`Batch`'s arrays): per epoch, per sample (lat, lon, h, q_nb,
   odometer reading) and the update statistics.
 
-About 500 lines, one module on purpose: the compiled epoch loop, its array records and their
-index constants are read together, and numba compiles the loop with every function it calls
-(a split would only move the constants away from the loop that reads them).
+The records passed between the prediction, the Python between a stopped and a resumed call,
+and the updates are flat arrays whose fields are declared once with their size
+(:class:`pipe_nav_core.records.Fields`: D_* the filter's memory, W_* the prediction's
+results; integers and flags in int64 arrays); the settings are a typed :class:`Settings`.
+
+About 500 lines, one module on purpose: the compiled epoch loop and its records are read
+together, and numba compiles the loop with every function it calls (a split would only move
+the records away from the loop that reads them).
 """
 
 from __future__ import annotations
@@ -33,49 +39,9 @@ from numpy.typing import NDArray
 
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.kalman import chi2_threshold, predict_k
-from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements import (
-    gravity_tilt,
-    magnetic_heading,
-    marker,
-    odometer,
-    zero_rate,
-    zero_velocity,
-)
-from pipe_nav_core.model.measurements.context import (
-    C_EPOCHS,
-    COUNTERS,
-    KINDS,
-    P_CHI2,
-    P_DR_ALONG,
-    P_DR_LATERAL,
-    P_EARTH_SIGN,
-    P_IMU,
-    P_LEVER,
-    P_LEVER_KNOWN,
-    P_MAG_DECL,
-    P_MAG_DIP,
-    P_MAG_DIP_GATE,
-    P_MAG_NORM_GATE,
-    P_MAG_ON,
-    P_MAG_REF,
-    P_MAG_REF_OK,
-    P_MAG_SIGMA,
-    P_MARKER_TIME,
-    P_NHC_SIGMA,
-    P_ODO_SIGMA,
-    P_PIPE_D,
-    P_SCALE_RW,
-    P_SIZE,
-    P_STOP_GYRO,
-    P_STOP_SPEED,
-    P_TILT_GATE,
-    P_TILT_ON,
-    P_TILT_SIGMA,
-    P_ZARU,
-    P_ZUPT,
-    Context,
-)
+from pipe_nav_core.jit import kernel, literal_unroll
+from pipe_nav_core.model.measurements import C_EPOCHS, COUNTERS, KINDS, UPDATES
+from pipe_nav_core.model.measurements.context import Context, Settings
 from pipe_nav_core.model.mechanization import dr_step_k, ins_step_k
 from pipe_nav_core.model.process import discretize_k, imu_noise, process_noise_k, system_matrix_k
 from pipe_nav_core.model.sensors import ImuSpec
@@ -91,19 +57,41 @@ from pipe_nav_core.model.state import (
     difference_k,
     inject_k,
 )
+from pipe_nav_core.records import Fields
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 
-# the filter's memory besides sv, x, P, carry (dyn)
-D_PREV_SPEED, D_HAS_PREV_VEL, D_PREV_VEL, D_S_START, D_FREE, D_V_JAC = 0, 1, 2, 5, 6, 7
-D_SIZE = 10
+# the filter's memory besides sv, x, P, carry: floats (dyn) and flags (dyn_i, 0 or 1)
+_dyn = Fields()
+D_PREV_SPEED = _dyn()  # the previous epoch's raw odometer speed, m/s
+D_PREV_VEL = _dyn(3)  # the previous epoch's mean ENU velocity, m/s
+D_S_START = _dyn()  # the odometer reading at the epoch's start, m
+D_V_JAC = _dyn(3)  # the previous first-estimate Jacobian velocity, ENU m/s
+D_SIZE = _dyn.size
+_dyn_i = Fields()
+D_HAS_PREV_VEL = _dyn_i()  # D_PREV_VEL is set
+D_FREE = _dyn_i()  # the heading is unanchored
+D_INT_SIZE = _dyn_i.size
 
-# the prediction's results the updates use (ws)
-W_T, W_SPEED, W_STOPPED, W_HAS_ODO, W_EXCLUDED, W_LEVER_RATE, W_W_YZ = 0, 1, 2, 3, 4, 5, 6
-W_I0, W_I1, W_MAG_I = 7, 8, 9
-W_GYRO, W_OMEGA, W_MVB, W_FMN, W_DP, W_VJAC = 10, 13, 16, 19, 22, 25
-W_SIZE = 28
+# the prediction's results the updates use: floats (ws), integers (ws_i), the states (ws_sv)
+_ws = Fields()
+W_T = _ws()  # the epoch's duration, s
+W_SPEED = _ws()  # the raw mean odometer speed, m/s
+W_LEVER_RATE = _ws()  # mean (omega x d)_x of the wheel contact, m/s
+W_W_YZ = _ws()  # the turn rate across the bore, rad/s
+W_GYRO = _ws(3)  # the time-weighted mean gyro reading, rad/s base_link
+W_OMEGA = _ws(3)  # the mean body rate, rad/s base_link
+W_MVB = _ws(3)  # the mean body velocity, m/s base_link
+W_FMN = _ws(3)  # mean C_nb (f - ba), m/s^2 ENU
+W_DP = _ws(3)  # the ENU displacement, m
+W_VJAC = _ws(3)  # the first-estimate Jacobian velocity, ENU m/s
+W_SIZE = _ws.size
+_ws_i = Fields()
+W_I0, W_I1 = _ws_i(), _ws_i()  # the epoch's samples i0:i1 of the batch
+W_MAG_I = _ws_i()  # its magnetometer sample (-1 none)
+W_STOPPED, W_HAS_ODO, W_EXCLUDED = _ws_i(), _ws_i(), _ws_i()  # flags, 0 or 1
+W_INT_SIZE = _ws_i.size
 S_MECH, S_LIN = 0, 1  # rows of ws_sv: the mechanized state, the updates' linearization point
 
 
@@ -113,41 +101,40 @@ def parameters(
     lever_arm: Array,
     earth_sign: float,
     mag_ref: tuple[float, float] | None,
-) -> Array:
-    """The settings array of the kernels."""
-    c = config
-    p = np.zeros(P_SIZE)
-    p[P_EARTH_SIGN] = earth_sign
-    p[P_PIPE_D] = c.pipe_diameter
-    p[P_LEVER : P_LEVER + 3] = lever_arm
-    p[P_LEVER_KNOWN] = float(np.any(lever_arm))
-    p[P_STOP_SPEED], p[P_STOP_GYRO] = c.stop_speed_threshold, c.stop_gyro_threshold
-    p[P_ODO_SIGMA], p[P_NHC_SIGMA] = c.odometer_speed_sigma, c.nhc_sigma
-    p[P_ZUPT], p[P_ZARU] = c.zupt_sigma, c.zaru_sigma
-    p[P_TILT_ON], p[P_TILT_GATE], p[P_TILT_SIGMA] = c.tilt_enabled(), c.tilt_gate, c.tilt_sigma
-    p[P_MAG_ON], p[P_MAG_NORM_GATE] = c.mag_update, c.mag_magnitude_gate
-    p[P_MAG_DIP_GATE], p[P_MAG_DECL] = c.mag_dip_gate, c.mag_declination
-    p[P_MAG_SIGMA] = c.mag_heading_sigma
-    if mag_ref is not None:
-        p[P_MAG_REF], p[P_MAG_DIP], p[P_MAG_REF_OK] = mag_ref[0], mag_ref[1], 1.0
-    p[P_SCALE_RW], p[P_DR_ALONG] = c.odometer_scale_rw, c.odometer_distance_sigma
-    p[P_DR_LATERAL], p[P_MARKER_TIME] = c.dr_lateral_sigma, c.marker_time_sigma
-    for m in (1, 2, 3):
-        p[P_CHI2 + m - 1] = chi2_threshold(c.gate_probability, m)
-    p[P_IMU : P_IMU + 6] = imu_noise(imu)
-    return p
+) -> Settings:
+    """The settings of the kernels (every number a float, every flag a bool: one compiled
+    specialization whatever types the configuration holds)."""
+    c, f = config, float
+    ref, dip = (0.0, 0.0) if mag_ref is None else (f(mag_ref[0]), f(mag_ref[1]))
+    return Settings(
+        earth_sign=f(earth_sign), pipe_d=f(c.pipe_diameter),
+        lever=np.array(lever_arm, dtype=np.float64), lever_known=bool(np.any(lever_arm)),
+        stop_speed=f(c.stop_speed_threshold), stop_gyro=f(c.stop_gyro_threshold),
+        odo_sigma=f(c.odometer_speed_sigma), nhc_sigma=f(c.nhc_sigma),
+        zupt=f(c.zupt_sigma), zaru=f(c.zaru_sigma),
+        tilt_on=bool(c.tilt_enabled()), tilt_gate=f(c.tilt_gate), tilt_sigma=f(c.tilt_sigma),
+        mag_on=bool(c.mag_update), mag_norm_gate=f(c.mag_magnitude_gate),
+        mag_dip_gate=f(c.mag_dip_gate), mag_decl=f(c.mag_declination),
+        mag_sigma=f(c.mag_heading_sigma), mag_ref=ref, mag_dip=dip,
+        mag_ref_ok=mag_ref is not None, scale_rw=f(c.odometer_scale_rw),
+        dr_along=f(c.odometer_distance_sigma), dr_lateral=f(c.dr_lateral_sigma),
+        marker_time=f(c.marker_time_sigma),
+        chi2=np.array([chi2_threshold(c.gate_probability, m) for m in (1, 2, 3)]),
+        imu=np.array(imu_noise(imu), dtype=np.float64),
+    )  # fmt: skip
 
 
 class Filter(NamedTuple):
     """The filter's memory, updated in place: nominal state ``sv`` (SV_SIZE,), mean error ``x``
     (n,), covariance ``P`` (n, n), the previous block's last increments ``carry`` (6,) and the
-    rest ``dyn`` (D_SIZE,)."""
+    rest, ``dyn`` (D_SIZE,) and ``dyn_i`` (D_INT_SIZE,) (the D_* fields)."""
 
     sv: Array
     x: Array
     P: Array
     carry: Array
     dyn: Array
+    dyn_i: Index
 
 
 class Inputs(NamedTuple):
@@ -193,9 +180,32 @@ class EpochOutputs(NamedTuple):
     nis: Array
     dof: Index
     ws: Array
+    ws_i: Index
     ws_sv: Array
     ws_x: Array
     ws_m: Array
+
+
+class Prediction(NamedTuple):
+    """What an epoch's prediction leaves its updates besides the states, the mean error and
+    the sums (ws_sv, ws_x, ws_m): the W_* fields of ws and ws_i (:func:`_keep`)."""
+
+    T: float
+    speed: float
+    lever_rate: float
+    w_yz: float
+    gyro_mean: Array
+    omega: Array
+    mean_vel_b: Array
+    f_mean_n: Array
+    dp: Array
+    v_jac: Array
+    i0: int
+    i1: int
+    mag_i: int
+    stopped: bool
+    has_odo: bool
+    excluded: bool
 
 
 class Batch:
@@ -229,6 +239,7 @@ class Batch:
         self.nis = np.zeros(len(KINDS))
         self.dof = np.zeros(len(KINDS), dtype=np.int64)
         self.ws = np.zeros(W_SIZE)
+        self.ws_i = np.zeros(W_INT_SIZE, dtype=np.int64)
         self.ws_sv = np.zeros((2, SV_SIZE))
         self.ws_x = np.zeros(n)
         self.ws_m = np.zeros((3, 12))
@@ -249,14 +260,14 @@ def _predict(
     k_ep: int,
     f: Filter,
     L: Index,
-    prm: Array,
+    prm: Settings,
     ref: Array,
     inp: Inputs,
     out: EpochOutputs,
 ) -> None:
     """Epoch e of the batch up to the prediction: mechanization, stop detection, transition,
     process noise, covariance propagation (Navigator's epoch, first half)."""
-    sv, x, P, carry, dyn = f
+    sv, x, P, carry, dyn, dyn_i = f
     has_ref = ref.shape[0] > 0
     s0 = ref[k_ep - 1] if has_ref else sv.copy()
     i0 = inp.ends[e - 1] + 1 if e > 0 else 0
@@ -273,13 +284,11 @@ def _predict(
         ds[i] = out.s_odo[i0 + i] - prev
         prev = out.s_odo[i0 + i]
     ins = L[L_VEL] >= 0
-    earth_sign = prm[P_EARTH_SIGN]
+    earth_sign = prm.earth_sign
     if ins:
         step = ins_step_k(s0, t, g, inp.imu_a[i0:i1], carry, earth_sign)
     else:
-        step = dr_step_k(
-            s0, t, g, inp.imu_a[i0:i1], ds, carry, prm[P_LEVER : P_LEVER + 3], earth_sign
-        )
+        step = dr_step_k(s0, t, g, inp.imu_a[i0:i1], ds, carry, prm.lever, earth_sign)
     s1, T, path = step.state, step.T, step.path
     sum_c_dt, sum_c_w_dt, sum_c_f_dt = step.sum_c_dt, step.sum_c_w_dt, step.sum_c_f_dt
     dv_f, dp, dp_dk, dp_dbore = step.dv_f, step.dp, step.dp_dk, step.dp_dbore
@@ -291,8 +300,8 @@ def _predict(
     out.q[i0:i1] = step.q_nb
     speed = ds.sum() / T
     w_yz = np.hypot(omega_b[1], omega_b[2])
-    lever_known = prm[P_LEVER_KNOWN] != 0.0
-    bend_sigma = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * w_yz * T
+    lever_known = prm.lever_known
+    bend_sigma = 0.0 if lever_known else 0.5 * prm.pipe_d * w_yz * T
     # time-weighted mean gyro reading, rad/s
     gyro_mean = np.zeros(3)
     w_sum = 0.0
@@ -305,12 +314,12 @@ def _predict(
             gyro_mean[a] += g[i, a] * w
     gyro_mean /= w_sum
     dg = gyro_mean - s1[I_BG : I_BG + 3]
-    thr = prm[P_STOP_SPEED]
+    thr = prm.stop_speed
     stopped = (
         odo_ok
         and abs(speed) < thr
         and abs(dyn[D_PREV_SPEED]) < thr
-        and np.sqrt(dg[0] ** 2 + dg[1] ** 2 + dg[2] ** 2) < prm[P_STOP_GYRO]
+        and np.sqrt(dg[0] ** 2 + dg[1] ** 2 + dg[2] ** 2) < prm.stop_gyro
     )
     # the linearization point at the block end and the first-estimate Jacobian velocity
     s_lin = ref[k_ep] if has_ref else s1
@@ -335,7 +344,7 @@ def _predict(
         dp_dbore,
         earth_sign,
         stopped,
-        dyn[D_FREE] != 0.0,
+        dyn_i[D_FREE] != 0,
     )
     Q = process_noise_k(
         s0,
@@ -343,10 +352,10 @@ def _predict(
         T,
         sum_c_dt,
         path,
-        prm[P_IMU : P_IMU + 6],
-        prm[P_SCALE_RW],
-        prm[P_DR_ALONG],
-        prm[P_DR_LATERAL],
+        prm.imu,
+        prm.scale_rw,
+        prm.dr_along,
+        prm.dr_lateral,
         bend_sigma,
         inp.resolution[e],
     )
@@ -359,38 +368,49 @@ def _predict(
     out.ws_x[:] = x
     out.ws_sv[S_MECH] = s1
     out.ws_sv[S_LIN] = s_lin
-    out.ws[W_T], out.ws[W_SPEED], out.ws[W_STOPPED] = T, speed, stopped
-    out.ws[W_HAS_ODO], out.ws[W_EXCLUDED], out.ws[W_W_YZ] = odo_ok, inp.excluded[e], w_yz
-    lever = prm[P_LEVER : P_LEVER + 3]
-    out.ws[W_LEVER_RATE] = omega_b[1] * lever[2] - omega_b[2] * lever[1]  # (omega x d)_x
-    out.ws[W_I0], out.ws[W_I1], out.ws[W_MAG_I] = i0, i1, inp.mag_i[e]
-    out.ws[W_GYRO : W_GYRO + 3] = gyro_mean
-    out.ws[W_OMEGA : W_OMEGA + 3] = omega_b
-    out.ws[W_MVB : W_MVB + 3] = mean_vel_b
-    out.ws[W_FMN : W_FMN + 3] = f_mean_n
-    out.ws[W_DP : W_DP + 3] = dp
-    out.ws[W_VJAC : W_VJAC + 3] = v_jac
+    lever = prm.lever
+    lever_rate = omega_b[1] * lever[2] - omega_b[2] * lever[1]  # (omega x d)_x
+    p = Prediction(T, speed, lever_rate, w_yz, gyro_mean, omega_b, mean_vel_b, f_mean_n, dp,
+                   v_jac, i0, i1, inp.mag_i[e], stopped, odo_ok, inp.excluded[e])  # fmt: skip
+    _keep(p, out.ws, out.ws_i)
     out.ws_m[:, :3] = sum_c_dt  # for the tilt update: C_mean and the accelerometer coupling
     out.ws_m[:, 3:] = sum_c_f_dt
 
 
+@kernel
+def _keep(p: Prediction, ws: Array, ws_i: Index) -> None:
+    """The prediction's results into their record (ws, ws_i), where the updates and the Python
+    between a stopped and a resumed call read them."""
+    ws[W_T], ws[W_SPEED], ws[W_LEVER_RATE], ws[W_W_YZ] = p.T, p.speed, p.lever_rate, p.w_yz
+    ws[W_GYRO : W_GYRO + 3] = p.gyro_mean
+    ws[W_OMEGA : W_OMEGA + 3] = p.omega
+    ws[W_MVB : W_MVB + 3] = p.mean_vel_b
+    ws[W_FMN : W_FMN + 3] = p.f_mean_n
+    ws[W_DP : W_DP + 3] = p.dp
+    ws[W_VJAC : W_VJAC + 3] = p.v_jac
+    ws_i[W_I0], ws_i[W_I1], ws_i[W_MAG_I] = p.i0, p.i1, p.mag_i
+    ws_i[W_STOPPED], ws_i[W_HAS_ODO], ws_i[W_EXCLUDED] = p.stopped, p.has_odo, p.excluded
+
+
 def context(
     ws: Array,
+    ws_i: Index,
     ws_sv: Array,
     ws_m: Array,
     dyn: Array,
+    dyn_i: Index,
     L: Index,
-    prm: Array,
+    prm: Settings,
     imu_t: Array,
     q: Array,
     mag_t: Array,
     mag_f: Array,
     markers: Array,
 ) -> Context:
-    """The measurements' context of the epoch whose prediction left ws, ws_sv, ws_m (a
-    Batch's, :func:`_predict`) with the filter's memory dyn: imu_t and q are the batch's (all
+    """The measurements' context of the epoch whose prediction left ws, ws_i, ws_sv, ws_m (a
+    Batch's, :func:`_predict`) with the filter's memory dyn, dyn_i: imu_t and q are the batch's (all
     its samples; the epoch's are sliced here), markers the passages to apply (M, 7)."""
-    i0, i1 = int(ws[W_I0]), int(ws[W_I1])
+    i0, i1 = ws_i[W_I0], ws_i[W_I1]
     return Context(
         ws_sv[S_LIN].copy(),
         ws_sv[S_MECH],
@@ -398,11 +418,11 @@ def context(
         prm,
         ws[W_T],
         ws[W_SPEED],
-        ws[W_STOPPED] != 0.0,
+        ws_i[W_STOPPED] != 0,
         L[L_VEL] >= 0,
-        ws[W_HAS_ODO] != 0.0,
-        ws[W_EXCLUDED] != 0.0,
-        dyn[D_FREE] != 0.0,
+        ws_i[W_HAS_ODO] != 0,
+        ws_i[W_EXCLUDED] != 0,
+        dyn_i[D_FREE] != 0,
         ws[W_LEVER_RATE],
         ws[W_W_YZ],
         ws[W_VJAC : W_VJAC + 3].copy(),
@@ -411,11 +431,11 @@ def context(
         ws[W_FMN : W_FMN + 3].copy(),
         ws[W_DP : W_DP + 3],
         ws_m,
-        dyn[D_HAS_PREV_VEL] != 0.0,
+        dyn_i[D_HAS_PREV_VEL] != 0,
         dyn[D_PREV_VEL : D_PREV_VEL + 3],
         imu_t[i0:i1],
         q[i0:i1],
-        int(ws[W_MAG_I]),
+        ws_i[W_MAG_I],
         mag_t,
         mag_f,
         markers,
@@ -431,7 +451,7 @@ def _updates(
     k_ep: int,
     f: Filter,
     L: Index,
-    prm: Array,
+    prm: Settings,
     ref: Array,
     inp: Inputs,
     markers: Array,
@@ -440,16 +460,12 @@ def _updates(
     """Epoch e of the batch from the prediction on: the gated updates (odometer and NHC, zero
     velocity and rate at stops, gravity tilt, magnetic heading, the markers given), injection
     and the epoch's outputs (Navigator's epoch, second half)."""
-    sv, x, P, _, dyn = f
+    sv, x, P, _, dyn, dyn_i = f
     has_ref = ref.shape[0] > 0
-    c = _context(out.ws, out.ws_sv, out.ws_m, dyn, L, prm, inp.imu_t, out.q, inp.mag_t,
-                 inp.mag_f, markers)  # fmt: skip
-    odometer.apply(c, x, P, out)
-    zero_velocity.apply(c, x, P, out)
-    zero_rate.apply(c, x, P, out)
-    gravity_tilt.apply(c, x, P, out)
-    magnetic_heading.apply(c, x, P, out)
-    marker.apply(c, x, P, out)
+    c = _context(out.ws, out.ws_i, out.ws_sv, out.ws_m, dyn, dyn_i, L, prm, inp.imu_t, out.q,
+                 inp.mag_t, inp.mag_f, markers)  # fmt: skip
+    for u in literal_unroll(UPDATES):  # straight calls, in their order: (kind, event, apply)
+        u[2](c, x, P, out, u[0], u[1])
     s, s1, T, speed, stopped, dp = c.s, c.s1, c.T, c.speed, c.stopped, c.dp
     omega = out.ws[W_OMEGA : W_OMEGA + 3]
     v_jac = c.v_jac
@@ -468,9 +484,9 @@ def _updates(
         out.x_upd[e] = x
     dyn[D_PREV_SPEED] = speed
     dyn[D_PREV_VEL : D_PREV_VEL + 3] = dp / T
-    dyn[D_HAS_PREV_VEL] = 1.0
+    dyn_i[D_HAS_PREV_VEL] = 1
     dyn[D_V_JAC : D_V_JAC + 3] = v_jac
-    dyn[D_S_START] = out.s_odo[int(out.ws[W_I1]) - 1]
+    dyn[D_S_START] = out.s_odo[out.ws_i[W_I1] - 1]
     sv[:] = est
     out.sv[e] = est
     out.P_upd[e] = P
@@ -486,7 +502,7 @@ def run_epochs(
     k0: int,
     f: Filter,
     L: Index,
-    prm: Array,
+    prm: Settings,
     ref: Array,
     inp: Inputs,
     markers: Array,

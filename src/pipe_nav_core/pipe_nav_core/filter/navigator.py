@@ -31,6 +31,7 @@ from pipe_nav_core.filter import alignment
 from pipe_nav_core.filter.anchoring import FreeHeading, HeadingAnchor
 from pipe_nav_core.filter.epoch import (
     D_FREE,
+    D_INT_SIZE,
     D_S_START,
     D_SIZE,
     S_LIN,
@@ -38,6 +39,7 @@ from pipe_nav_core.filter.epoch import (
     Batch,
     Filter,
     Inputs,
+    Settings,
     parameters,
     run_epochs,
 )
@@ -157,7 +159,8 @@ class Navigator:
         self._sv = np.zeros(SV_SIZE)
         self._carry = np.zeros(6)
         self._dyn = np.zeros(D_SIZE)
-        self._prm: Array | None = None
+        self._dyn_i = np.zeros(D_INT_SIZE, dtype=np.int64)
+        self._prm: Settings | None = None
         self._epoch = 0  # epochs run since the alignment
         self.initial_azimuth: float | None = None  # rad, the alignment's
 
@@ -311,7 +314,8 @@ class Navigator:
         self._carry = np.zeros(6)
         self._dyn = np.zeros(D_SIZE)
         self._dyn[D_S_START] = float(ib.odometer_at(np.array([s.t]))[0])
-        self._dyn[D_FREE] = not self.anchor.anchored
+        self._dyn_i = np.zeros(D_INT_SIZE, dtype=np.int64)
+        self._dyn_i[D_FREE] = not self.anchor.anchored
         earth_sign = self.options.earth_sign
         self._prm = parameters(cfg, self.imu_spec, np.asarray(cfg.odometer_lever_arm, float),
                                earth_sign, a.mag_ref)  # fmt: skip
@@ -333,7 +337,7 @@ class Navigator:
         kf = self.kf
         assert kf is not None and self._prm is not None
         ref = self.reference if self.reference is not None else np.empty((0, SV_SIZE))
-        state = Filter(self._sv, kf.x, kf.P, self._carry, self._dyn)
+        state = Filter(self._sv, kf.x, kf.P, self._carry, self._dyn, self._dyn_i)
         run_epochs(
             stop, resume, self._epoch + 1, state, self.layout.index, self._prm, ref, inputs,
             markers, batch.buffers(),
@@ -374,7 +378,7 @@ class Navigator:
         if self.recording is not None:
             for m, r in zip(due, batch.marker_res, strict=True):
                 self.recording.marker_residuals[m.name] = r.copy()
-        self._dyn[D_FREE] = not self.anchor.anchored
+        self._dyn_i[D_FREE] = not self.anchor.anchored
         self._finish(batch, ends)
 
     def _finish(self, batch: Batch, ends: Ends) -> None:

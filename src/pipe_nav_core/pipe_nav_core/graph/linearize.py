@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.filter.epoch import Batch, Filter, Inputs, context, run_epochs
+from pipe_nav_core.filter.epoch import Batch, Filter, Inputs, Settings, context, run_epochs
 from pipe_nav_core.filter.navigator import Navigator, PassOptions
 from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Model, Prior
 from pipe_nav_core.model import measurements
@@ -157,7 +157,7 @@ class FactorRecorder(Navigator):
         if not resume or self._f is None:
             self._f = Filter(
                 self._sv.copy(), np.zeros(n), np.zeros((n, n)), self._carry.copy(),
-                self._dyn.copy(),
+                self._dyn.copy(), self._dyn_i.copy(),
             )  # fmt: skip
         f = self._f
         ends = inputs.ends
@@ -190,7 +190,7 @@ class FactorRecorder(Navigator):
                 return
             mk = markers if e == B - 1 else no_markers
             first = len(self.factors)
-            self._factors_of_epoch(k, sb, one, f.dyn, prm, mk)
+            self._factors_of_epoch(k, sb, one, f, prm, mk)
             if self.sink is not None:  # epoch k is complete: hand it over
                 phi, qd, offset = self._pending
                 self.sink.epoch(phi, qd, offset, self.factors[first:])
@@ -209,12 +209,12 @@ class FactorRecorder(Navigator):
         self.offset[k] = offset
 
     def _factors_of_epoch(
-        self, k: int, sb: Batch, inp: Inputs, dyn: Array, prm: Array, markers: Array
+        self, k: int, sb: Batch, inp: Inputs, f: Filter, prm: Settings, markers: Array
     ) -> None:
         """The measurements epoch._updates applies at epoch k, with its inputs and gates (but
         not its innovation gate), as factors evaluated at the linearization point."""
-        c = context(sb.ws, sb.ws_sv, sb.ws_m, dyn, self.layout.index, prm, inp.imu_t, sb.q,
-                    inp.mag_t, inp.mag_f, markers)  # fmt: skip
+        c = context(sb.ws, sb.ws_i, sb.ws_sv, sb.ws_m, f.dyn, f.dyn_i, self.layout.index, prm,
+                    inp.imu_t, sb.q, inp.mag_t, inp.mag_f, markers)  # fmt: skip
         rows = iter(markers)
         for kind, model in measurements.factors(c):
             if kind == "marker":

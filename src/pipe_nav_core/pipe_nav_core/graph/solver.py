@@ -25,7 +25,7 @@ their linearization pass runs, :class:`.batch.StreamingSolve`, and never hold th
 of every noise covariance) batched, PIECE epochs or all factors of one size at once. The rows
 kept for back-substitution (R_kk, R_k,k+1, z_k: 23 kB per epoch with 38 error states) are
 stored like the forward pass's recording, beyond RAM_BUDGET_BYTES in a temporary directory
-(:class:`recording._Chunks`).
+(:class:`pipe_nav_core.smooth.chunks.Chunks`).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from pipe_nav_core.graph.problem import (
     MeasurementFactor,
     whitener,
 )
-from pipe_nav_core.smooth.recording import CHUNK_EPOCHS, RAM_BUDGET_BYTES, _Chunks
+from pipe_nav_core.smooth.chunks import CHUNK_EPOCHS, RAM_BUDGET_BYTES, Chunks
 
 Array = NDArray[np.float64]
 
@@ -152,7 +152,7 @@ class Eliminator:
         self.K = 0  # epochs added
         self.cost0 = 0.0
         self.cost = 0.0
-        self._store = _Chunks(2 * n * n + n, RAM_BUDGET_BYTES)  # R_kk, R_k,k+1, z_k
+        self._store = Chunks(2 * n * n + n, RAM_BUDGET_BYTES)  # R_kk, R_k,k+1, z_k
         self._out = np.empty((PIECE, 2 * n * n + n))
         self._filled = 0
         self._Rt = np.zeros((n, n))

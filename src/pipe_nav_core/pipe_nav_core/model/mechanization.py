@@ -1,5 +1,9 @@
 """Strapdown mechanization over a block of IMU samples (one filter epoch).
 
+About 550 lines, one module on purpose: one job, the two modes' recursions over a block, from
+the per-sample kernels up to the NavState blocks; every part is read with the others (a split
+would cut the INS and dead-reckoning recursions from the step kernels that assemble them).
+
 Two modes (DESIGN.md):
 - :func:`ins_block`: full strapdown INS in ENU with Earth rate, transport rate, Coriolis and
   normal gravity (seed 003), coning and sculling corrections;

@@ -31,6 +31,7 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.geo import earth
 from pipe_nav_core.jit import kernel
+from pipe_nav_core.records import Fields
 
 Array = NDArray[np.float64]
 
@@ -86,14 +87,21 @@ class Layout:
 
 
 # The nominal state as one flat float64 vector (NavState.vector / NavState.from_vector): the
-# form the compiled kernels and the Recording use. Scalars and the starts of the blocks:
-SV_T, SV_LAT, SV_LON, SV_H = 0, 1, 2, 3  # s, rad, rad, m
-I_VEL, I_Q, I_BG, I_BA = 4, 7, 11, 14  # m/s ENU (3); [x, y, z, w] base_link -> ENU (4);
-# gyro bias rad/s base_link (3); accelerometer bias m/s^2 base_link (3)
-SV_K, I_BORE, SV_DIST = 17, 18, 20  # odometer scale error; boresight rad (2); chainage m
-I_GM, I_ODOQ, I_AM = 21, 30, 32  # gyro error matrix (9, row-major); odometer reading errors
-# m (start, end of the epoch); accelerometer error matrix (9)
-SV_SIZE = 41
+# form the compiled kernels and the Recording use. Scalars (SV_*) and the starts of the blocks
+# (I_*), in this order:
+_sv = Fields()
+SV_T, SV_LAT, SV_LON, SV_H = _sv(), _sv(), _sv(), _sv()  # s, rad, rad, m
+I_VEL = _sv(3)  # m/s ENU
+I_Q = _sv(4)  # [x, y, z, w] base_link -> ENU
+I_BG = _sv(3)  # gyro bias rad/s base_link
+I_BA = _sv(3)  # accelerometer bias m/s^2 base_link
+SV_K = _sv()  # odometer scale error
+I_BORE = _sv(2)  # boresight rad (yaw, pitch)
+SV_DIST = _sv()  # chainage m
+I_GM = _sv(9)  # gyro error matrix (row-major)
+I_ODOQ = _sv(2)  # odometer reading errors m (start, end of the epoch)
+I_AM = _sv(9)  # accelerometer error matrix (row-major)
+SV_SIZE = _sv.size
 SV_VEL, SV_Q = slice(I_VEL, I_VEL + 3), slice(I_Q, I_Q + 4)
 SV_BG, SV_BA = slice(I_BG, I_BG + 3), slice(I_BA, I_BA + 3)
 SV_BORE, SV_GM = slice(I_BORE, I_BORE + 2), slice(I_GM, I_GM + 9)
@@ -101,8 +109,8 @@ SV_ODOQ, SV_AM = slice(I_ODOQ, I_ODOQ + 2), slice(I_AM, I_AM + 9)
 
 # The error-state layout as an int array for the kernels (Layout.index): the start of each
 # block, -1 where the layout has none, and n last.
-L_ATT, L_VEL, L_POS, L_BG, L_BA, L_K, L_BORE, L_ODOQ, L_GM, L_AM, L_N = range(11)
 _BLOCKS = ("att", "vel", "pos", "bg", "ba", "k", "bore", "odoq", "gm", "am")
+L_ATT, L_VEL, L_POS, L_BG, L_BA, L_K, L_BORE, L_ODOQ, L_GM, L_AM, L_N = range(len(_BLOCKS) + 1)
 
 
 @kernel

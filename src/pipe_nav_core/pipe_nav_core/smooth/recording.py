@@ -8,15 +8,12 @@ Per IMU sample: the nominal trajectory the corrections are applied to.
 The packed rows are the bulk (some 15 kB per epoch with 38 error states): they are kept in
 chunks of CHUNK_EPOCHS epochs, and beyond RAM_BUDGET_BYTES the oldest chunks go to a temporary
 directory, removed when the recording is closed or garbage collected. The smoother reads them
-back from the last to the first (:meth:`Recording.rts_chunks`).
+back from the last to the first (:meth:`Recording.rts_chunks`). The chunked storage itself is
+:mod:`pipe_nav_core.smooth.chunks`.
 """
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
-import threading
 import weakref
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -25,14 +22,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.model.state import SV_SIZE, Layout
+from pipe_nav_core.smooth.chunks import CHUNK_EPOCHS, RAM_BUDGET_BYTES, Chunks, Growable
 from pipe_nav_core.smooth.rts import EpochRows
 
 Array = NDArray[np.float64]
 
-RAM_BUDGET_BYTES = 256 * 2**20  # packed covariance rows kept in memory; older chunks spill
-# epochs per chunk of packed rows: 60 MB with 38 error states, above the size up to which
-# the C allocator keeps freed memory instead of returning it to the system (32 MB)
-CHUNK_EPOCHS = 4096
 # the per-sample nominal is thinned to about one sample per this many seconds, never sparser
 # (0: every IMU sample): the centreline is resampled every 0.5 m of chainage for the products
 SAMPLE_SPACING_S = 0.02
@@ -46,185 +40,6 @@ def phi_rows(layout: Layout) -> Array:
     if layout.odoq is not None:
         rows = np.r_[rows, np.arange(layout.odoq.start, layout.odoq.stop)]
     return rows
-
-
-class _Growable:
-    """An array that grows along its first axis: amortized O(1) extends, one contiguous
-    buffer (``data`` is a view of the rows filled so far)."""
-
-    def __init__(self, row_shape: tuple[int, ...] = (), dtype: type = np.float64) -> None:
-        self._a = np.empty((256, *row_shape), dtype=dtype)
-        self._n = 0
-
-    def _reserve(self, extra: int) -> None:
-        need = self._n + extra
-        if need > len(self._a):
-            a = np.empty((max(need, 2 * len(self._a)), *self._a.shape[1:]), self._a.dtype)
-            a[: self._n] = self._a[: self._n]
-            self._a = a
-
-    def extend(self, rows: Array) -> None:
-        self._reserve(len(rows))
-        self._a[self._n : self._n + len(rows)] = rows
-        self._n += len(rows)
-
-    @property
-    def data(self) -> Array:
-        return self._a[: self._n]
-
-
-# Chunk arrays no recording uses any more (spilled, or of a closed recording), by shape, for
-# the next chunks: memory the process has written before costs nothing to write again, while
-# fresh memory costs a page fault per 4 kB (on a virtual machine up to 10 us each, ten times
-# the packing itself). At most RAM_BUDGET_BYTES are kept; drop_spare() frees them.
-_SPARE: dict[tuple[int, ...], list[Array]] = {}
-_SPARE_LOCK = threading.Lock()
-
-
-READ_BUFFERS = 3  # chunks read back from disk that a caller may still be reading
-
-
-def _take(width: int) -> Array:
-    """A (CHUNK_EPOCHS, width) array: a spare one if there is one, else a new one."""
-    shape = (CHUNK_EPOCHS, width)
-    with _SPARE_LOCK:
-        spare = _SPARE.get(shape)
-        if spare:
-            return spare.pop()
-    return np.empty(shape)
-
-
-def _give(chunk: Array) -> None:
-    """Keep a chunk array no recording uses any more for the next (within the budget)."""
-    with _SPARE_LOCK:
-        spare = _SPARE.setdefault(chunk.shape, [])
-        if (len(spare) + 1) * chunk.nbytes <= RAM_BUDGET_BYTES:
-            spare.append(chunk)
-
-
-def drop_spare() -> None:
-    """Free the spare chunk arrays (after a smoothing, say)."""
-    with _SPARE_LOCK:
-        _SPARE.clear()
-
-
-class _Chunks:
-    """Fixed-width float64 rows in chunks of CHUNK_EPOCHS rows; beyond budget bytes in
-    memory the oldest full chunks are written to a temporary directory (in a background
-    thread: the array stays in use until its file is complete, then serves a later chunk).
-    Chunks read back from disk go into READ_BUFFERS buffers in turn: a caller holds at most the
-    rows of the last ones it asked for (:func:`~pipe_nav_core.smooth.rts.rts_packed` reads one
-    chunk ahead while the gains of the one before take the first row of the one after)."""
-
-    def __init__(self, width: int, budget: int) -> None:
-        self.width = width
-        self._chunks: list[Array | str] = []  # in memory, or the path of a spilled chunk
-        self._n = 0
-        self._in_ram = max(2, budget // (CHUNK_EPOCHS * width * 8))  # chunks kept
-        self._oldest_in_ram = 0
-        self._dir: str | None = None
-        self._writer: ThreadPoolExecutor | None = None
-        self._writes: list[Future[None]] = []
-        self._finalizer: weakref.finalize | None = None
-        self._read: list[tuple[int, Array]] = []  # the last chunks read back from disk
-
-    def __len__(self) -> int:
-        return self._n
-
-    def claim(self, count: int) -> list[tuple[int, int, Array]]:
-        """The next count rows, to be filled by the caller: (a, b, view of rows a..b-1)."""
-        out = []
-        done = 0
-        while done < count:
-            i, j = divmod(self._n, CHUNK_EPOCHS)
-            if j == 0:
-                self._chunks.append(_take(self.width))
-                if len(self._chunks) - self._oldest_in_ram > self._in_ram:
-                    self._spill(self._oldest_in_ram)
-                    self._oldest_in_ram += 1
-            chunk = self._chunks[i]
-            assert not isinstance(chunk, str)
-            take = min(count - done, CHUNK_EPOCHS - j)
-            out.append((done, done + take, chunk[j : j + take]))
-            done += take
-            self._n += take
-        return out
-
-    def _spill(self, i: int) -> None:
-        if self._dir is None:
-            self._dir = tempfile.mkdtemp(prefix="pipe_nav_recording_")
-            self._writer = ThreadPoolExecutor(max_workers=1)
-            self._finalizer = weakref.finalize(self, _remove, self._dir, self._writer)
-        for job in [w for w in self._writes if w.done()]:
-            self._writes.remove(job)
-            job.result()  # a failed write (disk full) raises here
-        path = os.path.join(self._dir, f"{i}.bin")  # raw float64 rows
-        chunks, chunk = self._chunks, self._chunks[i]
-
-        def write() -> None:
-            chunk.tofile(path)
-            chunks[i] = path  # read back from the file from now on
-            _give(chunk)
-
-        assert self._writer is not None
-        self._writes.append(self._writer.submit(write))
-
-    def flush(self) -> None:
-        """Wait for the pending writes (raising a failed one)."""
-        for job in self._writes:
-            job.result()
-        self._writes = []
-
-    def chunk(self, i: int) -> Array:
-        """Rows of chunk i (the filled ones), from memory or read back from disk. The pending
-        writes end first: a chunk's array goes back to the pool when its file is complete,
-        and a caller still holding it would see it refilled with another chunk's rows."""
-        if self._writes:
-            self.flush()
-        c = self._chunks[i]
-        if isinstance(c, str):
-            hit = [(k, a) for k, a in self._read if k == i]
-            if hit:  # now the last asked for: the buffers are reused least recently asked first
-                self._read.remove(hit[0])
-                self._read.append(hit[0])
-                c = hit[0][1]
-            else:
-                full = len(self._read) == READ_BUFFERS
-                buf = self._read.pop(0)[1] if full else _take(self.width)
-                with open(c, "rb") as f:
-                    if f.readinto(memoryview(buf).cast("B")) != buf.nbytes:
-                        raise OSError(f"{c}: a spilled chunk of the recording is cut short")
-                self._read.append((i, buf))
-                c = buf
-        return c[: min(CHUNK_EPOCHS, self._n - i * CHUNK_EPOCHS)]
-
-    def rows(self, ks: Array) -> Array:
-        """The rows of the given indices (B, width), in that order."""
-        ks = np.asarray(ks, dtype=np.int64)
-        out = np.empty((len(ks), self.width))
-        ci = ks // CHUNK_EPOCHS
-        for i in np.unique(ci):
-            sel = ci == i
-            out[sel] = self.chunk(int(i))[ks[sel] - i * CHUNK_EPOCHS]
-        return out
-
-    @property
-    def n_chunks(self) -> int:
-        return len(self._chunks)
-
-    def close(self) -> None:
-        if self._finalizer is not None:
-            self._finalizer()  # the pending writes end first (and give their arrays back)
-        for c in [*self._chunks, *(a for _, a in self._read)]:
-            if not isinstance(c, str):
-                _give(c)
-        self._chunks, self._read, self._n = [], [], 0
-
-
-def _remove(directory: str, writer: ThreadPoolExecutor) -> None:
-    """Wait for the pending writes, then remove the spill directory."""
-    writer.shutdown(wait=True)
-    shutil.rmtree(directory, ignore_errors=True)
 
 
 class Recording:
@@ -258,24 +73,24 @@ class Recording:
         self._reference = reference
         linearized = self.linearized = reference is not None
         self.format = EpochRows(layout.n, phi_rows(layout))
-        self._packed = _Chunks(self.format.width, ram_budget)
+        self._packed = Chunks(self.format.width, ram_budget)
         self._packer: ThreadPoolExecutor | None = None
         self._packing: Future[None] | None = None
         n = layout.n
-        self._states = _Growable((SV_SIZE,))
-        self._dx = _Growable((n,))
-        self._x_upd = _Growable((n,)) if linearized else None
-        self._end_offset = _Growable((n,)) if linearized else None
-        self._s = {name: _Growable() for name in ("t", "odo", "lat", "lon", "h")}
-        self._s_q = _Growable((4,))
-        self._s_epoch = _Growable((), np.int32)
+        self._states = Growable((SV_SIZE,))
+        self._dx = Growable((n,))
+        self._x_upd = Growable((n,)) if linearized else None
+        self._end_offset = Growable((n,)) if linearized else None
+        self._s = {name: Growable() for name in ("t", "odo", "lat", "lon", "h")}
+        self._s_q = Growable((4,))
+        self._s_epoch = Growable((), np.int32)
         self.marker_residuals: dict[str, Array] = {}
 
     def __len__(self) -> int:
         return len(self._packed)
 
     @property
-    def _rows(self) -> _Chunks:
+    def _rows(self) -> Chunks:
         """The packed rows, every epoch added so far packed."""
         if self._packing is not None:
             job, self._packing = self._packing, None

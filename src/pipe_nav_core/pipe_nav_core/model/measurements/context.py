@@ -1,5 +1,5 @@
-"""What every measurement shares: the epoch's context it reads, the settings indices, the
-update kinds and event counters, and the one gated update it applies.
+"""What every measurement shares: the epoch's context it reads, the settings, and the one
+gated update it applies.
 
 Frames: ENU navigation frame, base_link body frame (FLU). Units SI, angles rad.
 """
@@ -24,30 +24,50 @@ Index = NDArray[np.int64]
 Model = tuple[Array, Array, Array]  # residual (m,), H (m, n), R (m, m)
 Factor = tuple[str, Callable[[Array, Index], Model]]  # kind, model at a flat state and layout
 
-# measurement kinds (rows of the update statistics)
-KINDS = ("nhc", "odometer", "zupt", "zaru", "tilt", "mag", "marker")
-K_NHC, K_ODO, K_ZUPT, K_ZARU, K_TILT, K_MAG, K_MARKER = range(7)
-# event counters
-COUNTERS = (
-    "epochs",
-    "epochs_without_odometer",
-    "odometer_excluded",
-    "tilt_gated_motion",
-    "mag_disturbed",
-)
-C_EPOCHS, C_NO_ODO, C_EXCLUDED, C_TILT_GATED, C_MAG_DISTURBED = range(5)
 
-# settings (prm, epoch.parameters)
-P_EARTH_SIGN, P_PIPE_D, P_LEVER, P_LEVER_KNOWN = 0, 1, 2, 5  # P_LEVER: 3 values
-P_STOP_SPEED, P_STOP_GYRO, P_ODO_SIGMA, P_NHC_SIGMA, P_ZUPT, P_ZARU = 6, 7, 8, 9, 10, 11
-P_TILT_ON, P_TILT_GATE, P_TILT_SIGMA = 12, 13, 14
-P_MAG_ON, P_MAG_NORM_GATE, P_MAG_DIP_GATE, P_MAG_DECL, P_MAG_SIGMA = 15, 16, 17, 18, 19
-P_MAG_REF, P_MAG_DIP, P_MAG_REF_OK = 20, 21, 22
-P_SCALE_RW, P_DR_ALONG, P_DR_LATERAL, P_MARKER_TIME = 23, 24, 25, 26
-P_CHI2 = 27  # 3: gates for 1, 2, 3 rows
-P_IMU = 30  # 6: process_noise_k's IMU densities
-P_ARW = P_IMU  # gyro angle random walk, rad/sqrt(s)
-P_SIZE = 36
+class Settings(NamedTuple):
+    """The settings of the compiled epoch (built once per pass by
+    :func:`pipe_nav_core.filter.epoch.parameters`; NavConfig's, SI units).
+
+    earth_sign: 1, or -1 for the backward filter's reversed time; pipe_d: pipe diameter (m);
+    lever: the odometer wheel's lever arm (m, base_link) and lever_known whether it is set;
+    stop_speed (m/s) / stop_gyro (rad/s): the stop detection's thresholds; odo_sigma (m/s),
+    nhc_sigma (m/s), zupt (m/s), zaru (rad/s): the noise of those updates; tilt_on, tilt_gate
+    (m/s^2), tilt_sigma (m/s^2): the gravity tilt update; mag_on, mag_norm_gate (relative),
+    mag_dip_gate (rad), mag_decl (rad), mag_sigma (rad), mag_ref (T) / mag_dip (rad) the
+    reference field and mag_ref_ok whether it is known: the magnetic heading update;
+    scale_rw, dr_along, dr_lateral: process noise of the odometer scale and of dead reckoning;
+    marker_time (s): the marker passages' time noise; chi2 (3,): the innovation gates for 1,
+    2 and 3 rows; imu (6,): process_noise_k's IMU densities (imu[0]: the gyro's angle random
+    walk, rad/sqrt(s))."""
+
+    earth_sign: float
+    pipe_d: float
+    lever: Array
+    lever_known: bool
+    stop_speed: float
+    stop_gyro: float
+    odo_sigma: float
+    nhc_sigma: float
+    zupt: float
+    zaru: float
+    tilt_on: bool
+    tilt_gate: float
+    tilt_sigma: float
+    mag_on: bool
+    mag_norm_gate: float
+    mag_dip_gate: float
+    mag_decl: float
+    mag_sigma: float
+    mag_ref: float
+    mag_dip: float
+    mag_ref_ok: bool
+    scale_rw: float
+    dr_along: float
+    dr_lateral: float
+    marker_time: float
+    chi2: Array
+    imu: Array
 
 
 @dataclass
@@ -65,7 +85,7 @@ class Context(NamedTuple):
     :func:`pipe_nav_core.filter.epoch.context`).
 
     s: the flat state every update is linearized at; s1: the mechanized state at the epoch
-    end; L: the layout (Layout.index); prm: the settings (P_*); T: the epoch's duration (s);
+    end; L: the layout (Layout.index); prm: the settings; T: the epoch's duration (s);
     speed: the raw mean odometer speed (m/s); stopped: the pig stands still; ins: the layout
     has a velocity error; odo_ok: the epoch has odometer data; excluded: its odometer speed is
     excluded (a slip); free: the heading is unanchored (its prior kept outside the filter);
@@ -82,7 +102,7 @@ class Context(NamedTuple):
     s: Array
     s1: Array
     L: Index
-    prm: Array
+    prm: Settings
     T: float
     speed: float
     stopped: bool
@@ -110,12 +130,12 @@ class Context(NamedTuple):
 
 @kernel
 def update(
-    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Array, out: EpochOutputs
+    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Settings, out: EpochOutputs
 ) -> None:
     """One gated update of (x, P) in place, counted under kind in out's statistics
     (epoch.EpochOutputs)."""
     m = r.shape[0]
-    nis, dx, x_new, P_new = joseph_update(P, x, H, R, r, prm[P_CHI2 + m - 1])
+    nis, dx, x_new, P_new = joseph_update(P, x, H, R, r, prm.chi2[m - 1])
     if dx.shape[0] == 0:
         out.rej[kind] += 1
         return
@@ -126,10 +146,10 @@ def update(
     out.dof[kind] += m
 
 
-def factor(kind: int, model_k: Callable[..., Model], *args: object) -> Factor:
-    """(the kind's name, its model at a flat state and layout): the kernel ``model_k`` called
-    with (sv, L) and then ``args``, the inputs its measurement's policy chose."""
-    return KINDS[kind], lambda sv, L: model_k(sv, L, *args)
+def factor(kind: str, model_k: Callable[..., Model], *args: object) -> Factor:
+    """(kind, its model at a flat state and layout): the kernel ``model_k`` called with
+    (sv, L) and then ``args``, the inputs its measurement's policy chose."""
+    return kind, lambda sv, L: model_k(sv, L, *args)
 
 
 @kernel

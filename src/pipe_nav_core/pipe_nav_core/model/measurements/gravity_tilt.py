@@ -18,25 +18,14 @@ import numpy as np
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.geo import earth
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    C_TILT_GATED,
-    K_TILT,
-    P_TILT_GATE,
-    P_TILT_ON,
-    P_TILT_SIGMA,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    factor,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, update
 from pipe_nav_core.model.state import L_AM, L_ATT, L_BA, L_N, SV_H, SV_LAT, Layout, NavState
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("tilt",), ("tilt_gated_motion",)  # its update (statistics), the events it counts
 
 OFF, GATED, ON = 0, 1, 2  # inputs_k's verdicts
 
@@ -98,30 +87,32 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, Array, float, Array]]
     T = c.T
     accel_n = (c.dp / T - c.prev_vel) / T
     f_mean_n = c.f_mean_n
-    args = (f_mean_n, c.sums[:, :3] / T, accel_n, c.prm[P_TILT_SIGMA], c.sums[:, 3:] / T)
-    if not (c.prm[P_TILT_ON] != 0.0 and c.odo_ok and c.has_prev_vel):
+    args = (f_mean_n, c.sums[:, :3] / T, accel_n, c.prm.tilt_sigma, c.sums[:, 3:] / T)
+    if not (c.prm.tilt_on and c.odo_ok and c.has_prev_vel):
         return OFF, args
     g = earth._gravity(c.s[SV_LAT], c.s[SV_H])
     f_norm = np.sqrt(np.sum(f_mean_n**2))
-    gate = c.prm[P_TILT_GATE]
+    gate = c.prm.tilt_gate
     if abs(f_norm - g) > gate or np.sqrt(np.sum(accel_n**2)) > gate:
         return GATED, args
     return ON, args
 
 
+# apply and factors have the shape of the other measurements' on purpose: numba takes no kernel
+# as an argument without losing its disk cache, so each measurement calls its own model itself
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
-    """The update, or the gated motion counted, as :func:`inputs_k` says."""
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """The update (counted under kind), or the gated motion counted (event), as
+    :func:`inputs_k` says."""
     verdict, args = inputs_k(c)
     if verdict == GATED:
-        out.counts[C_TILT_GATED] += 1
+        out.counts[event] += 1
     elif verdict == ON:
-        f_mean_n, c_mean, accel_n, sigma, c_f_mean = args
-        r, H, R = gravity_tilt_k(c.s, c.L, f_mean_n, c_mean, accel_n, sigma, c_f_mean)
-        update(K_TILT, r, H, R, x, P, c.prm, out)
+        r, H, R = gravity_tilt_k(c.s, c.L, *args)
+        update(kind, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     verdict, args = inputs_k(c)
-    return [factor(K_TILT, gravity_tilt_k, *args)] if verdict == ON else []
+    return [factor(KINDS[0], gravity_tilt_k, *args)] if verdict == ON else []

@@ -15,30 +15,14 @@ import numpy as np
 
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    C_MAG_DISTURBED,
-    K_MAG,
-    P_MAG_DECL,
-    P_MAG_DIP,
-    P_MAG_DIP_GATE,
-    P_MAG_NORM_GATE,
-    P_MAG_ON,
-    P_MAG_REF,
-    P_MAG_REF_OK,
-    P_MAG_SIGMA,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    factor,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, update
 from pipe_nav_core.model.state import L_ATT, L_N, Layout, NavState
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("mag",), ("mag_disturbed",)  # its update (statistics), the events it counts
 
 OFF, GATED, ON = 0, 1, 2  # inputs_k's verdicts
 
@@ -88,8 +72,8 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, float, float]]:
     prm = c.prm
     cnb = np.empty((3, 3))
     m_b = np.zeros(3)
-    if not (prm[P_MAG_ON] != 0.0 and c.mag_i >= 0 and prm[P_MAG_REF_OK] != 0.0):
-        return OFF, (m_b, cnb, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
+    if not (prm.mag_on and c.mag_i >= 0 and prm.mag_ref_ok):
+        return OFF, (m_b, cnb, prm.mag_decl, prm.mag_sigma)
     n = c.imu_t.shape[0]
     j = 0
     while j < n - 1 and c.imu_t[j] < c.mag_t[c.mag_i]:
@@ -99,28 +83,30 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, float, float]]:
     m_n = cnb @ m_b
     dip = np.arctan2(-m_n[2], np.hypot(m_n[0], m_n[1]))
     norm = np.sqrt(np.sum(m_b**2))
-    args = (m_b, cnb, prm[P_MAG_DECL], prm[P_MAG_SIGMA])
+    args = (m_b, cnb, prm.mag_decl, prm.mag_sigma)
     if (
-        abs(norm / prm[P_MAG_REF] - 1.0) > prm[P_MAG_NORM_GATE]
-        or abs(dip - prm[P_MAG_DIP]) > prm[P_MAG_DIP_GATE]
+        abs(norm / prm.mag_ref - 1.0) > prm.mag_norm_gate
+        or abs(dip - prm.mag_dip) > prm.mag_dip_gate
     ):
         return GATED, args
     return ON, args
 
 
+# apply and factors have the shape of the other measurements' on purpose: numba takes no kernel
+# as an argument without losing its disk cache, so each measurement calls its own model itself
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
-    """The update, or the disturbed field counted, as :func:`inputs_k` says."""
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """The update (counted under kind), or the disturbed field counted (event), as
+    :func:`inputs_k` says."""
     verdict, args = inputs_k(c)
     if verdict == GATED:
-        out.counts[C_MAG_DISTURBED] += 1
+        out.counts[event] += 1
     elif verdict == ON:
-        field_b, c_nb, declination, sigma = args
-        r, H, R = magnetic_heading_k(c.s, c.L, field_b, c_nb, declination, sigma)
-        update(K_MAG, r, H, R, x, P, c.prm, out)
+        r, H, R = magnetic_heading_k(c.s, c.L, *args)
+        update(kind, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     verdict, args = inputs_k(c)
-    return [factor(K_MAG, magnetic_heading_k, *args)] if verdict == ON else []
+    return [factor(KINDS[0], magnetic_heading_k, *args)] if verdict == ON else []

@@ -19,18 +19,7 @@ import numpy as np
 from pipe_nav_core.filter.kalman import chi2_threshold
 from pipe_nav_core.geo import earth
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    K_MARKER,
-    P_MARKER_TIME,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    factor,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, update
 from pipe_nav_core.model.state import (
     I_VEL,
     L_N,
@@ -46,6 +35,9 @@ from pipe_nav_core.types import Marker
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("marker",), ()  # its update (statistics), the events it counts
 
 LATE_MARKER_S = 2.0  # s: a marker passage this far before its epoch's start is dropped
 
@@ -108,17 +100,18 @@ def inflation(
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
-    """Each passage of the epoch (c.markers) in turn, its residual written to out.marker_res."""
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """Each passage of the epoch (c.markers) in turn, counted under kind, its residual written
+    to out.marker_res."""
     for j in range(c.markers.shape[0]):
-        r, H, R = marker_fix_k(c.s, c.L, c.markers[j], c.prm[P_MARKER_TIME])
+        r, H, R = marker_fix_k(c.s, c.L, c.markers[j], c.prm.marker_time)
         out.marker_res[j] = r
-        update(K_MARKER, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
     """The updates :func:`apply` makes at this context, as models of the state (in the order
     of c.markers)."""
-    time_sigma = float(c.prm[P_MARKER_TIME])
-    return [factor(K_MARKER, marker_fix_k, np.array(row, dtype=np.float64), time_sigma)
+    time_sigma = float(c.prm.marker_time)
+    return [factor(KINDS[0], marker_fix_k, np.array(row, dtype=np.float64), time_sigma)
             for row in c.markers]  # fmt: skip

@@ -17,25 +17,7 @@ import numpy as np
 from pipe_nav_core.config import NOISE_EPOCH_S
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    C_EXCLUDED,
-    C_NO_ODO,
-    K_NHC,
-    K_ODO,
-    KINDS,
-    P_LEVER_KNOWN,
-    P_NHC_SIGMA,
-    P_ODO_SIGMA,
-    P_PIPE_D,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    rows,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, rows, update
 from pipe_nav_core.model.state import (
     I_BORE,
     I_ODOQ,
@@ -55,15 +37,21 @@ from pipe_nav_core.model.state import (
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
 
-SPEED_ROWS, NHC_ROWS = (0, 1), (1, 3)  # rows of velocity_k: the odometer speed, the NHC
-Inputs = tuple[float, Array, float, float, float, Array, float]  # velocity_k's, after sv, L
+KINDS = ("nhc", "odometer")  # its updates (statistics): the NHC rows, the speed row
+EVENTS = ("epochs_without_odometer", "odometer_excluded")  # the events it counts
+NHC, SPEED = range(len(KINDS))
+ROWS = ((1, 3), (0, 1))  # velocity_k's rows lo:hi of each update of KINDS
+NO_ODOMETER, EXCLUDED = range(len(EVENTS))
 
 
 @kernel
 def velocity_k(
     sv: Array,
     L: Index,
+    lo: int,
+    hi: int,
     speed: float,
     vel_b_offset: Array,
     lever_rate: float,
@@ -72,7 +60,8 @@ def velocity_k(
     vel_jac: Array,
     epoch_s: float,
 ) -> Model:
-    """:func:`velocity` on a flat state (vel_jac required)."""
+    """Rows lo:hi of the three, the odometer speed (0) and the NHC (1-2), on a flat state
+    (ROWS; the other arguments: :func:`velocity`, sigma_speed and sigma_nhc m/s)."""
     c = c_nb_k(sv)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     k = sv[SV_K]
@@ -94,22 +83,24 @@ def velocity_k(
             H[r, L[L_ODOQ]] = -u[r] * (1.0 + k) / epoch_s
             H[r, L[L_ODOQ] + 1] = u[r] * (1.0 + k) / epoch_s
     R = np.diag(np.array([sigma_speed**2, sigma_nhc**2, sigma_nhc**2]))
-    return -h, H, R
+    return rows(-h, H, R, lo, hi)
 
 
 def velocity(
     s: NavState,
     layout: Layout,
+    kind: str,
     *,
     speed: float,
     vel_b_offset: Array,
     lever_rate: float,
-    sigma_speed: float,
-    sigma_nhc: float,
+    sigma_speed: float = 0.0,
+    sigma_nhc: float = 0.0,
     vel_jac: Array | None = None,
     epoch_s: float = 0.0,
 ) -> Measurement:
-    """All three rows (speed, NHC) for a NavState.
+    """The update ``kind`` of KINDS ("nhc": rows 1-2, or "odometer": the speed row 0) for a
+    NavState, as :func:`apply` makes it (sigma_speed, sigma_nhc m/s).
 
     speed is the raw mean odometer speed (distance increment / epoch duration), lever_rate the
     mean (omega x d)_x of the wheel contact point, vel_b_offset the difference between the
@@ -122,9 +113,12 @@ def velocity(
     epoch_s (the quantization of the readings at both ends of the epoch).
     """
     assert layout.vel is not None
+    lo, hi = ROWS[KINDS.index(kind)]
     r, H, R = velocity_k(
         s.vector(),
         layout.index,
+        lo,
+        hi,
         float(speed),
         np.asarray(vel_b_offset, dtype=np.float64),
         float(lever_rate),
@@ -133,43 +127,41 @@ def velocity(
         np.asarray(s.vel_n if vel_jac is None else vel_jac, dtype=np.float64),
         float(epoch_s),
     )
-    return Measurement("odometer", r, H, R)
+    return Measurement(kind, r, H, R)
 
 
 @kernel
-def inputs_k(c: Context) -> tuple[bool, Inputs]:
-    """Whether the epoch has the odometer updates (INS mode, odometer data) and velocity_k's
-    inputs: the speed and NHC noise for the epoch's duration, the speed's with the bend term."""
+def inputs_k(c: Context) -> tuple[bool, tuple[float, Array, float, float, float, Array, float]]:
+    """Whether the epoch has the odometer updates (INS mode, odometer data) and the models'
+    inputs after sv, L: the speed and NHC noise for the epoch's duration, the speed's with the
+    bend term."""
     prm = c.prm
-    lever_known = prm[P_LEVER_KNOWN] != 0.0
-    bend = 0.0 if lever_known else 0.5 * prm[P_PIPE_D] * c.w_yz
+    bend = 0.0 if prm.lever_known else 0.5 * prm.pipe_d * c.w_yz
     over = np.sqrt(NOISE_EPOCH_S / max(c.T, 1e-3))  # NavConfig.over_epoch
-    sigma_speed = np.hypot(prm[P_ODO_SIGMA] * over, bend)
+    sigma_speed = np.hypot(prm.odo_sigma * over, bend)
     vel_b_offset = c.mean_vel_b - c_nb_k(c.s1).T @ c.s1[I_VEL : I_VEL + 3]
-    args = (c.speed, vel_b_offset, c.lever_rate, sigma_speed, prm[P_NHC_SIGMA] * over, c.v_jac,
+    args = (c.speed, vel_b_offset, c.lever_rate, sigma_speed, prm.nhc_sigma * over, c.v_jac,
             c.T)  # fmt: skip
     return c.ins and c.odo_ok, args
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
     """The NHC update, then the speed update unless excluded (counted, as epochs without
-    odometer data are)."""
+    odometer data are); kind, event: where its KINDS and EVENTS start in the statistics."""
     if not c.odo_ok:
-        out.counts[C_NO_ODO] += 1
+        out.counts[event + NO_ODOMETER] += 1
     on, args = inputs_k(c)
     if not on:
         return
-    speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc, v_jac, T = args
-    r, H, R = velocity_k(c.s, c.L, speed, vel_b_offset, lever_rate, sigma_speed, sigma_nhc,
-                         v_jac, T)  # fmt: skip
-    rn, Hn, Rn = rows(r, H, R, NHC_ROWS[0], NHC_ROWS[1])
-    update(K_NHC, rn, Hn, Rn, x, P, c.prm, out)
+    r, H, R = velocity_k(c.s, c.L, 0, 3, *args)  # the model once, both updates' rows
+    lo, hi = ROWS[NHC]
+    update(kind + NHC, *rows(r, H, R, lo, hi), x, P, c.prm, out)
     if c.excluded:
-        out.counts[C_EXCLUDED] += 1
+        out.counts[event + EXCLUDED] += 1
     else:
-        rs, Hs, Rs = rows(r, H, R, SPEED_ROWS[0], SPEED_ROWS[1])
-        update(K_ODO, rs, Hs, Rs, x, P, c.prm, out)
+        lo, hi = ROWS[SPEED]
+        update(kind + SPEED, *rows(r, H, R, lo, hi), x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
@@ -177,11 +169,5 @@ def factors(c: Context) -> list[Factor]:
     on, args = inputs_k(c)
     if not on:
         return []
-
-    def nhc(sv: Array, L: Index) -> Model:
-        return rows(*velocity_k(sv, L, *args), NHC_ROWS[0], NHC_ROWS[1])
-
-    def speed(sv: Array, L: Index) -> Model:
-        return rows(*velocity_k(sv, L, *args), SPEED_ROWS[0], SPEED_ROWS[1])
-
-    return [(KINDS[K_NHC], nhc)] + ([] if c.excluded else [(KINDS[K_ODO], speed)])
+    ups = (NHC,) if c.excluded else (NHC, SPEED)
+    return [factor(KINDS[u], velocity_k, *ROWS[u], *args) for u in ups]

@@ -12,24 +12,14 @@ import numpy as np
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.geo import earth
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    K_ZARU,
-    P_ARW,
-    P_EARTH_SIGN,
-    P_ZARU,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    factor,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, update
 from pipe_nav_core.model.state import I_BG, L_ATT, L_BG, L_N, SV_LAT, Layout, NavState, c_nb_k
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("zaru",), ()  # its update (statistics), the events it counts
 
 
 @kernel
@@ -69,21 +59,20 @@ def zero_rate(
 def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, bool]]:
     """Whether the epoch has the update (stopped) and zero_rate_k's inputs after sv, L."""
     prm = c.prm
-    sigma = np.sqrt(prm[P_ARW] ** 2 / c.T + prm[P_ZARU] ** 2)
-    return c.stopped, (c.gyro_mean, sigma, prm[P_EARTH_SIGN], c.free)
+    sigma = np.sqrt(prm.imu[0] ** 2 / c.T + prm.zaru**2)
+    return c.stopped, (c.gyro_mean, sigma, prm.earth_sign, c.free)
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
-    """The update where :func:`inputs_k` says so."""
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """The update where :func:`inputs_k` says so, counted under kind."""
     on, args = inputs_k(c)
     if on:
-        gyro_mean, sigma, earth_sign, free = args
-        r, H, R = zero_rate_k(c.s, c.L, gyro_mean, sigma, earth_sign, free)
-        update(K_ZARU, r, H, R, x, P, c.prm, out)
+        r, H, R = zero_rate_k(c.s, c.L, *args)
+        update(kind, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     on, args = inputs_k(c)
-    return [factor(K_ZARU, zero_rate_k, *args)] if on else []
+    return [factor(KINDS[0], zero_rate_k, *args)] if on else []

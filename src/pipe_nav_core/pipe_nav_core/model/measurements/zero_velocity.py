@@ -7,22 +7,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pipe_nav_core.jit import kernel
-from pipe_nav_core.model.measurements.context import (
-    K_ZUPT,
-    P_ZUPT,
-    Array,
-    Context,
-    Factor,
-    Index,
-    Measurement,
-    Model,
-    factor,
-    update,
-)
+from pipe_nav_core.model.measurements.context import Context, Measurement, factor, update
 from pipe_nav_core.model.state import I_VEL, L_N, L_VEL, Layout, NavState
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("zupt",), ()  # its update (statistics), the events it counts
 
 
 @kernel
@@ -43,19 +35,19 @@ def zero_velocity(s: NavState, layout: Layout, sigma: float) -> Measurement:
 @kernel
 def inputs_k(c: Context) -> tuple[bool, float]:
     """Whether the epoch has the update (stopped, INS mode) and its noise (m/s)."""
-    return c.stopped and c.ins, c.prm[P_ZUPT]
+    return c.stopped and c.ins, c.prm.zupt
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs) -> None:
-    """The update where :func:`inputs_k` says so."""
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """The update where :func:`inputs_k` says so, counted under kind."""
     on, sigma = inputs_k(c)
     if on:
         r, H, R = zero_velocity_k(c.s, c.L, sigma)
-        update(K_ZUPT, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm, out)
 
 
 def factors(c: Context) -> list[Factor]:
     """The update :func:`apply` makes at this context, as a model of the state."""
     on, sigma = inputs_k(c)
-    return [factor(K_ZUPT, zero_velocity_k, sigma)] if on else []
+    return [factor(KINDS[0], zero_velocity_k, sigma)] if on else []
