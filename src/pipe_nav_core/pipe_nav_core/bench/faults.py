@@ -25,7 +25,7 @@ from pipe_nav_core.sim.faults import CORPUS, FaultCase
 from pipe_nav_core.sim.scenarios import get_scenario
 from pipe_nav_core.types import SensorLog, Trajectory
 
-BAGS = Path(__file__).resolve().parents[3] / "bags"
+BAGS = Path(__file__).resolve().parents[4] / "bags"
 
 
 @dataclass(frozen=True)

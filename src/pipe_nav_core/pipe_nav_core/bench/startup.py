@@ -23,7 +23,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-SAMPLE = Path(__file__).resolve().parents[3] / "bags" / "sample.mcap"
+SAMPLE = Path(__file__).resolve().parents[4] / "bags" / "sample.mcap"
 
 
 def _wall(argv: Sequence[str], env: dict[str, str] | None = None) -> float:
@@ -54,7 +54,7 @@ def measure(bag: Path, repeat: int, cold: bool) -> list[tuple[str, float, float]
 
         if cold:
             fresh = Path(tmp) / "fresh"
-            src = Path(__file__).resolve().parent
+            src = Path(__file__).resolve().parents[1]  # the package
             shutil.copytree(src, fresh / src.name, ignore=shutil.ignore_patterns("__pycache__"))
             env = {**os.environ, "PYTHONPATH": str(fresh)}
             rows.append(("smooth, fresh install (kernels compiled in the run)", smooth(env)))
