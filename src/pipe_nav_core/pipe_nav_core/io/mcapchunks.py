@@ -29,8 +29,8 @@ from pipe_nav_core.io.mcaprecords import (
     U16,
     U32,
     ChannelRecord,
+    Cursor,
     SchemaRecord,
-    _Cursor,
     parse_channel,
     parse_schema,
     read_record_at,
@@ -212,7 +212,7 @@ def unpack_chunk(content: bytes) -> bytes:
     """The decompressed records of a complete Chunk record's content. Raises (ValueError, or
     the decompressor's error) for a corrupt chunk: bad header, unknown compression, a frame
     that does not decompress, a size or CRC mismatch."""
-    c = _Cursor(content)
+    c = Cursor(content)
     c.u64()
     c.u64()
     usize = c.u64()
@@ -270,7 +270,7 @@ def chunk_messages(path: str | os.PathLike[str], ci: ChunkIndex) -> MessageBatch
 class _ChunkOnly:
     def decode(self, content: bytes) -> MessageBatch | None:
         try:
-            c = _Cursor(content)
+            c = Cursor(content)
             c.u64()
             c.u64()
             usize = c.u64()

@@ -56,9 +56,9 @@ from pipe_nav_core.io.mcaprecords import (
     U16,
     U32,
     ChannelRecord,
+    Cursor,
     SchemaRecord,
     Summary,
-    _Cursor,
     parse_channel,
     parse_schema,
     read_record_at,
@@ -175,7 +175,7 @@ class McapScanner:
     def _partial_chunk(self, content: bytes, offset: int) -> MessageBatch | None:
         """Recover what can be read from a Chunk record cut off by the end of the file."""
         try:
-            c = _Cursor(content)
+            c = Cursor(content)
             c.u64()
             c.u64()
             c.u64()

@@ -83,7 +83,7 @@ class Summary:
     channel_message_counts: dict[int, int] | None = None
 
 
-class _Cursor:
+class Cursor:
     """Reads MCAP primitive types from a bytes object."""
 
     def __init__(self, data: bytes | memoryview, pos: int = 0) -> None:
@@ -131,7 +131,7 @@ class _Cursor:
 
 
 def parse_schema(content: bytes | memoryview) -> SchemaRecord:
-    c = _Cursor(content)
+    c = Cursor(content)
     sid = c.u16()
     name = c.string()
     enc = c.string()
@@ -140,7 +140,7 @@ def parse_schema(content: bytes | memoryview) -> SchemaRecord:
 
 
 def parse_channel(content: bytes | memoryview) -> ChannelRecord:
-    c = _Cursor(content)
+    c = Cursor(content)
     cid = c.u16()
     sid = c.u16()
     topic = c.string()
