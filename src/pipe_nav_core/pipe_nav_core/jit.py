@@ -7,6 +7,12 @@ from Python runs its AOT export and numba is not even imported; a call that no e
 whole process to numba's just-in-time kernels, cached on disk (:func:`to_jit`). The results
 are the same either way (the same compiled code; tested bit for bit on the sample).
 ``PIPE_NAV_KERNELS=jit`` makes a process use numba from the start.
+
+Names: a kernel over a model's flat arrays ends in ``_k`` (``inject_k``, ``predict_k``,
+``zero_rate_k``; private ones too: ``_ins_k``), and where a NumPy or NavState front end exists
+it has the same name without it; the measurement protocol's kernels are named by their role in
+every measurement module (``inputs_k``, ``apply``, ``rows``); the small algebra the kernels
+share is named by what it computes (``qmul``, ``cross3``, ``inv3``).
 """
 
 from __future__ import annotations

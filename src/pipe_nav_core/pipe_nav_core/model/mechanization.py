@@ -15,8 +15,8 @@ IMU samples follow INTERFACES.md: sample i holds the MEAN rate and specific forc
 (t[i-1], t[i]], in base_link. ``earth_sign = -1`` runs the equations in reversed time (the
 backward filter feeds time-reversed data: negated gyro, negated stamps).
 
-The per-sample recursions run in small kernels compiled with numba (``_attitude_kernel``,
-``_ins_kernel``, ``_dr_kernel``: plain float64 arrays in and out); the public functions prepare
+The per-sample recursions run in small kernels compiled with numba (``_attitude_k``,
+``_ins_k``, ``_dr_k``: plain float64 arrays in and out); the public functions prepare
 the per-block quantities (Earth and transport rates, gravity, odometer axis) and assemble the
 results. The kernels are cached on disk (``cache=True``): the first call in a fresh process
 loads them (or compiles them once, a few seconds, when the cache is cold or not writable).
@@ -151,7 +151,7 @@ def _corrected(raw: Array, bias: Array, err: Array) -> Array:
 
 
 @kernel
-def _attitude_kernel(
+def _attitude_k(
     q0: Array,
     t0: float,
     t: Array,
@@ -214,7 +214,7 @@ def _attitude_kernel(
 
 
 @kernel
-def _ins_kernel(
+def _ins_k(
     c: Array,
     dtheta: Array,
     dt: Array,
@@ -229,7 +229,7 @@ def _ins_kernel(
 ) -> tuple[Array, Array, Array, Array, Array, float, Array]:
     """Velocity and position integration of the INS over a block.
 
-    c (M + 1, 3, 3), dtheta (M, 3) rad and dt (M,) s from :func:`_attitude_kernel`; accel
+    c (M + 1, 3, 3), dtheta (M, 3) rad and dt (M,) s from :func:`_attitude_k`; accel
     (M, 3) raw mean specific force, m/s^2 base_link; ba (3,) m/s^2 and am (3, 3): accelerometer
     bias and error matrix; carry_dtheta, carry_dvel (3,): the last increments of the previous
     block (rad, m/s); vel0 (3,) m/s ENU at the block start; g (3,) normal gravity, m/s^2 ENU,
@@ -308,7 +308,7 @@ def _ins_kernel(
 
 
 @kernel
-def _dr_kernel(
+def _dr_k(
     c: Array,
     dtheta: Array,
     dt: Array,
@@ -323,7 +323,7 @@ def _dr_kernel(
 ) -> tuple[Array, Array, Array, Array, float, float, Array, Array, Array]:
     """Odometer dead-reckoning position over a block.
 
-    c (M + 1, 3, 3), dtheta (M, 3) rad and dt (M,) s from :func:`_attitude_kernel`; accel
+    c (M + 1, 3, 3), dtheta (M, 3) rad and dt (M,) s from :func:`_attitude_k`; accel
     (M, 3) raw mean specific force, m/s^2 base_link; ba (3,) m/s^2 and am (3, 3): accelerometer
     bias and error matrix; ds (M,) raw odometer distance increments, m; scale = 1 + k;
     lever_arm (3,) m, wheel contact point in base_link; u (3,) odometer axis in base_link and
@@ -416,10 +416,10 @@ def _end_state(
 def _attitude(
     sv: Array, t: Array, gyro: Array, carry: Array, w_in: Array
 ) -> tuple[Array, Array, Array, Array, Array, Array]:
-    """_attitude_kernel from the flat state sv (its attitude, time, gyro bias and matrix)."""
+    """_attitude_k from the flat state sv (its attitude, time, gyro bias and matrix)."""
     gm = sv[I_GM : I_GM + 9].copy().reshape(3, 3)
     q0, bg = sv[I_Q : I_Q + 4], sv[I_BG : I_BG + 3]
-    return _attitude_kernel(q0, sv[SV_T], t, gyro, bg, gm, carry[:3], w_in)
+    return _attitude_k(q0, sv[SV_T], t, gyro, bg, gm, carry[:3], w_in)
 
 
 @kernel
@@ -433,7 +433,7 @@ def ins_step_k(
     q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude(sv, t, gyro, carry, w_in)
     g = np.array([0.0, 0.0, -earth._gravity(sv[SV_LAT], sv[SV_H])])
     am = sv[I_AM : I_AM + 9].copy().reshape(3, 3)
-    vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt = _ins_kernel(
+    vel, p, dvel, dv_f, vel_b_dt, path, sum_c_f_dt = _ins_k(
         c,
         dtheta,
         dt,
@@ -476,7 +476,7 @@ def dr_step_k(
     q, c, dtheta, dt, sum_c_dt, sum_c_w_dt = _attitude(sv, t, gyro, carry, w_in)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     am = sv[I_AM : I_AM + 9].copy().reshape(3, 3)
-    vel, p, dvel, dv_f, ds_c_sum, path, dp_dk, dp_dbore, sum_c_f_dt = _dr_kernel(
+    vel, p, dvel, dv_f, ds_c_sum, path, dp_dk, dp_dbore, sum_c_f_dt = _dr_k(
         c, dtheta, dt, accel, sv[I_BA : I_BA + 3], am, ds, 1.0 + sv[SV_K], lever_arm, u, du
     )
     lat, lon, h, out = _end_state(sv, t, q, p, rm, rn)
