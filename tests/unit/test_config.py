@@ -110,3 +110,14 @@ def test_degrees_are_taken_for_every_angle_and_nothing_else():
         else:
             with pytest.raises(ConfigError, match="unknown setting"):
                 NavConfig.from_dict({f"{name}_deg": value})
+
+
+def test_config_from_dict_degrees_and_errors():
+    cfg = NavConfig.from_dict({"initial_azimuth_deg": 90, "mode": "dr"})
+    assert cfg.initial_azimuth == pytest.approx(math.pi / 2)
+    with pytest.raises(ConfigError, match="mode"):
+        NavConfig.from_dict({"mode": "magic"})
+    with pytest.raises(ConfigError, match="unknown setting"):
+        NavConfig.from_dict({"bogus": 1})
+    with pytest.raises(ConfigError, match="zupt_sigma"):
+        NavConfig.from_dict({"zupt_sigma": -1})
