@@ -43,3 +43,41 @@ def test_iterated_smoother_reaches_the_ideal_solution(name, mode):
     assert s.max_h < 0.01 and s.max_v < 0.01, s.summary()
     assert r.summary["last_step_m"] < 1e-3  # converged
 
+
+
+def test_a_kept_pass_waits_on_disk_and_comes_back_unchanged(monkeypatch):
+    """While the next pass runs, the pass taken so far waits on disk when its centreline is
+    large (Parked; at 100 km it is 1.4 GB at the IMU rate): the result is the same bytes."""
+    from pipe_nav_core.smooth import centreline
+
+    run = simulate(get_scenario("demo"), seed=2)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    plain = smooth_log(run.log, cfg, method="rts", iterations=2)
+    parked: list[centreline.Parked] = []
+    real = centreline.Parked.__init__
+
+    def spy(self, result):
+        real(self, result)
+        parked.append(self)
+
+    monkeypatch.setattr(centreline, "PARK_BYTES", 0)
+    monkeypatch.setattr(centreline.Parked, "__init__", spy)
+    again = smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert parked  # pass 1 waited on disk while pass 2 ran
+    for name in ("t", "lat", "lon", "h", "vel_n", "quat_nb", "distance", "sigma_enu"):
+        assert getattr(again.centreline, name).tobytes() == getattr(plain.centreline, name).tobytes()
+
+
+def test_parked_result_restores_every_array():
+    from pipe_nav_core.smooth import centreline
+
+    run = simulate(get_scenario("demo"), seed=1)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    r = smooth_log(run.log, cfg, method="rts", iterations=1)
+    before = {k: v.copy() for k, v in vars(r.centreline).items() if v is not None}
+    p = centreline.Parked(r)
+    assert r.centreline.lat is None  # off the memory
+    back = p.restore()
+    assert back is r
+    for k, v in before.items():
+        assert getattr(r.centreline, k).tobytes() == v.tobytes()

@@ -4,7 +4,9 @@ forward filter's estimates, the markers' residuals and the summary, in a :class:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import os
+import tempfile
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -25,6 +27,7 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 SAMPLE_BATCH = 1 << 18  # samples corrected at once by smoothed_centreline (bounds temporaries)
+PARK_BYTES = 256 << 20  # a kept centreline larger than this waits on disk (Parked)
 
 
 @dataclass
@@ -50,6 +53,36 @@ class SmoothResult:
     config: NavConfig | None = None
     products: IntegrityReport | None = None
     welds: list[Weld] | None = None
+
+
+class Parked:
+    """A smoothing result whose centreline waits on disk while another pass runs, so that two
+    centrelines at the IMU rate are never in memory (at 100 km one is 1.4 GB): its arrays as
+    .npy files in a temporary directory, removed by :meth:`restore` or when this goes."""
+
+    def __init__(self, result: SmoothResult) -> None:
+        self.result = result
+        self._dir = tempfile.TemporaryDirectory(prefix="pipe_nav_parked_")
+        c = result.centreline
+        self._names = [f.name for f in fields(c) if isinstance(getattr(c, f.name), np.ndarray)]
+        for name in self._names:
+            np.save(os.path.join(self._dir.name, f"{name}.npy"), getattr(c, name))
+            setattr(c, name, None)
+
+    @staticmethod
+    def worth(result: SmoothResult) -> bool:
+        """Whether the result's centreline is large enough to wait on disk (PARK_BYTES)."""
+        c = result.centreline
+        size = sum(v.nbytes for v in vars(c).values() if isinstance(v, np.ndarray))
+        return size > PARK_BYTES
+
+    def restore(self) -> SmoothResult:
+        """The result as it was (the same arrays' values, read back)."""
+        c = self.result.centreline
+        for name in self._names:
+            setattr(c, name, np.load(os.path.join(self._dir.name, f"{name}.npy")))
+        self._dir.cleanup()
+        return self.result
 
 
 def smoothed_centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Trajectory:
@@ -95,11 +128,19 @@ def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
     it. Steps in the local ENU of each sample (lat, lon rad, h m; quat_nb base_link->ENU)."""
     if len(lat) < 2:
         return np.zeros(len(lat))
-    rm, rn = earth.radii(lat[1:])
-    step = np.stack([np.diff(np.unwrap(lon)) * (rn + h[1:]) * np.cos(lat[1:]),
-                     np.diff(lat) * (rm + h[1:]), np.diff(h)], axis=1)  # fmt: skip
-    axis = att.dcm_from_quat(quat_nb[1:])[:, :, 0]
-    return np.r_[0.0, np.cumsum(np.einsum("ij,ij->i", step, axis))]
+    dlon = np.diff(lon)
+    if np.any(np.abs(dlon) >= np.pi):  # across the antimeridian (else unwrap adds exact zeros)
+        dlon = np.diff(np.unwrap(lon))
+    along = np.empty(len(lat) - 1)
+    for b in range(0, len(along), SAMPLE_BATCH):  # in batches: bounded temporaries
+        end = min(b + SAMPLE_BATCH, len(along))
+        s, s1 = slice(b, end), slice(b + 1, end + 1)  # the steps' first and last samples
+        rm, rn = earth.radii(lat[s1])
+        step = np.stack([dlon[s] * (rn + h[s1]) * np.cos(lat[s1]),
+                         (lat[s1] - lat[s]) * (rm + h[s1]), h[s1] - h[s]], axis=1)  # fmt: skip
+        axis = att.dcm_from_quat(quat_nb[s1])[:, :, 0]
+        along[s] = np.einsum("ij,ij->i", step, axis)
+    return np.r_[0.0, np.cumsum(along)]
 
 
 def forward_trajectory(rec: Recording) -> Trajectory:

@@ -38,6 +38,7 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, Layout, inject_many, layout_for
 from pipe_nav_core.smooth.centreline import (
+    Parked,
     SmoothResult,
     forward_trajectory,
     marker_residuals,
@@ -126,7 +127,7 @@ def smooth_log(
         return result
     exclude: Array | None = None
     reference: Array | None = None
-    best: tuple[int, SmoothResult] | None = None
+    best: tuple[int, SmoothResult | Parked] | None = None  # the pass taken so far
     n_pass = max(1, iterations)
     for it in range(n_pass):
         if it:
@@ -180,9 +181,12 @@ def smooth_log(
         reference = smoothed_states(rec, e, layout)
         exclude = new_exclude
         del nav, rec, e, var, centre, result  # free this pass before the next
+        if isinstance(best[1], SmoothResult) and Parked.worth(best[1]):
+            best = (best[0], Parked(best[1]))  # on disk while the next pass runs
     assert best is not None
-    best[1].summary["passes_run"] = it + 1
-    return best[1]
+    taken = best[1].restore() if isinstance(best[1], Parked) else best[1]
+    taken.summary["passes_run"] = it + 1
+    return taken
 
 
 def _graph_result(
