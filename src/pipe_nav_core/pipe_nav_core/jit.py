@@ -171,6 +171,18 @@ def literal_unroll(container: Any) -> Any:
     return container
 
 
+def _rebind_package(new_value: Callable[[Any], Any]) -> None:
+    """In every loaded module of this package, each global ``value`` replaced by
+    ``new_value(value)`` where that is another object (a kernel's callees are resolved through
+    its module's globals)."""
+    for name, module in list(sys.modules.items()):
+        if module is not None and name.startswith(_PREFIX):
+            for attr, value in list(vars(module).items()):
+                new = new_value(value)
+                if new is not value:
+                    setattr(module, attr, new)
+
+
 def _numba_njit(**options: Any) -> Any:
     """numba.njit, numba imported (and this package's cache locators installed, and its
     literal_unroll bound in the package's modules) on first use."""
@@ -185,11 +197,7 @@ def _numba_njit(**options: Any) -> Any:
         # function types and says so; the calls stay direct, each to its own kernel
         warnings.filterwarnings("ignore", "First-class function type feature is experimental")
         stand_in = globals()["literal_unroll"]
-        for name, module in list(sys.modules.items()):
-            if module is not None and name.startswith(_PREFIX):
-                for attr, value in list(vars(module).items()):
-                    if value is stand_in:
-                        setattr(module, attr, numba_unroll)
+        _rebind_package(lambda value: numba_unroll if value is stand_in else value)
         _NUMBA_READY = True
     return numba_njit(**options)
 
@@ -258,19 +266,14 @@ if _EXPORTS is None:
     JIT_REASON = "no ahead-of-time module for these sources"
 
 
-def _holds_kernels(value: Any) -> bool:
-    """Whether value is a tuple with an AOT kernel somewhere inside (a registry of kernels)."""
-    return type(value) is tuple and any(
-        isinstance(v, AotKernel) or _holds_kernels(v) for v in value
-    )
-
-
 def _rebound(value: Any) -> Any:
-    """value with each AOT kernel, also inside tuples, replaced by its numba dispatcher."""
+    """value with each AOT kernel, also inside tuples (a registry of kernels), replaced by its
+    numba dispatcher; value itself where it holds none."""
     if isinstance(value, AotKernel):
         return value.dispatcher
     if type(value) is tuple:
-        return tuple(_rebound(v) for v in value)
+        items = tuple(_rebound(v) for v in value)
+        return items if any(a is not b for a, b in zip(items, value)) else value
     return value
 
 
@@ -287,11 +290,7 @@ def to_jit(reason: str) -> None:
             print(f"pipe_nav_core: JIT kernels from here on: {reason}", file=sys.stderr)
         for k in _KERNELS:
             k.dispatcher = _compile(k.py_func, k.nogil, _numba_njit)
-        for name, module in list(sys.modules.items()):
-            if module is not None and name.startswith(_PREFIX):
-                for attr, value in list(vars(module).items()):
-                    if isinstance(value, AotKernel) or _holds_kernels(value):
-                        setattr(module, attr, _rebound(value))
+        _rebind_package(_rebound)
         _EXPORTS = None
         JIT_REASON = reason
 
