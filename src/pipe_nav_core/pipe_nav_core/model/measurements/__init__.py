@@ -49,7 +49,7 @@ COUNTERS = ("epochs", *(e for m in MEASUREMENTS for e in m.EVENTS))
 def _updates() -> tuple[tuple[int, int, object], ...]:
     """(where its KINDS start, where its EVENTS start, its apply) of each measurement, in
     order (the apply last: a tuple led by a function makes numba try to unify functions)."""
-    out, kind, event = [], 0, len(COUNTERS) - sum(len(m.EVENTS) for m in MEASUREMENTS)
+    out, kind, event = [], 0, C_EPOCHS + 1
     for m in MEASUREMENTS:
         out.append((kind, event, m.apply))
         kind, event = kind + len(m.KINDS), event + len(m.EVENTS)
