@@ -22,7 +22,7 @@ from pipe_nav_core.errors import CliError
 
 def cmd_bends(args: argparse.Namespace) -> int:
     from pipe_nav_core.app.outputs import Outputs
-    from pipe_nav_core.app.replay import products_of_file
+    from pipe_nav_core.app.pipeline import products_of_file
 
     for name, value in (
         ("curvature_window", args.window),

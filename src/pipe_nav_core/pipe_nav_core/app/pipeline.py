@@ -1,4 +1,5 @@
-"""Bag in, smoothed run out: what ``pipe-nav smooth`` and the smoother node run.
+"""Bag in, smoothed run out: what ``pipe-nav smooth`` and the smoother node run; and the
+integrity products of a run smoothed before (``pipe-nav bends``).
 
 Reads a bag (single .mcap or rosbag2 directory), merges a marker CSV, runs the engine, and
 writes the outputs atomically (temporary file, then rename). Never modifies the input and
@@ -10,10 +11,11 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
-from pipe_nav_core.app.outputs import Outputs, Say, write_products
+from pipe_nav_core.app.outputs import Outputs, Say, write_products, write_products_csv
 from pipe_nav_core.app.plot_process import PlotProcess
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import AUTO_GRADE, NavConfig
@@ -34,8 +36,12 @@ from pipe_nav_core.io import (
     read_bag,
     read_markers_csv,
 )
+from pipe_nav_core.io.atomic import all_or_none
+from pipe_nav_core.io.centreline import read_centreline_csv
+from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
 from pipe_nav_core.model import imu_noise as imu_model
-from pipe_nav_core.products import integrity_report, read_bends_reference
+from pipe_nav_core.model.sensors import GRADES
+from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
 from pipe_nav_core.products.welds import Weld, detect_welds
 from pipe_nav_core.smooth.centreline import SmoothResult
 from pipe_nav_core.smooth.chunks import drop_spare
@@ -292,3 +298,38 @@ def weld_summary(welds: Sequence[Weld]) -> dict[str, object]:
     joints = [w.joint_length for w in welds if math.isfinite(w.joint_length)]
     return {"count": len(welds), "filled": sum(w.confidence == 0.0 for w in welds),
             "median_joint_m": float(np.median(joints)) if joints else None}  # fmt: skip
+
+
+def products_of_file(
+    source: str | os.PathLike[str],
+    outputs: Outputs,
+    *,
+    config: NavConfig,
+    spacing: float = 0.5,
+    bends_reference: str | os.PathLike[str] | None = None,
+) -> tuple[IntegrityReport, list[str]]:
+    """`pipe-nav bends`: the integrity products of a run already smoothed, from its smoothed
+    MCAP bag or its centreline CSV, with other settings; writes ``outputs``' product files
+    (all or none). Returns the report and the notes for the user. The sigmas use the IMU model
+    the bag's metadata records when ``config.imu_grade`` is auto (industrial for a CSV)."""
+    inputs = [source] + ([bends_reference] if bends_reference else [])
+    outputs.check(inputs, spacing)
+    reference = read_bends_reference(bends_reference) if bends_reference else None
+    notes: list[str] = []
+    if str(source).lower().endswith(".csv"):
+        traj, _ = read_centreline_csv(source, warn=notes.append)
+        model = ""
+    else:
+        traj, _, metadata = read_smoothed_bag(source)
+        model = metadata.get("imu_model", "").split("+")[0]
+        notes.append(f"{source}: chainage is the arc length of its path (a Path has no distance_m)")
+    if config.imu_grade == AUTO_GRADE:
+        grade = model if model in GRADES else "industrial"
+        config = replace(config, imu_grade=grade)
+        hint = "" if model else " (give --imu-grade)"
+        notes.append(f"sigmas from the {grade} IMU model{hint}")
+    report = integrity_report(traj, config, spacing=spacing, reference=reference)
+    notes += report.notes
+    with all_or_none(outputs.paths()) as staged:
+        write_products_csv(report, outputs, staged)
+    return report, notes

@@ -1,5 +1,5 @@
 """The forward estimates of the online engine over a bag (``pipe-nav replay``, the replay
-launch file) and the integrity products of a centreline file (``pipe-nav bends``).
+launch file).
 
 The replay runs the live engine (:class:`pipe_nav_core.filter.live_guard.GuardedNavigator`) on
 the bag's samples in arrival order, as ekf_node would; positions geodetic (WGS84) and ENU
@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipe_nav_core.app.outputs import Outputs, write_products_csv
 from pipe_nav_core.app.pipeline import DEFAULT_TOPICS, load_log, require_imu
 from pipe_nav_core.config import AUTO_GRADE, NavConfig
 from pipe_nav_core.filter.estimates import NavEstimate
@@ -24,11 +23,7 @@ from pipe_nav_core.io import (
     TopicNames,
     write_output_bag,
 )
-from pipe_nav_core.io.atomic import all_or_none, ensure_not_input
-from pipe_nav_core.io.centreline import read_centreline_csv
-from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
-from pipe_nav_core.model.sensors import GRADES
-from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
+from pipe_nav_core.io.atomic import ensure_not_input
 from pipe_nav_core.types import Datum, SensorLog, Trajectory
 
 
@@ -119,38 +114,3 @@ def replay_bag(
             f"({d['lost_reason']}): {d.get('withheld_lost', 0)} estimates after it withheld"
         )
     return result, report
-
-
-def products_of_file(
-    source: str | os.PathLike[str],
-    outputs: Outputs,
-    *,
-    config: NavConfig,
-    spacing: float = 0.5,
-    bends_reference: str | os.PathLike[str] | None = None,
-) -> tuple[IntegrityReport, list[str]]:
-    """`pipe-nav bends`: the integrity products of a run already smoothed, from its smoothed
-    MCAP bag or its centreline CSV, with other settings; writes ``outputs``' product files
-    (all or none). Returns the report and the notes for the user. The sigmas use the IMU model
-    the bag's metadata records when ``config.imu_grade`` is auto (industrial for a CSV)."""
-    inputs = [source] + ([bends_reference] if bends_reference else [])
-    outputs.check(inputs, spacing)
-    reference = read_bends_reference(bends_reference) if bends_reference else None
-    notes: list[str] = []
-    if str(source).lower().endswith(".csv"):
-        traj, _ = read_centreline_csv(source, warn=notes.append)
-        model = ""
-    else:
-        traj, _, metadata = read_smoothed_bag(source)
-        model = metadata.get("imu_model", "").split("+")[0]
-        notes.append(f"{source}: chainage is the arc length of its path (a Path has no distance_m)")
-    if config.imu_grade == AUTO_GRADE:
-        grade = model if model in GRADES else "industrial"
-        config = replace(config, imu_grade=grade)
-        hint = "" if model else " (give --imu-grade)"
-        notes.append(f"sigmas from the {grade} IMU model{hint}")
-    report = integrity_report(traj, config, spacing=spacing, reference=reference)
-    notes += report.notes
-    with all_or_none(outputs.paths()) as staged:
-        write_products_csv(report, outputs, staged)
-    return report, notes
