@@ -73,13 +73,16 @@ def _speeds(t: np.ndarray, d: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarra
 
 def _jolt(log: SensorLog, t0: float, t1: float) -> float:
     """Largest deviation (m/s^2) of |specific force| from its median around [t0, t1]."""
-    imu = log.imu
-    k = (imu.t >= t0 - WINDOW_S) & (imu.t <= t1 + WINDOW_S)
-    around = (imu.t >= t0 - 10 * WINDOW_S) & (imu.t <= t1 + 10 * WINDOW_S)
-    if not k.any() or not around.any():
+    t = log.imu.t  # time-sorted: each window is an index range, not a pass over the run
+
+    def samples(pad: float) -> tuple[int, int]:
+        return int(np.searchsorted(t, t0 - pad, "left")), int(np.searchsorted(t, t1 + pad, "right"))
+
+    (i, j), (a, b) = samples(WINDOW_S), samples(10 * WINDOW_S)
+    if i >= j or a >= b:
         return np.inf  # no IMU to vouch against the wheel: trust it
-    norm = np.linalg.norm(imu.accel, axis=1)
-    return float(np.max(np.abs(norm[k] - np.median(norm[around]))))
+    norm = np.linalg.norm(log.imu.accel[a:b], axis=1)
+    return float(np.max(np.abs(norm[i - a : j - a] - np.median(norm))))
 
 
 def find_odometer_faults(log: SensorLog, resolution: float = 0.0) -> list[OdometerFault]:
