@@ -52,10 +52,10 @@ def static_spans(log: SensorLog, min_s: float = MIN_STATIC_S) -> list[tuple[floa
         return [(float(imu_t[0]), float(imu_t[-1]))]
     spans: list[tuple[float, float]] = []
     start = 0
-    d = odo.distance
-    for i in range(1, len(odo.t) + 1):
-        if i == len(odo.t) or abs(d[i] - d[start]) > STILL_M:
-            t0, t1 = float(odo.t[start]), float(odo.t[i - 1])
+    d, t = odo.distance.tolist(), odo.t.tolist()  # Python floats: a loop over millions
+    for i in range(1, len(t) + 1):
+        if i == len(t) or abs(d[i] - d[start]) > STILL_M:
+            t0, t1 = t[start], t[i - 1]
             if start == 0:
                 t0 = min(t0, float(imu_t[0]))  # rest before the first odometer message
             a, b = max(t0, float(imu_t[0])), min(t1, float(imu_t[-1]))

@@ -105,9 +105,11 @@ def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
     arc = np.concatenate([[0.0], np.cumsum(np.sqrt(d_n**2 + d_e**2 + d_u**2))])
     sig = (np.full((len(arc), 3), np.nan) if s.sigma_enu is None
            else np.asarray(s.sigma_enu, dtype=np.float64).reshape(-1, 3))  # fmt: skip
+    # every column contiguous: np.interp copies a strided fp whole on each call
     return AxisTrack(np.maximum.accumulate(np.asarray(s.distance, dtype=np.float64)), arc,
                      np.asarray(s.t), np.asarray(s.lat), np.asarray(s.lon), np.asarray(s.h),
-                     axis, np.hypot(sig[:, 0], sig[:, 1]), sig[:, 2])  # fmt: skip
+                     axis, np.hypot(sig[:, 0], sig[:, 1]),
+                     np.ascontiguousarray(sig[:, 2]))  # fmt: skip
 
 
 def relative_angle_sigma(spec: ImuSpec, duration: FloatArray, angle: FloatArray) -> FloatArray:
