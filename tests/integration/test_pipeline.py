@@ -81,3 +81,27 @@ def test_a_run_with_no_marker_inside_its_data_is_refused(tmp_path):
     write_markers_csv(one, [survey[0], dataclasses.replace(survey[1], t=survey[1].t + 3600)])
     _, report = load_log(bare, markers_csv=one)
     assert any("the heading is not anchored" in w for w in report.warnings)
+
+
+def test_welds_found_beside_the_bends_fail_the_run_whole(tmp_path, monkeypatch):
+    """The welds run in a second thread while the bends and strain are found: what they
+    find is the run's, and when they fail the run fails with their error and writes nothing."""
+    from pathlib import Path
+
+    from pipe_nav_core.app import pipeline
+    from pipe_nav_core.app.outputs import Outputs
+
+    sample = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
+    found, _ = pipeline.smooth_bag(sample, Outputs(), config=NavConfig(), iterations=1)
+    assert found.welds, "the sample has welds"
+    again = pipeline.run_welds(pipeline.load_log(sample)[0], found, found.config or NavConfig())
+    assert [w.distance for w in found.welds] == [w.distance for w in again]
+
+    def broken(*_args: object) -> None:
+        raise RuntimeError("weld finder broke")
+
+    monkeypatch.setattr(pipeline, "run_welds", broken)
+    out = Outputs(bag=str(tmp_path / "o.mcap"), csv=str(tmp_path / "o.csv"))
+    with pytest.raises(RuntimeError, match="weld finder broke"):
+        pipeline.smooth_bag(sample, out, config=NavConfig(), iterations=1)
+    assert not list(tmp_path.iterdir())

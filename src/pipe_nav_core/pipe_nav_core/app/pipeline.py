@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -175,6 +177,9 @@ def smooth_bag(
                 for d in [result.summary.get("marker_disagreement")] if d]  # fmt: skip
     verdict = quality.judge(result.summary, result.centreline, report.warnings, failures)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
+    # the welds on the other core while the bends and strain are found (both read the
+    # smoothed run only; numpy and the kernels let go of the GIL for most of their time)
+    welds = _Background(run_welds, log, result, result.config or config) if len(log.mag.t) else None
     say("bends and strain")
     result.products = integrity_report(
         result.centreline, result.config or config, spacing=spacing, reference=reference
@@ -182,14 +187,38 @@ def smooth_bag(
     result.summary["integrity"] = result.products.summary()
 
     def find_welds() -> None:
-        if len(log.mag.t):
+        if welds is not None:
             say("girth welds")
-            result.welds = run_welds(log, result, result.config or config)
+            result.welds = welds.result()
             result.summary["welds"] = weld_summary(result.welds)
 
     write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter,
                    meanwhile=find_welds)  # fmt: skip
     return result, report
+
+
+class _Background:
+    """``fn(*args)`` in a daemon thread (an interrupted run does not wait for it at exit);
+    :meth:`result` waits for it and returns its value or raises its exception."""
+
+    def __init__(self, fn: Callable[..., object], *args: object) -> None:
+        self._out: list[object] = []
+        self._error: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                self._out.append(fn(*args))
+            except BaseException as e:  # handed to the caller by result()
+                self._error.append(e)
+
+        self._thread = threading.Thread(target=run, name="pipe-nav-welds", daemon=True)
+        self._thread.start()
+
+    def result(self) -> Any:
+        self._thread.join()
+        if self._error:
+            raise self._error[0]
+        return self._out[0]
 
 
 def _smooth_segments(

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -120,6 +121,32 @@ def _robust_sigma(x: FloatArray) -> float:
     return s if s > 0 else float(np.std(x)) or 1.0
 
 
+class _MagSamples(NamedTuple):
+    """The magnetometer samples within the centreline, as the field fit takes them: field
+    ``b`` (M, 3) T imu_link, C_nb (M, 3, 3) at their times, the fit's regressors ``x``
+    (M, 10) and chainage ``d`` (M,) m (non-decreasing)."""
+
+    b: FloatArray
+    c_nb: FloatArray
+    x: FloatArray
+    d: FloatArray
+
+
+def _mag_samples(log: SensorLog, centreline: Trajectory) -> _MagSamples | None:
+    """The samples of the fit (once per run: each fit leaves out other welds, not samples),
+    None with fewer than 20 within the centreline."""
+    t_c = np.asarray(centreline.t, dtype=np.float64)
+    mt = np.asarray(log.mag.t, dtype=np.float64)
+    keep = (mt >= t_c[0]) & (mt <= t_c[-1]) & np.isfinite(log.mag.field).all(axis=1)
+    if keep.sum() < 20:
+        return None
+    b = np.asarray(log.mag.field, dtype=np.float64)[keep]
+    at = interpolate_trajectory(centreline, mt[keep])
+    c_nb = dcm_from_quat(at.quat_nb)
+    x = np.column_stack([c_nb.reshape(-1, 9), np.ones(len(b))])
+    return _MagSamples(b, c_nb, x, np.maximum.accumulate(np.asarray(at.distance, dtype=np.float64)))
+
+
 def mag_residual(
     log: SensorLog,
     centreline: Trajectory,
@@ -131,16 +158,19 @@ def mag_residual(
     step 1): (grid chainages m, (G, 3) residual T in ENU), ``GRID_STEP_M`` apart. The samples
     within ``exclude_half`` m of the chainages ``exclude`` (welds found already) are left out
     of the fit, so that their anomalies do not leak into it."""
-    t_c = np.asarray(centreline.t, dtype=np.float64)
-    mt = np.asarray(log.mag.t, dtype=np.float64)
-    keep = (mt >= t_c[0]) & (mt <= t_c[-1]) & np.isfinite(log.mag.field).all(axis=1)
-    if keep.sum() < 20:
+    return _residual(_mag_samples(log, centreline), r_base_imu, exclude, exclude_half)
+
+
+def _residual(
+    m: _MagSamples | None,
+    r_base_imu: ArrayLike | None = None,
+    exclude: ArrayLike = (),
+    exclude_half: float = 0.0,
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`mag_residual` of the samples ``m``."""
+    if m is None:
         return np.empty(0), np.empty((0, 3))
-    b = np.asarray(log.mag.field, dtype=np.float64)[keep]
-    at = interpolate_trajectory(centreline, mt[keep])
-    c_nb = dcm_from_quat(at.quat_nb)
-    x = np.column_stack([c_nb.reshape(-1, 9), np.ones(len(b))])
-    d = np.maximum.accumulate(np.asarray(at.distance, dtype=np.float64))
+    b, c_nb, x, d = m
     fit = np.ones(len(b), dtype=bool)
     ex = np.sort(np.asarray(exclude, dtype=np.float64).reshape(-1))
     if len(ex) and exclude_half > 0:
@@ -321,7 +351,8 @@ def detect_welds(
     width = max(float(width_d) * float(pipe_diameter), 2.0 * GRID_STEP_M)
     sep = max(1.0, MIN_SEPARATION_D * float(pipe_diameter))
     apart = max(1, int(round(sep / GRID_STEP_M)))
-    grid, residual = mag_residual(log, centreline, r_base_imu)
+    samples = _mag_samples(log, centreline)
+    grid, residual = _residual(samples, r_base_imu)
     if len(grid) < 10:
         return []
     for _ in range(2):  # the second time with the welds found left out of the field's fit
@@ -329,7 +360,7 @@ def detect_welds(
         peaks = _peaks(snr, height=threshold, distance=apart)
         if not len(peaks):
             break
-        grid, residual = mag_residual(log, centreline, r_base_imu, grid[peaks], 4.0 * width)
+        grid, residual = _residual(samples, r_base_imu, grid[peaks], 4.0 * width)
     snr = mag_snr(residual, width)
     peaks = _peaks(snr, height=threshold, distance=apart)
     cands = [_candidate(grid, snr, int(k), width) for k in peaks]
