@@ -46,3 +46,33 @@ def test_bench_runs_through_another_pipe_on_request():
     assert abs(own[0]["survey_h"] - other[0]["survey_h"]) > 1e-3
     md = bench.markdown({"sag104": other}, "pipe-nav bench --pipe-seed 7", 1, 7)
     assert "every scenario through pipe 7" in md
+
+
+def test_resident_peak_sees_memory_taken_and_given_back():
+    """The memory column's measure: a 200 MB array made and let go inside the block is its
+    peak, though the process ends the block where it began."""
+    import numpy as np
+
+    with bench.ResidentPeak(every=0.001) as peak:
+        a = np.ones(25_000_000)  # 200 MB, written
+        import time
+
+        time.sleep(0.05)
+        del a
+    assert 180 < peak.mb < 400
+    with bench.ResidentPeak() as idle:
+        pass
+    assert idle.mb < 50
+
+
+def test_every_method_row_has_its_time_and_memory():
+    case = next(c for c in bench.CASES if c.scenario == "sag104")
+    rows = bench.run_case(case, 1, ["rts", "graph"])
+    by = {r["method"]: r for r in rows}
+    for method in ("rts", "graph"):
+        assert by[method]["x_real_time"] > 1.0
+        assert 0.0 <= by[method]["peak_mb"] < 2000.0
+    md = bench.markdown({"sag104": rows}, "pipe-nav bench --scenarios sag104", 1)
+    assert "| memory [MB] |" in md
+    line = next(x for x in md.splitlines() if "| graph |" in x)
+    assert line.rstrip(" |").split("|")[-1].strip().isdigit()

@@ -17,6 +17,7 @@ import json
 import math
 import platform
 import sys
+import threading
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -134,6 +135,40 @@ def survey_error(run: SimRun) -> tuple[float, float]:
     return float(np.hypot(d[:, 0], d[:, 1]).max()), float(np.abs(d[:, 2]).max())
 
 
+def _resident_mb() -> float:
+    """This process's resident memory, MB (nan where /proc is not there)."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(x.split()[1]) for x in f if x.startswith("VmRSS:")) / 1024.0
+    except (OSError, StopIteration):
+        return math.nan
+
+
+class ResidentPeak:
+    """The largest rise of this process's resident memory (MB) over what it was on entry,
+    sampled every ``every`` s in a second thread while the block runs: ``mb`` after it."""
+
+    def __init__(self, every: float = 0.005) -> None:
+        self.every, self.mb = every, math.nan
+        self._stop = threading.Event()
+
+    def __enter__(self) -> ResidentPeak:
+        self._start = self._peak = _resident_mb()
+
+        def sample() -> None:
+            while not self._stop.wait(self.every):
+                self._peak = max(self._peak, _resident_mb())
+
+        self._thread = threading.Thread(target=sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.mb = max(self._peak, _resident_mb()) - self._start
+
+
 def run_case(
     case: BenchCase, seed: int, methods: list[str], pipe_seed: int | None = None
 ) -> list[dict[str, object]]:
@@ -174,10 +209,14 @@ def run_case(
 
     rows = []
     for method in methods:
-        t0 = time.perf_counter()
-        res = smooth_log(run.log, cfg, method=method)
-        rows.append(row(run, method, res.centreline, res.datum, time.perf_counter() - t0))
+        with ResidentPeak() as peak:
+            t0 = time.perf_counter()
+            res = smooth_log(run.log, cfg, method=method)
+            elapsed = time.perf_counter() - t0
+        rows.append(row(run, method, res.centreline, res.datum, elapsed))
         rows[-1]["passes"] = res.summary.get("passes")
+        rows[-1]["peak_mb"] = peak.mb
+        del res
     # seed 002's complementary filter with dead reckoning: the published-method baseline
     t0 = time.perf_counter()
     base = complementary_trajectory(run.log.to_base_link(mount_rotation(cfg.imu_mount_rpy)))
@@ -224,6 +263,10 @@ def repeatability(rows: list[dict[str, object]]) -> float:
 
 def _cm(x: float) -> str:
     return "" if math.isnan(x) else f"{100 * x:.1f}"
+
+
+def _mb(x: float) -> str:
+    return "" if math.isnan(x) else f"{x:.0f}"
 
 
 def _pct(x: float) -> str:
@@ -288,14 +331,17 @@ def markdown(
         "is scored against the same marker survey, as in the paper); survey = largest survey",
         "error of the pipe's markers, horizontal / vertical: the smoothed centreline passes",
         "through the surveyed markers, so its error there cannot be smaller.",
+        "x real time: run duration / smoothing time (mean over seeds); memory: the largest rise",
+        "of the process's resident memory while the method smooths (worst seed; the run's log",
+        "is already in memory).",
         "Verdict: the target of the issue (smoothed centrelines, worst seed) and at least",
         f"{CONSISTENT:.0%} of samples inside 3σ (every estimator; the forward filter is judged on",
         "that alone).",
         "",
         "| scenario (mirrors) | paper | method | max h [m] | RMS h [m] | max v [m] | RMS v [m] "
         "| 1:N | in 3σ | sag err [cm] | repeat [cm] | survey h/v [cm] | target | verdict "
-        "| x real time |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| x real time | memory [MB] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for case in CASES:
         rows_all = results.get(case.scenario)
@@ -317,7 +363,7 @@ def markdown(
                 f"| {_cm(_agg(rows, 'survey_h', max))} / {_cm(_agg(rows, 'survey_v', max))} "
                 f"| {case.target} "
                 f"| {verdict(case, rows, method)} "
-                f"| {_agg(rows, 'x_real_time', np.mean):.0f} |"
+                f"| {_agg(rows, 'x_real_time', np.mean):.0f} | {_mb(_agg(rows, 'peak_mb', max))} |"
             )
     lines += [
         "",
