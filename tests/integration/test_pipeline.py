@@ -96,6 +96,10 @@ def test_welds_found_beside_the_bends_fail_the_run_whole(tmp_path, monkeypatch):
     assert found.welds, "the sample has welds"
     again = pipeline.run_welds(pipeline.load_log(sample)[0], found, found.config or NavConfig())
     assert [w.distance for w in found.welds] == [w.distance for w in again]
+    monkeypatch.setattr(pipeline, "WELDS_BESIDE_BENDS_MAX", 0)  # a long run: after the bends
+    after, _ = pipeline.smooth_bag(sample, Outputs(), config=NavConfig(), iterations=1)
+    assert list(map(repr, after.welds)) == list(map(repr, found.welds))  # nan joint lengths
+    monkeypatch.undo()
 
     def broken(*_args: object) -> None:
         raise RuntimeError("weld finder broke")

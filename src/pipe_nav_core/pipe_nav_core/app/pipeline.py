@@ -52,6 +52,9 @@ from pipe_nav_core.smooth.segments import smooth_segments
 from pipe_nav_core.types import Marker, SensorLog
 
 MAX_BRIDGED_M = 0.5  # m: the filter carries a gap the pig moved less in; else segments
+# magnetometer samples up to which the welds are found beside the bends and strain (1 M: some
+# 40 km of run at 50 Hz); longer runs find them after, to keep the peak memory down
+WELDS_BESIDE_BENDS_MAX = 1_000_000
 
 
 DEFAULT_TOPICS = TopicNames()
@@ -178,19 +181,23 @@ def smooth_bag(
     verdict = quality.judge(result.summary, result.centreline, report.warnings, failures)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
     # the welds on the other core while the bends and strain are found (both read the
-    # smoothed run only; numpy and the kernels let go of the GIL for most of their time)
-    welds = _Background(run_welds, log, result, result.config or config) if len(log.mag.t) else None
+    # smoothed run only; numpy and the kernels let go of the GIL for most of their time),
+    # unless the run is so long that their working sets together would raise the peak
+    # memory (some 400 bytes per magnetometer sample: 1 GB at 100 km)
+    cfg = result.config or config
+    welds: _Background | None = None
+    if 0 < len(log.mag.t) <= WELDS_BESIDE_BENDS_MAX:
+        welds = _Background(run_welds, log, result, cfg)
     say("bends and strain")
-    result.products = integrity_report(
-        result.centreline, result.config or config, spacing=spacing, reference=reference
-    )
+    result.products = integrity_report(result.centreline, cfg, spacing=spacing, reference=reference)
     result.summary["integrity"] = result.products.summary()
 
     def find_welds() -> None:
-        if welds is not None:
+        if len(log.mag.t):
             say("girth welds")
-            result.welds = welds.result()
-            result.summary["welds"] = weld_summary(result.welds)
+            found = welds.result() if welds is not None else run_welds(log, result, cfg)
+            result.welds = found
+            result.summary["welds"] = weld_summary(found)
 
     write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter,
                    meanwhile=find_welds)  # fmt: skip

@@ -142,8 +142,8 @@ def _mag_samples(log: SensorLog, centreline: Trajectory) -> _MagSamples | None:
         return None
     b = np.asarray(log.mag.field, dtype=np.float64)[keep]
     at = interpolate_trajectory(centreline, mt[keep])
-    c_nb = dcm_from_quat(at.quat_nb)
-    x = np.column_stack([c_nb.reshape(-1, 9), np.ones(len(b))])
+    x = np.column_stack([dcm_from_quat(at.quat_nb).reshape(-1, 9), np.ones(len(b))])
+    c_nb = x[:, :9].reshape(-1, 3, 3)  # a view: C_nb is the regressors' first nine columns
     return _MagSamples(b, c_nb, x, np.maximum.accumulate(np.asarray(at.distance, dtype=np.float64)))
 
 
