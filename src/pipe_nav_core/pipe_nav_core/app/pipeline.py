@@ -187,7 +187,7 @@ def smooth_bag(
     cfg = result.config or config
     welds: _Background | None = None
     if 0 < len(log.mag.t) <= WELDS_BESIDE_BENDS_MAX:
-        welds = _Background(run_welds, log, result, cfg)
+        welds = _Background("pipe-nav-welds", run_welds, log, result, cfg)
     say("bends and strain")
     result.products = integrity_report(result.centreline, cfg, spacing=spacing, reference=reference)
     result.summary["integrity"] = result.products.summary()
@@ -205,10 +205,10 @@ def smooth_bag(
 
 
 class _Background:
-    """``fn(*args)`` in a daemon thread (an interrupted run does not wait for it at exit);
-    :meth:`result` waits for it and returns its value or raises its exception."""
+    """``fn(*args)`` in a daemon thread named ``name`` (an interrupted run does not wait for it
+    at exit); :meth:`result` waits for it and returns its value or raises its exception."""
 
-    def __init__(self, fn: Callable[..., object], *args: object) -> None:
+    def __init__(self, name: str, fn: Callable[..., object], *args: object) -> None:
         self._out: list[object] = []
         self._error: list[BaseException] = []
 
@@ -218,7 +218,7 @@ class _Background:
             except BaseException as e:  # handed to the caller by result()
                 self._error.append(e)
 
-        self._thread = threading.Thread(target=run, name="pipe-nav-welds", daemon=True)
+        self._thread = threading.Thread(target=run, name=name, daemon=True)
         self._thread.start()
 
     def result(self) -> Any:

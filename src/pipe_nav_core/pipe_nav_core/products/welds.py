@@ -123,11 +123,10 @@ def _robust_sigma(x: FloatArray) -> float:
 
 class _MagSamples(NamedTuple):
     """The magnetometer samples within the centreline, as the field fit takes them: field
-    ``b`` (M, 3) T imu_link, C_nb (M, 3, 3) at their times, the fit's regressors ``x``
-    (M, 10) and chainage ``d`` (M,) m (non-decreasing)."""
+    ``b`` (M, 3) T imu_link, the fit's regressors ``x`` (M, 10: C_nb at their times, row by
+    row, and 1) and chainage ``d`` (M,) m (non-decreasing)."""
 
     b: FloatArray
-    c_nb: FloatArray
     x: FloatArray
     d: FloatArray
 
@@ -143,8 +142,7 @@ def _mag_samples(log: SensorLog, centreline: Trajectory) -> _MagSamples | None:
     b = np.asarray(log.mag.field, dtype=np.float64)[keep]
     at = interpolate_trajectory(centreline, mt[keep])
     x = np.column_stack([dcm_from_quat(at.quat_nb).reshape(-1, 9), np.ones(len(b))])
-    c_nb = x[:, :9].reshape(-1, 3, 3)  # a view: C_nb is the regressors' first nine columns
-    return _MagSamples(b, c_nb, x, np.maximum.accumulate(np.asarray(at.distance, dtype=np.float64)))
+    return _MagSamples(b, x, np.maximum.accumulate(np.asarray(at.distance, dtype=np.float64)))
 
 
 def mag_residual(
@@ -170,7 +168,8 @@ def _residual(
     """:func:`mag_residual` of the samples ``m``."""
     if m is None:
         return np.empty(0), np.empty((0, 3))
-    b, c_nb, x, d = m
+    b, x, d = m
+    c_nb = x[:, :9].reshape(-1, 3, 3)  # a view of the regressors
     fit = np.ones(len(b), dtype=bool)
     ex = np.sort(np.asarray(exclude, dtype=np.float64).reshape(-1))
     if len(ex) and exclude_half > 0:
