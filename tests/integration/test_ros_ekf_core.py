@@ -402,6 +402,25 @@ def test_markers_ahead_of_the_data_are_held_not_poisoning(run, config):
     assert core2.nav.diagnostics().get("received_marker", 0) == 0
 
 
+def test_a_topic_arriving_behind_the_others_loses_nothing(run, config):
+    """A backlog: from 20 s on the IMU messages reach the node up to 2 s (of stamp time, four
+    reorder windows) after the odometer's and magnetometer's of the same stamps, each topic in
+    its own order (as a node that fell behind takes them from its queues). Every sample is used
+    and the estimates are those of the run in stamp order."""
+    messages = input_messages(run, t_end=CROP_S)
+    reference, _ = clean_estimates(run, config, messages)
+    lag = lambda t, role: min(max(t - 20.0, 0.0), 2.0) if role == "imu" else 0.0  # noqa: E731
+    behind = sorted(messages, key=lambda m: m[0] + lag(m[0], m[1]))
+    assert behind != messages
+    core = EkfCore(config, TYPES)
+    odometry, datums = feed(core, behind)
+    assert len(datums) == 1
+    assert all(sum(c.faults.values()) == 0 for c in core.counters.values())
+    assert not any(k.startswith("late_") for k in core.nav.diagnostics())
+    assert len(odometry) == len(reference)
+    np.testing.assert_allclose(positions(odometry), positions(reference), atol=1e-9)
+
+
 def test_bursts_are_counted_from_the_sent_times():
     core = EkfCore(NavConfig(), TYPES)
     n = 3000

@@ -2,25 +2,44 @@
 
 Samples are held for ``window`` seconds of stamp time and released in stamp order; a sample
 older than what was already released is late: it is counted and dropped.
+
+Each topic arrives in its own order but the topics need not keep pace with one another: behind
+a backlog (a node that fell behind, a driver with a longer latency) one topic's samples can
+reach the buffer over ``window`` after another's of the same stamps. So a sample is also held
+until every stream (``STREAMS``) still sending has passed its stamp: only a stream silent for
+over ``hold`` seconds of stamp time (a dropout, a sensor that is not there) holds nothing back.
+The released order, and so every result, is the same; what changes is only when samples leave,
+and which ones would otherwise be late.
 """
 
 from __future__ import annotations
 
 import heapq
 import itertools
+import math
 from collections import defaultdict
 from typing import Any
 
+STREAMS = ("imu", "odometer", "mag")  # the kinds whose stamps come steadily (not markers)
+HOLD_S = 5.0  # s of stamp time a lagging stream is waited for at most
+
 
 class ReorderBuffer:
-    """Merges pushed samples of several kinds into one stream ordered by stamp."""
+    """Merges pushed samples of several kinds into one stream ordered by stamp.
 
-    def __init__(self, window: float) -> None:
+    window: s, how far behind the newest stamp a sample may arrive; hold: s, how far a
+    lagging stream's newest stamp may be behind the newest of all and still hold the release
+    back (see the module docstring).
+    """
+
+    def __init__(self, window: float, hold: float = HOLD_S) -> None:
         self.window = float(window)
+        self.hold = max(float(hold), self.window)
         self._heap: list[tuple[float, int, str, Any]] = []
         self._seq = itertools.count()
-        self.newest = float("-inf")
-        self.horizon = float("-inf")  # everything stamped at or before it has been released
+        self.newest = -math.inf
+        self._newest_of = dict.fromkeys(STREAMS, -math.inf)  # s, per stream
+        self.horizon = -math.inf  # everything stamped at or before it has been released
         self.late: dict[str, int] = defaultdict(int)
 
     def push(self, t: float, kind: str, payload: Any) -> bool:
@@ -31,12 +50,14 @@ class ReorderBuffer:
         heapq.heappush(self._heap, (t, next(self._seq), kind, payload))
         if t > self.newest:
             self.newest = t
+        if kind in self._newest_of and t > self._newest_of[kind]:
+            self._newest_of[kind] = t
         return True
 
     def release(self, flush: bool = False) -> list[tuple[float, str, Any]]:
-        """Samples whose stamps are at least ``window`` older than the newest, in stamp order
-        (all of them when flush)."""
-        cutoff = float("inf") if flush else self.newest - self.window
+        """Samples at least ``window`` older than the newest and not ahead of any stream still
+        sending, in stamp order (all of them when flush)."""
+        cutoff = math.inf if flush else self._cutoff()
         out = []
         heap = self._heap
         while heap and heap[0][0] <= cutoff:
@@ -45,6 +66,15 @@ class ReorderBuffer:
         if cutoff > self.horizon:
             self.horizon = cutoff
         return out
+
+    def _cutoff(self) -> float:
+        """s: the stamp up to which samples may leave (module docstring)."""
+        cutoff = self.newest - self.window
+        lagging = self.newest - self.hold
+        for t in self._newest_of.values():
+            if lagging <= t < cutoff:
+                cutoff = t
+        return cutoff
 
     def __len__(self) -> int:
         return len(self._heap)
