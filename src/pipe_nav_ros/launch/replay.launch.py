@@ -4,7 +4,8 @@
     ros2 launch pipe_nav_ros replay.launch.py bag:=run.mcap record:=true output:=run_ekf
 
 ``ros2 bag play <bag> --clock`` publishes the input topics and /clock; ekf_node runs with
-use_sim_time:=true; with record:=true, ``ros2 bag record -s mcap -o <output>`` records
+use_sim_time:=true; the sensor topics are played and subscribed reliable (config/player_qos.yaml,
+sensor_qos_reliable), so a node that falls behind makes the player wait and loses nothing; with record:=true, ``ros2 bag record -s mcap -o <output>`` records
 /pipe_nav/odometry, /pipe_nav/datum and /diagnostics into the rosbag2 directory <output>
 (default: <bag name>_ekf beside the bag). The bag plays once ekf_node says it is ready (its
 numeric kernels loaded: seconds, minutes on a fresh install) and the recorder has subscribed to
@@ -72,6 +73,7 @@ def _actions(context):
     ]
     if delay > 0:
         play_cmd += ["--delay", str(delay)]
+    play_cmd += ["--qos-profile-overrides-path", _arg(context, "player_qos")]
     play_cmd += ["--topics"] + INPUT_TOPICS
     play = ExecuteProcess(cmd=play_cmd, name="bag_play", output="screen")
 
@@ -82,7 +84,11 @@ def _actions(context):
         output="screen",
         parameters=[
             _arg(context, "ekf_params"),
-            {"use_sim_time": True, "publish_tf": _truthy(_arg(context, "publish_tf"))},
+            {
+                "use_sim_time": True,
+                "publish_tf": _truthy(_arg(context, "publish_tf")),
+                "sensor_qos_reliable": True,
+            },
         ],
         on_exit=Shutdown(reason="ekf_node exited"),
     )
@@ -163,6 +169,11 @@ def generate_launch_description():
         ("publish_tf", "true", "ekf_node broadcasts TF map -> base_link"),
         ("shutdown_when_done", "true", "end the launch once the bag has played and ekf flushed"),
         ("ekf_params", os.path.join(share, "config", "ekf.yaml"), "ekf_node parameter file"),
+        (
+            "player_qos",
+            os.path.join(share, "config", "player_qos.yaml"),
+            "the player's QoS overrides (the sensors reliable: nothing lost behind a backlog)",
+        ),
         (
             "recorder_qos",
             os.path.join(share, "config", "recorder_qos.yaml"),

@@ -1,8 +1,8 @@
 """The message handling of ekf_node, without rclpy.
 
 :class:`EkfCore` takes already-deserialized input messages (rclpy's or rosbags' classes alike),
-feeds the :class:`~pipe_nav_core.filter.navigator.Navigator` (which orders the samples by stamp across
-topics), and turns its estimates into nav_msgs/Odometry, the datum into sensor_msgs/NavSatFix
+feeds the :class:`~pipe_nav_core.filter.navigator.Navigator` (which orders the samples by stamp
+across topics), and turns its estimates into nav_msgs/Odometry, the datum into sensor_msgs/NavSatFix
 and its counters into diagnostic_msgs/DiagnosticArray, built with the given message classes.
 The node is parameters, subscriptions, timers and publishers around one EkfCore, so the same
 code path runs here under test with rosbags' classes, in ekf_node, and in ``pipe-nav replay``.

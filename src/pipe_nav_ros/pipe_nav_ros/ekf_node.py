@@ -2,7 +2,9 @@
 
 Subscribes (relative names, remappable): ``imu/data`` (sensor_msgs/Imu), ``odom/wheel``
 (nav_msgs/Odometry), ``imu/mag`` (sensor_msgs/MagneticField) with sensor-data QoS (best effort:
-matches any publisher), and ``markers`` (sensor_msgs/NavSatFix, reliable, volatile: matches
+matches any publisher; with ``sensor_qos_reliable``, reliable: nothing is lost when the node
+falls behind a replay, but a best-effort publisher is not heard: rclpy warns of the
+incompatible QoS), and ``markers`` (sensor_msgs/NavSatFix, reliable, volatile: matches
 reliable publishers, latched or not).
 
 Publishes ``pipe_nav/odometry`` (nav_msgs/Odometry: pose of base_link in map with covariance,
@@ -115,7 +117,7 @@ class EkfNode(PipeNavNode):
         # before any subscription: nothing arrives until the kernels are ready
         self.warmup_s = warm_kernels(self.get_logger().info)
 
-        sensors = sensor_qos(s["sensor_qos_depth"])
+        sensors = sensor_qos(s["sensor_qos_depth"], s["sensor_qos_reliable"])
         self._handlers = {
             "imu": self.core.on_imu,
             "odometer": self.core.on_odometer,

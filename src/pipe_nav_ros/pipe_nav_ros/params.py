@@ -355,6 +355,13 @@ EKF_NODE_SPECS = [
         "history depth of the sensor subscriptions (5000: 5 s of a 1 kHz IMU if the node stalls)",
     ),
     ParamSpec(
+        "sensor_qos_reliable",
+        False,
+        BOOL,
+        "subscribe to the sensors reliable: nothing lost when the node falls behind a replay "
+        "(replay.launch.py); a best-effort publisher (the drivers) then does not connect",
+    ),
+    ParamSpec(
         "imu_frame",
         "imu_link",
         STR,

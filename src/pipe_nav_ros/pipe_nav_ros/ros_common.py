@@ -25,14 +25,17 @@ from pipe_nav_core import ConfigError
 from .params import ParamSpec
 
 
-def sensor_qos(depth: int) -> QoSProfile:
+def sensor_qos(depth: int, reliable: bool = False) -> QoSProfile:
     """Sensor-data QoS (best effort, volatile) with a deeper history than the stock profile's 5,
     so a 1 kHz IMU survives a slow callback. A best-effort subscription matches reliable and
-    best-effort publishers alike (drivers, ``ros2 bag play``)."""
+    best-effort publishers alike (drivers, ``ros2 bag play``), but loses what arrives while the
+    node's process stands still for longer than its socket holds (about half a second at ten
+    times real time). reliable: a reliable subscription instead, which loses nothing (the
+    publisher waits) but matches only reliable publishers (a replay: replay.launch.py)."""
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
-        reliability=qos_profile_sensor_data.reliability,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else qos_profile_sensor_data.reliability,
         durability=qos_profile_sensor_data.durability,
     )
 
