@@ -5,9 +5,13 @@ with its estimator settings (RUN.config.yaml, as ``pipe-nav simulate`` writes th
 user would and as replay.launch.py does, three real processes on a ROS domain of the test's own:
 ``ros2 run pipe_nav_ros ekf_node`` (the run's settings as ``--params-file``, simulated time),
 ``ros2 bag record -s mcap`` of its outputs and ``ros2 bag play --clock --rate 10`` of the input
-topics; then ekf_node's ``~/finish`` service, and Ctrl-C to the recorder. The recording must be a
-valid rosbag2 bag (``ros2 bag info``, rosbags) whose /pipe_nav/odometry is as accurate against
-the simulator's truth as ``pipe-nav replay`` on the same bag, evaluated the same way.
+topics, the sensors played and subscribed reliable (config/player_qos.yaml,
+sensor_qos_reliable); then ekf_node's ``~/finish`` service, and Ctrl-C to the recorder. While
+the bag plays, ekf_node's processes are stopped (SIGSTOP) for a second, twice: a node that
+stands still (swapped out, a loaded machine) must make the player wait, then catch up with the
+backlog, and lose nothing. The recording must be a valid rosbag2 bag (``ros2 bag info``,
+rosbags) whose /pipe_nav/odometry has every estimate of ``pipe-nav replay`` on the same bag,
+the same.
 Skipped where rclpy is missing; every process runs in its own process group and is stopped.
 """
 
@@ -18,7 +22,9 @@ import itertools
 import math
 import os
 import re
+import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -51,6 +57,9 @@ INPUT_TOPICS = ["/imu/data", "/odom/wheel", "/imu/mag", "/markers"]
 RECORDED_TOPICS = ["/pipe_nav/odometry", "/pipe_nav/datum", "/diagnostics"]
 CROP_S = 75.0  # demo: rest, agm_00 (about 10 s), agm_01 (about 64 s), then 11 s of travel
 RATE = 10.0
+STALLS_S = (3.0, 5.0)  # s after the playback starts (10 and 30 s of the bag's time) ...
+STALL_S = 1.0  # ... ekf_node stands still this long (10 s of the bag's time)
+PLAYER_QOS = Path(__file__).parents[2] / "src" / "pipe_nav_ros" / "config" / "player_qos.yaml"
 # The recorder's subscription to /pipe_nav/odometry, deeper than rosbag2's default of 10:
 # ekf_node releases the estimates it held until the datum (the first marker) in one burst of
 # about 80, which a depth-10 recorder would partly drop.
@@ -108,10 +117,11 @@ def write_run(tmp_path: Path, seed: int) -> tuple[Path, Path, Trajectory, Sensor
 
 def ros_params_file(config: Path, out: Path) -> Path:
     """The run's settings as an ekf_node parameter file (angles in degrees), on simulated time
-    as replay.launch.py runs it."""
+    and with reliable sensor subscriptions as replay.launch.py runs it."""
     values = YAML(typ="safe", pure=True).load(config.read_text())
     params = nav_params_from_config(NavConfig.from_dict(values))
     params["use_sim_time"] = True
+    params["sensor_qos_reliable"] = True
     out.write_text(params_yaml("ekf_node", params))
     return out
 
@@ -192,6 +202,16 @@ def errors(odo: Odometry, truth: Trajectory) -> np.ndarray:
     return odo.enu - ref
 
 
+def stand_still(proc: LoggedProcess, delay: float) -> None:
+    """Stop the process group of ``proc`` for STALL_S at each of STALLS_S (s after ``delay``)."""
+    start = time.monotonic() + delay
+    for at in STALLS_S:
+        time.sleep(max(start + at - time.monotonic(), 0.0))
+        os.killpg(proc.proc.pid, signal.SIGSTOP)
+        time.sleep(STALL_S)
+        os.killpg(proc.proc.pid, signal.SIGCONT)
+
+
 def test_bag_play_into_ekf_node_recorded_matches_pipe_nav_replay(tmp_path, procs):
     ros2 = ros2_with_workspace()
 
@@ -230,11 +250,15 @@ def test_bag_play_into_ekf_node_recorded_matches_pipe_nav_replay(tmp_path, procs
 
     play = procs(
         [ros2, "bag", "play", str(bag), "--clock", "--rate", str(RATE)]
-        + ["--disable-keyboard-controls", "--delay", "1.0", "--topics", *INPUT_TOPICS],
+        + ["--disable-keyboard-controls", "--delay", "1.0", "--topics", *INPUT_TOPICS]
+        + ["--qos-profile-overrides-path", str(PLAYER_QOS)],
         env,
         tmp_path / "play.log",
     )
+    stalls = threading.Thread(target=stand_still, args=(ekf, 1.0), daemon=True)
+    stalls.start()
     assert play.wait(timeout=CROP_S / RATE + 60.0) == 0, play.output()
+    stalls.join(timeout=30.0)
     finish = subprocess.run(
         [ros2, "service", "call", "/ekf_node/finish", "std_srvs/srv/Trigger"],
         capture_output=True,
@@ -274,9 +298,9 @@ def test_bag_play_into_ekf_node_recorded_matches_pipe_nav_replay(tmp_path, procs
         f"use: {dropped}; ekf_node: {summary(diag)}"
     )
     print(counts)
-    assert len(ours.t_ns) >= 0.99 * n_ref and len(common) >= 0.99 * n_ref, counts
-    assert dropped["marker"] == 0, counts
-    assert sum(dropped.values()) <= 0.01 * sum(sent.values()), counts
+    # nothing lost behind the stalls: every estimate of the replay, at its stamp
+    assert len(ours.t_ns) == len(common) == n_ref, counts
+    assert sum(dropped.values()) == 0, counts
     # ekf_node followed from the first second: its first estimate is the replay's first one
     first = (ours.t_ns[0] - ref.t_ns[0]) * 1e-9
     assert abs(first) < 3.0, f"first estimate {first:+.2f} s after the replay's"
@@ -296,15 +320,9 @@ def test_bag_play_into_ekf_node_recorded_matches_pipe_nav_replay(tmp_path, procs
             f"{name}: max horizontal error ekf_node {h_ours:.4f} m, replay {h_ref:.4f} m; "
             f"max vertical ekf_node {v_ours:.4f} m, replay {v_ref:.4f} m"
         )
-        assert abs(v_ours - v_ref) < 0.01, f"{report[-1]}; {counts}"
-        # before the second marker the horizontal error is the heading prior's (tens of m):
-        # a few samples the node could not use change it by more than a centimetre
-        if sel is anchored or not any(dropped.values()):
-            assert abs(h_ours - h_ref) < 0.01, f"{report[-1]}; {counts}"
     diff = np.abs(ours.enu[i_ours] - ref.enu[i_ref]).max()
     print("; ".join(report) + f"; largest position difference {diff:.2e} m")
-    if not any(dropped.values()):  # every sample used: the very estimates of pipe-nav replay
-        assert diff < 1e-6, f"{diff} m; {counts}"
+    assert diff < 1e-6, f"{diff} m; {counts}"  # the very estimates of pipe-nav replay
     # a working estimate once the heading is fixed (the demo, 11 s past its second marker)
     after = np.hypot(e_ref[anchored, 0], e_ref[anchored, 1]).max()
     assert after < 0.5, report[-1]

@@ -364,6 +364,7 @@ def test_setup_py_data_files_exist():
         "ekf.yaml",
         "drivers.yaml",
         "recorder_qos.yaml",
+        "player_qos.yaml",
     }
     script = PKG / "scripts" / "replay_with_ros.sh"
     assert os.access(script, os.X_OK), "replay_with_ros.sh must be executable"
