@@ -5,7 +5,8 @@
 
 ``ros2 bag play <bag> --clock`` publishes the input topics and /clock; ekf_node runs with
 use_sim_time:=true; the sensor topics are played and subscribed reliable (config/player_qos.yaml,
-sensor_qos_reliable), so a node that falls behind makes the player wait and loses nothing; with record:=true, ``ros2 bag record -s mcap -o <output>`` records
+sensor_qos_reliable), so a node that falls behind makes the player wait and loses nothing; with
+record:=true, ``ros2 bag record -s mcap -o <output>`` records
 /pipe_nav/odometry, /pipe_nav/datum and /diagnostics into the rosbag2 directory <output>
 (default: <bag name>_ekf beside the bag). The bag plays once ekf_node says it is ready (its
 numeric kernels loaded: seconds, minutes on a fresh install) and the recorder has subscribed to
