@@ -110,3 +110,30 @@ def test_a_wheel_stuck_before_the_second_marker_is_left_out_of_the_live_rerun(lo
     assert result.diagnostics["heading_rerun"] == 1
     s = score(estimates_to_trajectory(result.estimates), truth[0])
     assert s.inside_3sigma >= 0.95, s
+
+
+def test_the_end_of_data_returns_every_epoch_it_completes(log):
+    """finish() returns the estimates of the epochs still held back by the reorder window
+    (the last half second of the run: they were dropped once), up to the offline run's last."""
+    from pipe_nav_core.filter.live_guard import GuardedNavigator
+    from pipe_nav_core.filter.navigator import Navigator
+
+    nav = Navigator(NavConfig())
+    nav.run(log)
+    last = nav.poll()[-1].t
+    live = GuardedNavigator(NavConfig())
+    imu, odo = log.imu, log.odometer
+    events = [(t, 0, i) for i, t in enumerate(imu.t)] + [(t, 1, i) for i, t in enumerate(odo.t)]
+    events += [(m.t, 2, i) for i, m in enumerate(log.markers)]
+    before = []
+    for _, kind, i in sorted(events):
+        if kind == 0:
+            live.push_imu(imu.t[i], imu.gyro[i], imu.accel[i])
+        elif kind == 1:
+            live.push_odometer(odo.t[i], odo.distance[i], odo.speed[i])
+        else:
+            live.push_marker(log.markers[i])
+        before += live.poll()
+    after = live.finish()
+    assert after and after[0].t > before[-1].t and after[-1].t == last
+    assert before[-1].t < last - 0.4  # the reorder window held the last 0.5 s

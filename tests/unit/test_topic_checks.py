@@ -71,6 +71,6 @@ def test_not_the_live_reorder_buffer():
     buf = ReorderBuffer(REORDER_WINDOW_S)
     for t in seconds:
         buf.push(t, "odometer", None)
-    released = [t for t, _, _ in buf.release(flush=True)]
+    released = buf.release(flush=True)["odometer"][0]
     assert len(kept) == 3
     assert len(released) == 4

@@ -45,21 +45,25 @@ def replay_log(
     declared: the per-sample IMU variances the Imu messages declare (imu_grade auto)."""
     nav = GuardedNavigator(config)
     nav.declared_imu_noise = declared
+    out: list[NavEstimate] = []
+    # Python floats and lists, as a message's fields are: numpy rows cost more per sample
+    imu_t, gyro, accel = log.imu.t.tolist(), log.imu.gyro.tolist(), log.imu.accel.tolist()
+    odo_t, dist, speed = (x.tolist() for x in (log.odometer.t, log.odometer.distance,
+                                               log.odometer.speed))  # fmt: skip
+    mag_t, mag = log.mag.t.tolist(), log.mag.field.tolist()
     events: list[tuple[float, int, int]] = []
-    events += [(t, 0, i) for i, t in enumerate(log.imu.t)]
-    events += [(t, 1, i) for i, t in enumerate(log.odometer.t)]
-    events += [(t, 2, i) for i, t in enumerate(log.mag.t)]
+    events += [(t, 0, i) for i, t in enumerate(imu_t)]
+    events += [(t, 1, i) for i, t in enumerate(odo_t)]
+    events += [(t, 2, i) for i, t in enumerate(mag_t)]
     events += [(m.t, 3, i) for i, m in enumerate(log.markers)]
     events.sort()
-    out: list[NavEstimate] = []
-    imu, odo, mag = log.imu, log.odometer, log.mag
     for _t, kind, i in events:
         if kind == 0:
-            nav.push_imu(imu.t[i], imu.gyro[i], imu.accel[i])
+            nav.push_imu(imu_t[i], gyro[i], accel[i])
         elif kind == 1:
-            nav.push_odometer(odo.t[i], odo.distance[i], odo.speed[i])
+            nav.push_odometer(odo_t[i], dist[i], speed[i])
         elif kind == 2:
-            nav.push_mag(mag.t[i], mag.field[i])
+            nav.push_mag(mag_t[i], mag[i])
         else:
             nav.push_marker(log.markers[i])
         out.extend(nav.poll())

@@ -17,13 +17,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.filter.stream import ReorderBuffer
+from pipe_nav_core.filter.stream import Released, ReorderBuffer
 from pipe_nav_core.types import MagSamples, Marker, OdometerSamples, SensorLog
 
 Array = NDArray[np.float64]
-Sample = tuple[float, str, object]  # stamp s, kind ("imu", "odometer", "mag", "marker"), payload
 
-RELEASE_EVERY = 8  # IMU samples pushed between releases (behaviour does not depend on it) ...
+RELEASE_EVERY_S = 0.05  # s of stamp time between releases (the results do not depend on it) ...
 RELEASE_HELD = 4096  # ... unless the reorder window holds this many samples
 MAG_KEEP_S = 1.0  # s: magnetometer samples kept before the state's time
 
@@ -63,17 +62,19 @@ class Inbox:
         self.first_marker = first
         self.horizon = -math.inf  # s: stamp time up to which all data are in
         self._counts = counts
+        self._received = {k: f"received_{k}" for k in ("imu", "odometer", "mag", "marker")}
+        self._next_release = -math.inf  # s: a sample stamped from then on releases
 
     # ------------------------------------------------------------------ one sample at a time
     def imu_sample(self, t: float, gyro: Sequence[float], accel: Sequence[float]) -> object:
-        """The payload of an IMU sample (rad/s, m/s^2, imu_link), None (counted) if not
-        finite."""
+        """The payload of an IMU sample: (rate x, y, z rad/s, specific force x, y, z m/s^2),
+        imu_link; None (counted) if not finite."""
         gx, gy, gz = (float(v) for v in gyro)  # scalars: numpy per sample costs more here
         ax, ay, az = (float(v) for v in accel)
         if not all(map(math.isfinite, (t, gx, gy, gz, ax, ay, az))):
             self._counts["dropped_nan_imu"] += 1
             return None
-        return ((gx, gy, gz), (ax, ay, az))
+        return (gx, gy, gz, ax, ay, az)
 
     def odometer_sample(self, t: float, distance: float, speed: float) -> object:
         """The payload of an odometer sample (m, m/s), None (counted) if not finite."""
@@ -100,16 +101,14 @@ class Inbox:
 
     def push(self, t: float, kind: str, payload: object) -> bool:
         """A checked sample into the reorder window; True when samples left it for the
-        buffers (IMU samples are released in small batches: the results do not depend on
-        it)."""
-        self._counts[f"received_{kind}"] += 1
+        buffers. Samples are released when the stamps have moved on RELEASE_EVERY_S since the
+        last release (a few times per filter epoch, whatever the sensor rates; the results do
+        not depend on it), or when the window holds RELEASE_HELD samples."""
+        self._counts[self._received[kind]] += 1
         self.reorder.push(t, kind, payload)
-        if (
-            kind == "imu"
-            and self._counts["received_imu"] % RELEASE_EVERY
-            and (len(self.reorder) < RELEASE_HELD)
-        ):
+        if t < self._next_release and len(self.reorder) < RELEASE_HELD:
             return False
+        self._next_release = t + RELEASE_EVERY_S
         released = self.reorder.release()
         if released:
             self._take(released, self.reorder.horizon)
@@ -119,29 +118,21 @@ class Inbox:
         """End of data: everything in the reorder window into the buffers."""
         self._take(self.reorder.release(flush=True), math.inf)
 
-    def _take(self, items: list[Sample], horizon: float) -> None:
-        imu_t, imu_g, imu_a, odo, mag, mk = [], [], [], [], [], []
-        for t, kind, p in items:
-            if kind == "imu":
-                imu_t.append(t)
-                imu_g.append(p[0])  # type: ignore[index]
-                imu_a.append(p[1])  # type: ignore[index]
-            elif kind == "odometer":
-                odo.append((t, *p))  # type: ignore[misc]
-            elif kind == "mag":
-                mag.append((t, p))
-            else:
-                mk.append(p)
-        o = np.array(odo).reshape(-1, 3)
+    def _take(self, released: Released, horizon: float) -> None:
+        none: tuple[list[float], list[object]] = ([], [])
+        imu_t, imu = released.get("imu", none)
+        odo_t, odo = released.get("odometer", none)
+        mag_t, mag = released.get("mag", none)
+        ga = np.array(imu, dtype=np.float64).reshape(-1, 6)
+        o = np.array(odo, dtype=np.float64).reshape(-1, 2)
         self.add(
-            np.array(imu_t),
-            np.array(imu_g).reshape(-1, 3),
-            np.array(imu_a).reshape(-1, 3),
-            OdometerSamples(o[:, 0], o[:, 1], o[:, 2]),
-            MagSamples(np.array([m[0] for m in mag]), np.array([m[1] for m in mag]).reshape(-1, 3)),
-            mk,  # type: ignore[arg-type]
+            np.array(imu_t, dtype=np.float64), ga[:, :3], ga[:, 3:],
+            OdometerSamples(np.array(odo_t, dtype=np.float64), o[:, 0], o[:, 1]),
+            MagSamples(np.array(mag_t, dtype=np.float64),
+                       np.array(mag, dtype=np.float64).reshape(-1, 3)),
+            released.get("marker", none)[1],  # type: ignore[arg-type]
             horizon,
-        )
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ a log at a time
     def add_log(self, log: SensorLog, final: bool) -> None:

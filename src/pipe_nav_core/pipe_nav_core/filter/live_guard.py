@@ -94,19 +94,26 @@ class GuardedNavigator(Navigator):
         if self.lost_since is not None:
             self._counts["ignored_lost"] += 1
             return
-        g = (float(gyro[0]), float(gyro[1]), float(gyro[2]))
-        a = (float(accel[0]), float(accel[1]), float(accel[2]))
-        if not all(map(math.isfinite, (t, *g, *a))):
+        g = gx, gy, gz = (float(gyro[0]), float(gyro[1]), float(gyro[2]))
+        a = ax, ay, az = (float(accel[0]), float(accel[1]), float(accel[2]))
+        if not math.isfinite(t + gx + gy + gz + ax + ay + az) and not all(
+            map(math.isfinite, (t, *g, *a))
+        ):
             super().push_imu(t, g, a)  # counted and dropped there
             return
-        if abs(math.hypot(*a) - GRAVITY) > MAX_ACCEL or math.hypot(*g) > MAX_RATE:
+        rate = math.hypot(gx, gy, gz)
+        force = math.hypot(ax, ay, az)
+        if abs(force - GRAVITY) > MAX_ACCEL or rate > MAX_RATE:
             self._counts["imu_fault_shock"] += 1
             self._shock_t = t
             return
         if t - self._shock_t <= 2.0 * MARGIN_S:  # amid a shock's readings: part of the shock
             self._counts["imu_fault_shock"] += 1
             return
-        if self._saturated(g, a):
+        # an axis at a saturating magnitude needs a norm at least that large
+        if (rate >= SATURATED_RATE or force >= SATURATED_ACCEL or any(self._repeat)) and (
+            self._saturated(g, a)
+        ):
             self._counts["imu_fault_saturated"] += 1
             return
         last = self._last
@@ -134,7 +141,7 @@ class GuardedNavigator(Navigator):
                 self._period = dt if self._period is None else 0.99 * self._period + 0.01 * dt
         self._last = (t, g, a)
         self._odo_at_last_imu = self._last_odo
-        super().push_imu(t, g, a)
+        self._push(t, "imu", (gx, gy, gz, ax, ay, az))  # Inbox.imu_sample's, checked above
 
     def _stood_still(self, last: tuple, nxt: tuple) -> bool:
         """Whether the pig stood still across an IMU hole from sample last to nxt: the
@@ -231,11 +238,11 @@ class GuardedNavigator(Navigator):
             self._kept.append((t, kind, payload))
         super()._push(t, kind, payload)
 
-    def poll(self) -> list[NavEstimate]:
-        return self._published_only(super().poll())
-
-    def finish(self) -> list[NavEstimate]:
-        return self._published_only(super().finish())
+    def poll(self) -> list[NavEstimate]:  # Navigator.finish returns it too
+        out = super().poll()
+        if out or (self._kept is not None and self.anchor.anchored):
+            return self._published_only(out)
+        return out  # the common case: nothing new (called after every sample)
 
     def _published_only(self, out: list[NavEstimate]) -> list[NavEstimate]:
         if self._kept is not None and self.anchor.anchored:
@@ -301,7 +308,7 @@ def _log_of(kept: list[tuple[float, str, object]]) -> SensorLog:
     by: dict[str, list[tuple[float, object]]] = {"imu": [], "odometer": [], "mag": [], "marker": []}
     for t, kind, payload in sorted(kept, key=lambda x: x[0]):
         by[kind].append((t, payload))
-    imu = np.array([[t, *g, *a] for t, (g, a) in by["imu"]]).reshape(-1, 7)  # type: ignore[misc]
+    imu = np.array([[t, *p] for t, p in by["imu"]]).reshape(-1, 7)  # type: ignore[misc]
     odo = np.array([[t, *p] for t, p in by["odometer"]]).reshape(-1, 3)  # type: ignore[misc]
     mag = np.array([[t, *m] for t, m in by["mag"]]).reshape(-1, 4)  # type: ignore[misc]
     return SensorLog(

@@ -14,14 +14,15 @@ and which ones would otherwise be late.
 
 from __future__ import annotations
 
-import heapq
-import itertools
+import bisect
 import math
 from collections import defaultdict
 from typing import Any
 
 STREAMS = ("imu", "odometer", "mag")  # the kinds whose stamps come steadily (not markers)
 HOLD_S = 5.0  # s of stamp time a lagging stream is waited for at most
+
+Released = dict[str, tuple[list[float], list[Any]]]  # per kind: stamps (s) and payloads
 
 
 class ReorderBuffer:
@@ -30,13 +31,18 @@ class ReorderBuffer:
     window: s, how far behind the newest stamp a sample may arrive; hold: s, how far a
     lagging stream's newest stamp may be behind the newest of all and still hold the release
     back (see the module docstring).
+
+    Each kind is kept in its own stamp-sorted list (a sample arriving in its kind's order,
+    the common case, is appended) and released per kind: every sample of one release is
+    stamped at or before every sample of the next.
     """
 
     def __init__(self, window: float, hold: float = HOLD_S) -> None:
         self.window = float(window)
         self.hold = max(float(hold), self.window)
-        self._heap: list[tuple[float, int, str, Any]] = []
-        self._seq = itertools.count()
+        self._t: defaultdict[str, list[float]] = defaultdict(list)  # s, per kind, sorted
+        self._p: defaultdict[str, list[Any]] = defaultdict(list)  # payloads, as _t
+        self._held = 0
         self.newest = -math.inf
         self._newest_of = dict.fromkeys(STREAMS, -math.inf)  # s, per stream
         self.horizon = -math.inf  # everything stamped at or before it has been released
@@ -47,22 +53,34 @@ class ReorderBuffer:
         if t <= self.horizon:
             self.late[kind] += 1
             return False
-        heapq.heappush(self._heap, (t, next(self._seq), kind, payload))
+        ts = self._t[kind]
+        if ts and t < ts[-1]:  # out of its kind's order; after the samples of equal stamp
+            i = bisect.bisect_right(ts, t)
+            ts.insert(i, t)
+            self._p[kind].insert(i, payload)
+        else:
+            ts.append(t)
+            self._p[kind].append(payload)
+        self._held += 1
         if t > self.newest:
             self.newest = t
         if kind in self._newest_of and t > self._newest_of[kind]:
             self._newest_of[kind] = t
         return True
 
-    def release(self, flush: bool = False) -> list[tuple[float, str, Any]]:
-        """Samples at least ``window`` older than the newest and not ahead of any stream still
-        sending, in stamp order (all of them when flush)."""
+    def release(self, flush: bool = False) -> Released:
+        """Per kind, in stamp order, the samples at least ``window`` older than the newest
+        and not ahead of any stream still sending (all of them when flush); kinds with none
+        left out."""
         cutoff = math.inf if flush else self._cutoff()
-        out = []
-        heap = self._heap
-        while heap and heap[0][0] <= cutoff:
-            t, _, kind, payload = heapq.heappop(heap)
-            out.append((t, kind, payload))
+        out: Released = {}
+        for kind, ts in self._t.items():
+            i = bisect.bisect_right(ts, cutoff)
+            if i:
+                p = self._p[kind]
+                out[kind] = (ts[:i], p[:i])
+                del ts[:i], p[:i]
+                self._held -= i
         if cutoff > self.horizon:
             self.horizon = cutoff
         return out
@@ -77,4 +95,4 @@ class ReorderBuffer:
         return cutoff
 
     def __len__(self) -> int:
-        return len(self._heap)
+        return self._held
