@@ -313,8 +313,10 @@ def test_usage_errors_are_one_line(tmp_path: Path):
 )
 def test_every_output_is_checked_before_any_work(tmp_path, extra, named):
     (tmp_path / "afile").write_text("")
-    r = subprocess.run([sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(SAMPLE), *extra],
-                       capture_output=True, text=True, cwd=tmp_path, timeout=60)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(SAMPLE), *extra],
+        capture_output=True, text=True, cwd=tmp_path, timeout=60,
+    )  # fmt: skip
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and named in lines[0], r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]  # nothing written

@@ -1,4 +1,5 @@
-"""The quality verdict of a smoothed run (pipe_nav_core.faults.quality) and pipe-nav smooth --strict."""
+"""The quality verdict of a smoothed run (pipe_nav_core.faults.quality) and pipe-nav smooth
+--strict."""
 
 from __future__ import annotations
 

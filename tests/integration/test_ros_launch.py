@@ -1,4 +1,5 @@
-"""The launch files under real ROS 2 Jazzy: a launch_testing run per tests/integration/launch/*_launch_test.py.
+"""The launch files under real ROS 2 Jazzy: a launch_testing run per
+tests/integration/launch/*_launch_test.py.
 
 Jazzy's launch_testing pytest plugin needs pytest 7 (it is disabled in pytest.ini), so each
 launch test runs as ``python -m launch_testing.launch_test FILE --junit-xml ...`` in a process
@@ -33,7 +34,8 @@ _domains = itertools.count()
 
 def new_domain() -> int:
     """A ROS domain for one launch test: 30..99, away from the ids people use by hand and from
-    tests/integration/test_ros_drivers.py's 120..219; all below 102, where Linux DDS ports are safe."""
+    tests/integration/test_ros_drivers.py's 120..219; all below 102, where Linux DDS ports are
+    safe."""
     return 30 + (os.getpid() * 11 + next(_domains)) % 70
 
 

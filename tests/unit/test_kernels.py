@@ -107,7 +107,13 @@ def test_kernels_are_recompiled_when_a_module_they_depend_on_changes(tmp_path, m
 def test_the_command_line_io_and_simulator_are_outside_the_kernels():
     names = {p.relative_to(jit._PACKAGE).as_posix() for p in jit._kernel_sources()}
     assert {"filter/epoch.py", "model/mechanization.py", "config.py", "smooth/rts.py"} <= names
-    assert not names & {"app/cli.py", "app/pipeline.py", "smooth/passes.py", "io/bagwrite.py", "sim/run.py"}
+    assert not names & {
+        "app/cli.py",
+        "app/pipeline.py",
+        "smooth/passes.py",
+        "io/bagwrite.py",
+        "sim/run.py",
+    }
 
 
 @pytest.mark.parametrize("dof", [1, 2, 3, 6])

@@ -23,7 +23,9 @@ def test_gravity_tilt_jacobian(mode):
         ).residual
 
     c = s.c_nb
-    m = gravity_tilt.gravity_tilt(s, lay, f_mean_n=c @ (f_b - s.ba), c_mean=c, accel_n=c @ a_b, sigma=0.01)
+    m = gravity_tilt.gravity_tilt(
+        s, lay, f_mean_n=c @ (f_b - s.ba), c_mean=c, accel_n=c @ a_b, sigma=0.01
+    )
     check_jacobian(res, s, lay, m.H)
     # a rotation about the vertical changes nothing the tilt update sees
     assert np.allclose(m.H[2, lay.att], 0.0) and np.allclose(m.H[:, lay.att][:, 2], 0.0)

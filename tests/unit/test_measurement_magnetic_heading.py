@@ -19,5 +19,7 @@ def test_magnetic_heading_jacobian(mode):
             x, lay, field_b=field, c_nb=x.c_nb, declination=0.1, sigma=0.05
         ).residual
 
-    m = magnetic_heading.magnetic_heading(s, lay, field_b=field, c_nb=s.c_nb, declination=0.1, sigma=0.05)
+    m = magnetic_heading.magnetic_heading(
+        s, lay, field_b=field, c_nb=s.c_nb, declination=0.1, sigma=0.05
+    )
     check_jacobian(res, s, lay, m.H)

@@ -15,4 +15,6 @@ def test_zero_rate_jacobian(seed, mode):
     w = rng.normal(0, 1e-3, 3)
     lay = Layout(mode)
     m = zero_rate.zero_rate(s, lay, gyro_mean=w, sigma=1e-4)
-    check_jacobian(lambda x: zero_rate.zero_rate(x, lay, gyro_mean=w, sigma=1e-4).residual, s, lay, m.H)
+    check_jacobian(
+        lambda x: zero_rate.zero_rate(x, lay, gyro_mean=w, sigma=1e-4).residual, s, lay, m.H
+    )

@@ -43,4 +43,5 @@ def test_the_registry_derives_the_epoch_updates_and_the_statistics():
     # the epoch loops over the registry: no measurement is named in it
     src = inspect.getsource(epoch._updates.py_func)
     assert "literal_unroll(UPDATES)" in src
-    assert not re.search(r"\b(" + "|".join(m.__name__.rpartition(".")[2] for m in regs) + r")\.", src)
+    names = "|".join(m.__name__.rpartition(".")[2] for m in regs)
+    assert not re.search(r"\b(" + names + r")\.", src)

@@ -122,7 +122,7 @@ def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
     width, n = 3, 5
     rows = chunks.Chunks(width, budget=0)  # two chunks in memory, older ones spill
     for k in range(n):
-        for a, b, view in rows.claim(chunks.CHUNK_EPOCHS):
+        for _a, _b, view in rows.claim(chunks.CHUNK_EPOCHS):
             view[:] = k  # chunk k's rows all hold k
     threading.Timer(0.2, held.set).start()
     last_spilled = n - 3
@@ -142,7 +142,7 @@ def test_reading_back_in_any_order_keeps_the_last_chunks_asked_for():
     rows = chunks.Chunks(2, budget=0)  # two chunks in memory, the older ones spill
     n = 7
     for k in range(n):
-        for a, b, view in rows.claim(chunks.CHUNK_EPOCHS):
+        for _a, _b, view in rows.claim(chunks.CHUNK_EPOCHS):
             view[:] = k
     for i in range(n):  # forward, as Recording.variances reads them
         assert np.all(rows.chunk(i) == i)

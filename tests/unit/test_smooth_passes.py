@@ -65,7 +65,9 @@ def test_a_kept_pass_waits_on_disk_and_comes_back_unchanged(monkeypatch):
     again = smooth_log(run.log, cfg, method="rts", iterations=2)
     assert parked  # pass 1 waited on disk while pass 2 ran
     for name in ("t", "lat", "lon", "h", "vel_n", "quat_nb", "distance", "sigma_enu"):
-        assert getattr(again.centreline, name).tobytes() == getattr(plain.centreline, name).tobytes()
+        assert (
+            getattr(again.centreline, name).tobytes() == getattr(plain.centreline, name).tobytes()
+        )
 
 
 def test_parked_result_restores_every_array():
