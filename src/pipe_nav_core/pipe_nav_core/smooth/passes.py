@@ -103,7 +103,7 @@ def smooth_log(
     nav = run_forward(log, cfg, reverse=reverse, progress=progress)
     assert nav.recording is not None
     forward = with_free_heading(forward_trajectory(nav.recording), nav.free_heading)
-    first = nav.recording.states[0]
+    first = nav.recording.states[0].copy()  # a view would keep every pass-1 state alive
     datum = nav.datum or Datum(float(first[SV_LAT]), float(first[SV_LON]), float(first[SV_H]))
 
     def result_of(nav: Navigator, centre: Trajectory) -> SmoothResult:
