@@ -57,6 +57,7 @@ INPUT_TOPICS = ["/imu/data", "/odom/wheel", "/imu/mag", "/markers"]
 RECORDED_TOPICS = ["/pipe_nav/odometry", "/pipe_nav/datum", "/diagnostics"]
 CROP_S = 75.0  # demo: rest, agm_00 (about 10 s), agm_01 (about 64 s), then 11 s of travel
 RATE = 10.0
+PLAY_DELAY_S = 1.0  # s from the player's start to its first message
 STALLS_S = (3.0, 5.0)  # s after the playback starts (10 and 30 s of the bag's time) ...
 STALL_S = 1.0  # ... ekf_node stands still this long (10 s of the bag's time)
 PLAYER_QOS = Path(__file__).parents[2] / "src" / "pipe_nav_ros" / "config" / "player_qos.yaml"
@@ -250,12 +251,12 @@ def test_bag_play_into_ekf_node_recorded_matches_pipe_nav_replay(tmp_path, procs
 
     play = procs(
         [ros2, "bag", "play", str(bag), "--clock", "--rate", str(RATE)]
-        + ["--disable-keyboard-controls", "--delay", "1.0", "--topics", *INPUT_TOPICS]
+        + ["--disable-keyboard-controls", "--delay", str(PLAY_DELAY_S), "--topics", *INPUT_TOPICS]
         + ["--qos-profile-overrides-path", str(PLAYER_QOS)],
         env,
         tmp_path / "play.log",
     )
-    stalls = threading.Thread(target=stand_still, args=(ekf, 1.0), daemon=True)
+    stalls = threading.Thread(target=stand_still, args=(ekf, PLAY_DELAY_S), daemon=True)
     stalls.start()
     assert play.wait(timeout=CROP_S / RATE + 60.0) == 0, play.output()
     stalls.join(timeout=30.0)
