@@ -322,6 +322,11 @@ def test_load_benchmark_short_run(tmp_path):
     content = bench.read_text()
     assert content.count("## ROS 2: ekf_node under a 1 kHz IMU") == 1
     assert content.startswith("# B\n\n## Other\n\ntext\n")
+    bench.write_text(content + "\n## Last\n\nend\n")  # a section after it
+    write_section(bench, text)
+    content = bench.read_text()
+    assert content.count("## ROS 2: ekf_node under a 1 kHz IMU") == 1
+    assert content.endswith("moments when the machine held the node up.\n\n## Last\n\nend\n")
 
 
 def test_ctrl_c_under_a_message_stream_is_a_clean_stop(ctx, graph, run, tmp_path):

@@ -401,7 +401,8 @@ def write_section(path: str | os.PathLike[str], text: str) -> None:
         new = old.rstrip("\n") + "\n\n" + text if old else text
     else:
         nxt = old.find("\n## ", start + len(SECTION))
-        new = old[:start] + text + (old[nxt + 1 :] if nxt >= 0 else "")
+        rest = "\n" + old[nxt + 1 :] if nxt >= 0 else ""  # a blank line before the next heading
+        new = old[:start] + text.rstrip("\n") + "\n" + rest
     tmp = p.with_name(p.name + ".tmp")
     tmp.write_text(new)
     tmp.replace(p)
