@@ -208,7 +208,7 @@ class GuardedNavigator(Navigator):
         """True while an axis repeats one high reading MIN_FLAT times or more."""
         repeat = self._repeat
         if max(map(abs, g)) < SATURATED_RATE and max(map(abs, a)) < SATURATED_ACCEL:
-            if any(repeat):  # no axis high: every count ends (the common case, per sample)
+            if any(repeat):  # no axis high: every count ends
                 self._repeat = [0] * 6
             return False
         values = (*g, *a)
@@ -240,12 +240,17 @@ class GuardedNavigator(Navigator):
 
     def poll(self) -> list[NavEstimate]:  # Navigator.finish returns it too
         out = super().poll()
-        if out or (self._kept is not None and self.anchor.anchored):
+        if out or self._rerun_due:
             return self._published_only(out)
         return out  # the common case: nothing new (called after every sample)
 
+    @property
+    def _rerun_due(self) -> bool:
+        """Anchored with the inputs still kept: the re-run from the anchored heading is next."""
+        return self._kept is not None and self.anchor.anchored
+
     def _published_only(self, out: list[NavEstimate]) -> list[NavEstimate]:
-        if self._kept is not None and self.anchor.anchored:
+        if self._rerun_due:
             out = self._rerun(out)
         out = [e for e in out if e.t > self._published]
         if out:

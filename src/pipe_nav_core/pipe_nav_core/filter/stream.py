@@ -26,7 +26,7 @@ Released = dict[str, tuple[list[float], list[Any]]]  # per kind: stamps (s) and 
 
 
 class ReorderBuffer:
-    """Merges pushed samples of several kinds into one stream ordered by stamp.
+    """Puts pushed samples of several kinds in stamp order.
 
     window: s, how far behind the newest stamp a sample may arrive; hold: s, how far a
     lagging stream's newest stamp may be behind the newest of all and still hold the release

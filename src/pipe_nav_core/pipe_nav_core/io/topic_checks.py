@@ -14,12 +14,11 @@ and applies, vectorized over each batch:
 Markers only get duplicate removal (same name and stamp) and the late check.
 
 This is not :class:`pipe_nav_core.filter.stream.ReorderBuffer`, although both reorder within a
-window:
-that one merges single live samples of several kinds through a heap in float seconds and never
-drops a sample for being out of order (only for arriving after its release); this one works on
-whole numpy batches of one topic in integer ns (1.5 M IMU samples a run), drops what lies
-beyond the window and counts every reason in the :class:`BagReport`. Sharing one would change
-what the reader keeps, or slow it by a Python step per sample.
+window: that one orders single live samples of several kinds, each kind in its own sorted list,
+in float seconds, and never drops a sample for being out of order (only for arriving after its
+release); this one works on whole numpy batches of one topic in integer ns (1.5 M IMU samples
+a run), drops what lies beyond the window and counts every reason in the :class:`BagReport`.
+Sharing one would change what the reader keeps, or slow it by a Python step per sample.
 """
 
 from __future__ import annotations
