@@ -251,11 +251,15 @@ def test_faults_are_named_in_diagnostics_and_the_estimates_stay_finite(ctx, grap
             while time.monotonic() < start + t / 10.0:  # at most 10x real time: no burst
                 executor.spin_once(timeout_sec=0.002)
     assert spin_until(executor, lambda: received() == sent, 20.0), (received(), sent)
+    # the node published as it went; what it published is heard a little later
+    delivered = lambda: len(odometry) == node.core.estimates_published  # noqa: E731
+    assert spin_until(executor, delivered, 10.0), (len(odometry), node.core.estimates_published)
     before_burst = len(odometry)
     for _, role, msg in burst:  # 5 s of data at once
         publish(role, msg)
     assert spin_until(executor, lambda: received() == sent, 30.0), (received(), sent)
     spin_until(executor, lambda: False, 1.0)  # estimates and diagnostics after the burst
+    assert spin_until(executor, delivered, 10.0), (len(odometry), node.core.estimates_published)
 
     faults = {r: c.faults for r, c in node.core.counters.items()}
     expected = {
