@@ -28,6 +28,7 @@ from pipe_nav_core.io import (
     write_kml,
     write_markers_csv,
 )
+from pipe_nav_core.io.atomic import all_or_none
 from pipe_nav_core.types import Marker
 from test_io_support import DATUM, make_traj
 
@@ -256,6 +257,43 @@ def test_atomic_write_leaves_nothing_on_error(tmp_path):
         raise KeyboardInterrupt
     assert p.read_text() == "old content"
     assert list(tmp_path.iterdir()) == [p]
+
+
+def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch):
+    """Python runs a signal handler as a system call returns: SIGTERM (raised as an interrupt)
+    can land once os.open has made the temporary file and before anything owns it."""
+    from pipe_nav_core.io import atomic
+
+    real_open = os.open
+
+    def open_then_interrupted(*args, **kwargs):
+        real_open(*args, **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic.os, "open", open_then_interrupted)
+    with pytest.raises(KeyboardInterrupt), atomic_write(tmp_path / "out.csv"):
+        pass
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_interrupt_while_committing_still_commits_every_staged_file(tmp_path, monkeypatch):
+    from pipe_nav_core.io import atomic
+
+    real_replace, calls = os.replace, []
+
+    def replace_then_interrupted(src, dst):
+        real_replace(src, dst)
+        calls.append(dst)
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+
+    targets = [tmp_path / f"{k}.csv" for k in range(3)]
+    monkeypatch.setattr(atomic.os, "replace", replace_then_interrupted)
+    with pytest.raises(KeyboardInterrupt), all_or_none(targets) as staged:
+        for target, path in staged.items():
+            path.write_text(target)
+    assert sorted(tmp_path.iterdir()) == targets
+    assert all(t.read_text() == str(t) for t in targets)
 
 
 def test_atomic_write_replaces_and_uses_normal_permissions(tmp_path):

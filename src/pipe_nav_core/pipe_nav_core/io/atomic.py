@@ -77,8 +77,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         yield tmp
         os.replace(tmp, target)
     except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        _remove(tmp)
         raise
 
 
@@ -98,27 +97,33 @@ def atomic_write(
         raise ValueError("atomic_write mode must be 'w' or 'wb'")
     target = Path(path)
     tmp = _tmp_name(target)
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
-        if mode == "wb":
-            f: IO[Any] = os.fdopen(fd, "wb")
-        else:
-            f = os.fdopen(fd, "w", encoding=encoding, newline=newline)
-    except BaseException:
-        os.close(fd)
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except FileExistsError:
+        raise
+    except BaseException:  # SIGINT/SIGTERM handled as os.open returned: the file may be there
+        _remove(tmp)
         raise
     try:
+        try:
+            text = {"encoding": encoding, "newline": newline} if mode == "w" else {}
+            f: IO[Any] = os.fdopen(fd, mode, **text)
+        except BaseException:
+            os.close(fd)
+            raise
         with f:
             yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, target)
     except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        _remove(tmp)
         raise
+
+
+def _remove(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        path.unlink()
 
 
 def check_output(path: str | os.PathLike[str], option: str) -> None:
@@ -150,9 +155,15 @@ def all_or_none(paths: Iterable[str | os.PathLike[str]]) -> Iterator[dict[str, P
         yield staged
     except BaseException:
         for tmp in staged.values():
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+            _remove(tmp)
         raise
-    for target, tmp in staged.items():
-        if tmp.exists():
-            os.replace(tmp, target)
+    try:
+        for target, tmp in staged.items():
+            if tmp.exists():
+                os.replace(tmp, target)
+    except BaseException:  # interrupted while committing: the rest too (renames), then stop
+        for target, tmp in staged.items():
+            if tmp.exists():
+                with contextlib.suppress(OSError):
+                    os.replace(tmp, target)
+        raise
