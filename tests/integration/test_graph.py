@@ -50,7 +50,7 @@ def converged():
     for _ in range(3):
         nav = run_forward(log, cfg, reference=X, odometer_exclude=ex)
         rec = nav.recording
-        e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
+        e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format, var_cols=rec.pose)
         ex = find_slips(rec, smoothed_centreline(rec, e, var, lay), cfg,
                         resolution=nav.odometer_resolution)  # fmt: skip
         X = smoothed_states(rec, e, lay)

@@ -57,6 +57,8 @@ def test_recording_reads_back_what_was_stored(monkeypatch, budget):
     e_ref, P_ref = rts(P_upd, P_pred, phi, rec.dx)
     np.testing.assert_allclose(e, e_ref, rtol=0, atol=1e-12)
     np.testing.assert_allclose(var, np.diagonal(P_ref, axis1=1, axis2=2), rtol=1e-12)
+    e_some, var_some = rts_packed(rec.rts_chunks(), rec.dx, rec.format, var_cols=[5, 0, 2])
+    assert e_some.tobytes() == e.tobytes() and var_some.tobytes() == var[:, [5, 0, 2]].tobytes()
     rec.close()
     if spill_dir is not None:
         assert not os.path.exists(spill_dir)
@@ -154,3 +156,34 @@ def test_reading_back_in_any_order_keeps_the_last_chunks_asked_for():
         assert np.all(here == i)
         held = here
     rows.close()
+
+
+def test_a_finished_pass_lets_go_of_its_spare_room():
+    """trim() keeps every row and drops the room reserved to grow; a pass about a reference
+    reserves a row per reference state, and close() lets its dx go (only RTS reads it)."""
+    layout = Layout("ins", gyro_errors=True)
+    epochs = _epochs(layout, 300)
+    rec = Recording(layout)
+    for state, dx, P_upd, P_pred, phi in epochs:
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+    assert len(rec._states._a) == 512  # grown by doubling
+    rec.trim()
+    assert len(rec._states._a) == 300
+    np.testing.assert_array_equal(rec.states, [x[0] for x in epochs])
+    np.testing.assert_array_equal(rec.dx, [x[1] for x in epochs])
+    assert not rec.x_upd.any() and rec.x_upd.shape == (300, layout.n)  # no copy: a view
+    rec.close()
+    assert len(rec.dx) == 300  # the EKF's dx is its end_offset: kept
+
+    ref = np.array([x[0] for x in epochs])
+    about = Recording(layout, reference=ref)
+    assert len(about._states._a) == len(about._x_upd._a) == 300
+    for state, dx, P_upd, P_pred, phi in epochs:
+        about.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi, x_upd=dx,
+                        end_offset=dx)  # fmt: skip
+    assert len(about._states._a) == 300  # no growing
+    about.close()
+    assert len(about.dx) == 0
+    pose = np.r_[layout.pos, layout.att]  # of end_offset, only what the centreline needs
+    np.testing.assert_array_equal(about.end_offset, [x[1][pose] for x in epochs])
+    np.testing.assert_array_equal(rec.end_offset, [x[1][pose] for x in epochs])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
@@ -42,7 +43,6 @@ def test_iterated_smoother_reaches_the_ideal_solution(name, mode):
     s = score(r.centreline, run.truth, run.log.markers, datum=r.datum)
     assert s.max_h < 0.01 and s.max_v < 0.01, s.summary()
     assert r.summary["last_step_m"] < 1e-3  # converged
-
 
 
 def test_a_kept_pass_waits_on_disk_and_comes_back_unchanged(monkeypatch):
@@ -83,3 +83,41 @@ def test_parked_result_restores_every_array():
     assert back is r
     for k, v in before.items():
         assert getattr(r.centreline, k).tobytes() == v.tobytes()
+
+
+def test_smoothing_in_small_batches_gives_the_same_bytes(monkeypatch):
+    """The smoothed states, the step, the centreline (positions, velocity, chainage) and the path
+    lengths of the slip check are built in batches at field scale (bounded memory): batches of a few
+    epochs and samples give the result of one batch, bit for bit."""
+    from pipe_nav_core.smooth import centreline, passes, slips
+
+    run = simulate(get_scenario("demo"), seed=2)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    plain = smooth_log(run.log, cfg, method="rts", iterations=2)
+    monkeypatch.setattr(passes, "EPOCH_BATCH", 7)
+    monkeypatch.setattr(centreline, "SAMPLE_BATCH", 5)
+    monkeypatch.setattr(slips, "SAMPLE_BATCH", 3)
+    again = smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert again.summary["last_step_m"] == plain.summary["last_step_m"]
+    for name in ("t", "lat", "lon", "h", "vel_n", "quat_nb", "distance", "sigma_enu"):
+        assert (
+            getattr(again.centreline, name).tobytes() == getattr(plain.centreline, name).tobytes()
+        ), name
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_the_centreline_velocity_is_numpys_gradient(monkeypatch, uniform):
+    from pipe_nav_core.geo.earth import geodetic_to_enu
+    from pipe_nav_core.smooth import centreline
+
+    rng = np.random.default_rng(3)
+    n = 50
+    t = np.arange(n) * 0.25 if uniform else np.cumsum(rng.uniform(0.001, 0.01, n))
+    lat = 0.7 + np.cumsum(rng.normal(0, 1e-6, n))
+    lon = 2.0 + np.cumsum(rng.normal(0, 1e-6, n))
+    h = np.cumsum(rng.normal(0, 0.1, n))
+    ref = np.gradient(geodetic_to_enu(lat, lon, h, lat[0], lon[0], h[0]), t, axis=0)
+    for batch in (1, 2, 7, 64):
+        monkeypatch.setattr(centreline, "SAMPLE_BATCH", batch)
+        assert centreline.enu_velocity(t, lat, lon, h).tobytes() == ref.tobytes(), batch
+    assert centreline.enu_velocity(t[:1], lat[:1], lon[:1], h[:1]).tolist() == [[0.0] * 3]

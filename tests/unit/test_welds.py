@@ -59,6 +59,20 @@ def test_the_simulated_run_knows_its_welds(demo):
                           run.welds[run.welds < 60.0])  # fmt: skip
 
 
+def test_the_magnetometer_placed_on_the_centreline_in_batches_is_the_same(demo, monkeypatch):
+    """At field scale the magnetometer samples are placed on the centreline a batch at a time
+    (bounded memory): the welds' residual from batches of a few samples is the same, bit for
+    bit."""
+    from pipe_nav_core.products import welds
+
+    run, res = demo
+    whole = welds.mag_residual(run.log, res.centreline)
+    monkeypatch.setattr(welds, "SAMPLE_BATCH", 7)
+    batched = welds.mag_residual(run.log, res.centreline)
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(whole, batched))
+    assert len(whole[0]) > 1000
+
+
 def test_every_weld_found_at_its_chainage_none_false(demo):
     run, res = demo
     welds = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)

@@ -38,6 +38,7 @@ from pipe_nav_core.types import Trajectory
 FloatArray = NDArray[np.float64]
 
 TRACK_STEP_M = 0.02  # m, chainage step of the axis track (about an IMU sample at 2 m/s)
+TRACK_BATCH = 1 << 18  # track points built at once (bounds the temporaries)
 
 
 @dataclass(frozen=True)
@@ -89,27 +90,41 @@ class AxisTrack:
 
 
 def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
-    """The pipe axis of a smoothed trajectory every ``step`` m of chainage (see the module)."""
+    """The pipe axis of a smoothed trajectory every ``step`` m of chainage (see the module).
+
+    Built TRACK_BATCH points at a time: at 100 km the track has 5 million points, and the
+    whole trajectory interpolated onto it at once took 1.7 GB of temporaries."""
     if len(traj.t) < 2:
         raise ValueError("a curvature profile needs a trajectory of at least two samples")
     times = chainage_times(traj.t, traj.distance, step)
-    if len(times) < 2:
+    n = len(times)
+    if n < 2:
         raise ValueError("the run covers less than one chainage step: no curvature profile")
-    s = interpolate_trajectory(traj, times)
-    axis = dcm_from_quat(np.asarray(s.quat_nb).reshape(-1, 4))[:, :, 0]
-    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    rm, rn = radii(s.lat)
-    d_n = np.diff(s.lat) * (rm[1:] + s.h[1:])
-    d_e = np.diff(np.unwrap(s.lon)) * (rn[1:] + s.h[1:]) * np.cos(s.lat[1:])
-    d_u = np.diff(s.h)
-    arc = np.concatenate([[0.0], np.cumsum(np.sqrt(d_n**2 + d_e**2 + d_u**2))])
-    sig = (np.full((len(arc), 3), np.nan) if s.sigma_enu is None
-           else np.asarray(s.sigma_enu, dtype=np.float64).reshape(-1, 3))  # fmt: skip
-    # every column contiguous: np.interp copies a strided fp whole on each call
-    return AxisTrack(np.maximum.accumulate(np.asarray(s.distance, dtype=np.float64)), arc,
-                     np.asarray(s.t), np.asarray(s.lat), np.asarray(s.lon), np.asarray(s.h),
-                     axis, np.hypot(sig[:, 0], sig[:, 1]),
-                     np.ascontiguousarray(sig[:, 2]))  # fmt: skip
+    t, distance, lat, lon, h, sigma_h, sigma_v = (np.empty(n) for _ in range(7))
+    axis = np.empty((n, 3))
+    for b in range(0, n, TRACK_BATCH):
+        s = slice(b, b + TRACK_BATCH)
+        p = interpolate_trajectory(traj, times[s])
+        t[s], distance[s], lat[s], lon[s], h[s] = p.t, p.distance, p.lat, p.lon, p.h
+        a = dcm_from_quat(np.asarray(p.quat_nb).reshape(-1, 4))[:, :, 0]
+        axis[s] = a / np.linalg.norm(a, axis=1, keepdims=True)
+        sig = (np.full((len(a), 3), np.nan) if p.sigma_enu is None
+               else np.asarray(p.sigma_enu, dtype=np.float64).reshape(-1, 3))  # fmt: skip
+        sigma_h[s], sigma_v[s] = np.hypot(sig[:, 0], sig[:, 1]), sig[:, 2]
+    del times, p, a, sig
+    lon_u = np.unwrap(lon)
+    steps = np.empty(n - 1)  # m, from each point to the next
+    for b in range(1, n, TRACK_BATCH):
+        e = min(b + TRACK_BATCH, n)
+        j, i = slice(b, e), slice(b - 1, e - 1)  # the steps' last and first points
+        rm, rn = radii(lat[j])
+        d_n = (lat[j] - lat[i]) * (rm + h[j])
+        d_e = (lon_u[j] - lon_u[i]) * (rn + h[j]) * np.cos(lat[j])
+        d_u = h[j] - h[i]
+        steps[i] = np.sqrt(d_n**2 + d_e**2 + d_u**2)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    return AxisTrack(np.maximum.accumulate(distance), arc, t, lat, lon, h, axis, sigma_h,
+                     sigma_v)  # fmt: skip
 
 
 def relative_angle_sigma(spec: ImuSpec, duration: FloatArray, angle: FloatArray) -> FloatArray:

@@ -46,6 +46,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pipe_nav_core import batched
 from pipe_nav_core.geo.attitude import dcm_from_quat
 from pipe_nav_core.io.centreline import interpolate_trajectory
 from pipe_nav_core.products.windows import correlate, running_maximum, running_median
@@ -63,6 +64,7 @@ JOINT_TOLERANCE = 0.15  # relative tolerance of a joint length against the typic
 JOLT_MATCH_M = 0.5  # m, a jolt and a weak magnetic peak this close are one weld
 JOLT_SNR = 8.0  # robust sigmas of the vertical specific-force spike
 JOLT_BASELINE_S = 0.3  # s, running-median baseline of the vertical specific force
+SAMPLE_BATCH = 1 << 18  # magnetometer samples placed on the centreline at once
 
 
 @dataclass
@@ -140,9 +142,14 @@ def _mag_samples(log: SensorLog, centreline: Trajectory) -> _MagSamples | None:
     if keep.sum() < 20:
         return None
     b = np.asarray(log.mag.field, dtype=np.float64)[keep]
-    at = interpolate_trajectory(centreline, mt[keep])
-    x = np.column_stack([dcm_from_quat(at.quat_nb).reshape(-1, 9), np.ones(len(b))])
-    return _MagSamples(b, x, np.maximum.accumulate(np.asarray(at.distance, dtype=np.float64)))
+    mt = mt[keep]
+    x, d = np.ones((len(b), 10)), np.empty(len(b))
+    for a in range(0, len(b), SAMPLE_BATCH):  # in batches: the centreline's columns at the
+        s = slice(a, a + SAMPLE_BATCH)  # 2.6 million samples of 100 km took 0.35 GB at once
+        at = interpolate_trajectory(centreline, mt[s])
+        x[s, :9] = dcm_from_quat(at.quat_nb).reshape(-1, 9)
+        d[s] = at.distance
+    return _MagSamples(b, x, np.maximum.accumulate(d))
 
 
 def mag_residual(
@@ -176,10 +183,14 @@ def _residual(
         k = np.clip(np.searchsorted(ex, d), 0, len(ex) - 1)
         near = np.minimum(np.abs(d - ex[k]), np.abs(d - ex[np.maximum(k - 1, 0)]))
         fit = near > exclude_half
-    coef, *_ = np.linalg.lstsq(x[fit], b[fit], rcond=1e-9)
+    whole = bool(fit.all())  # then no copies of the regressors (0.2 GB at 100 km)
+    coef, *_ = np.linalg.lstsq(x if whole else x[fit], b if whole else b[fit], rcond=1e-9)
     res_i = b - x @ coef
     r_bi = np.eye(3) if r_base_imu is None else np.asarray(r_base_imu, dtype=np.float64)
-    res_n = np.einsum("kij,kj->ki", c_nb @ r_bi, res_i)
+    res_n = np.empty_like(res_i)
+    for a in range(0, len(b), SAMPLE_BATCH):  # in batches: bounded temporaries
+        s = slice(a, a + SAMPLE_BATCH)
+        res_n[s] = np.einsum("kij,kj->ki", c_nb[s] @ r_bi, res_i[s])
     grid, res = _binned(d, res_n, GRID_STEP_M)
     size = max(3, int(round(BASELINE_M / GRID_STEP_M)) | 1)
     base = running_median(res, size)
@@ -220,7 +231,7 @@ def jolt_chainages(
     size = max(3, int(round(JOLT_BASELINE_S / dt)) | 1)
     dev = az - running_median(az, size)
     d = np.interp(imu.t, t_c, d_c)
-    speed = np.gradient(d, imu.t)
+    speed = batched.gradient(d, imu.t)  # np.gradient's values, without its temporaries
     moving = (speed > 0.05) & (imu.t > t_c[0]) & (imu.t < t_c[-1])
     if moving.sum() < 10:
         return np.empty(0)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core import batched
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.anchoring import FreeHeading
 from pipe_nav_core.filter.navigator import Navigator
@@ -88,16 +89,18 @@ class Parked:
 def smoothed_centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Trajectory:
     """The smoothed corrections applied to the recorded per-sample nominal trajectory.
 
-    e (K, n): smoothed corrections to the filter's estimates, var (K, n) their variances; the
-    correction relative to the linearization point of epoch k is x_upd[k] + e[k]; a block's
-    nominal starts on lin[k - 1] and ends end_offset[k] short of lin[k]; in between the
-    correction is interpolated in time.
+    e (K, n): smoothed corrections to the filter's estimates, var (K, 6) the variances of its
+    columns ``rec.pose`` (position m^2, attitude rad^2); the correction relative to the
+    linearization point of epoch k is x_upd[k] + e[k]; a block's nominal starts on lin[k - 1] and
+    ends end_offset[k] short of lin[k]; in between the correction is interpolated in time.
     """
-    cols = np.r_[layout.pos, layout.att]  # the corrections the centreline needs
+    cols = rec.pose  # the corrections the centreline needs: position, attitude
     P, A = slice(0, 3), slice(3, 6)
     d_lin = rec.x_upd[:, cols] + e[:, cols]
-    d_end = d_lin + rec.end_offset[:, cols]
-    var_c = var[:, cols]
+    d_end = d_lin + rec.end_offset  # its columns are cols
+    if var.shape[1:] != (len(cols),):
+        raise ValueError(f"smoothed_centreline: var has {var.shape[1]} columns, not rec.pose's")
+    var_c = var
     t_ep = rec.t
     t = rec.s_t.copy()
     N = len(t)
@@ -117,9 +120,20 @@ def smoothed_centreline(rec: Recording, e: Array, var: Array, layout: Layout) ->
         sig_p[s] = np.sqrt(np.maximum(var_s[:, P], 0.0))
         sig_a[s] = np.sqrt(np.maximum(var_s[:, A], 0.0))
     distance = arc_chainage(lat, lon, h, q)
-    enu = earth.geodetic_to_enu(lat, lon, h, lat[0], lon[0], h[0])
-    vel = np.gradient(enu, t, axis=0) if N > 1 else np.zeros((N, 3))
-    return Trajectory(t, lat, lon, h, vel, q, distance, sig_p, sig_a)
+    return Trajectory(t, lat, lon, h, enu_velocity(t, lat, lon, h), q, distance, sig_p, sig_a)
+
+
+def enu_velocity(t: Array, lat: Array, lon: Array, h: Array) -> Array:
+    """Velocity (N, 3) m/s in the ENU frame at the first sample: ``np.gradient`` of the
+    positions (lat, lon rad, h m) over the times t (s, increasing), SAMPLE_BATCH samples at a
+    time (:func:`pipe_nav_core.batched.gradient_of`: the values np.gradient gives)."""
+    if not len(t):
+        return np.zeros((0, 3))
+
+    def enu(lo: int, hi: int) -> Array:
+        return earth.geodetic_to_enu(lat[lo:hi], lon[lo:hi], h[lo:hi], lat[0], lon[0], h[0])
+
+    return batched.gradient_of(enu, t, SAMPLE_BATCH)
 
 
 def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:

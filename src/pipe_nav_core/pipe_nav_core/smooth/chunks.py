@@ -18,18 +18,21 @@ from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
-RAM_BUDGET_BYTES = 256 * 2**20  # packed covariance rows kept in memory; older chunks spill
+RAM_BUDGET_BYTES = 128 * 2**20  # packed covariance rows kept in memory; older chunks spill
 # epochs per chunk of packed rows: 60 MB with 38 error states, above the size up to which
 # the C allocator keeps freed memory instead of returning it to the system (32 MB)
 CHUNK_EPOCHS = 4096
+TRIM_SLACK = 0.125  # Growable.trim copies an array reserved over this fraction beyond its rows
 
 
 class Growable:
     """An array that grows along its first axis: amortized O(1) extends, one contiguous
     buffer (``data`` is a view of the rows filled so far)."""
 
-    def __init__(self, row_shape: tuple[int, ...] = (), dtype: type = np.float64) -> None:
-        self._a = np.empty((256, *row_shape), dtype=dtype)
+    def __init__(
+        self, row_shape: tuple[int, ...] = (), dtype: type = np.float64, capacity: int = 256
+    ) -> None:
+        self._a = np.empty((max(capacity, 1), *row_shape), dtype=dtype)
         self._n = 0
 
     def _reserve(self, extra: int) -> None:
@@ -47,6 +50,12 @@ class Growable:
     @property
     def data(self) -> Array:
         return self._a[: self._n]
+
+    def trim(self) -> None:
+        """Let go of the room reserved beyond the rows filled when it is over TRIM_SLACK of
+        them (a copy: views of ``data`` taken before keep the old buffer)."""
+        if len(self._a) > (1.0 + TRIM_SLACK) * self._n:
+            self._a = self._a[: self._n].copy()
 
 
 # Chunk arrays no recording uses any more (spilled, or of a closed recording), by shape, for

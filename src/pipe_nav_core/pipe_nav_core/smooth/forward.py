@@ -70,4 +70,6 @@ def run_forward(
             progress.fraction((i + 1) / slices)
     if nav.state is None:
         raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
+    if nav.recording is not None:
+        nav.recording.trim()
     return nav

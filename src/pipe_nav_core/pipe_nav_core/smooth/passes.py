@@ -61,6 +61,7 @@ METHODS = ("forward", "rts", "two-filter", "graph")
 # result of such a pass is the optimum to well below a millimetre.
 CONVERGED_RAD = 1e-4  # rad: largest attitude step of a converged pass
 CONVERGED_POS_M = 0.01  # m: largest position step of a converged pass
+EPOCH_BATCH = 1 << 16  # epochs corrected at once (bounds the temporaries at 100 km)
 
 
 def smooth_log(
@@ -122,7 +123,7 @@ def smooth_log(
     if method == "forward":
         rec = nav.recording
         e = np.zeros((len(rec), layout.n))
-        result = result_of(nav, smoothed_centreline(rec, e, rec.variances(), layout))
+        result = result_of(nav, smoothed_centreline(rec, e, rec.variances()[:, rec.pose], layout))
         result.summary.update(passes=1, passes_run=1)
         return result
     exclude: Array | None = None
@@ -138,10 +139,11 @@ def smooth_log(
         assert rec is not None
         if method in ("rts", "graph"):
             say(f"RTS smoother (pass {it + 1})")
-            e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
+            e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format, var_cols=rec.pose)
         else:
             say(f"backward filter (pass {it + 1})")
             e, var = two_filter(log, cfg, rec, layout, exclude, progress)
+            var = var[:, rec.pose]
         rec.close()  # the covariances are no longer needed
         # a pass that rejects more markers than an earlier one is not taken; the one it
         # replaces is let go before its centreline is built, so that two are never held
@@ -178,11 +180,12 @@ def smooth_log(
                 del nav, rec, e, var, centre, result, best  # the RTS passes' memory first
                 return _graph_result(log, cfg, start, slips, it + 1, progress, reverse, result_of)
             break
+        del centre, result, var  # the pass kept so far holds its centreline ...
+        if isinstance(best[1], SmoothResult) and Parked.worth(best[1]):
+            best = (best[0], Parked(best[1]))  # ... on disk while the next pass runs
         reference = smoothed_states(rec, e, layout)
         exclude = new_exclude
-        del nav, rec, e, var, centre, result  # free this pass before the next
-        if isinstance(best[1], SmoothResult) and Parked.worth(best[1]):
-            best = (best[0], Parked(best[1]))  # on disk while the next pass runs
+        del nav, rec, e  # free this pass before the next
     assert best is not None
     taken = best[1].restore() if isinstance(best[1], Parked) else best[1]
     taken.summary["passes_run"] = it + 1
@@ -209,7 +212,8 @@ def _graph_result(
                      say=progress.stage)  # fmt: skip
     rec = g.nav.recording
     assert rec is not None
-    centre = smoothed_centreline(rec, g.corrections(), g.solution.var, layout_for(cfg))
+    centre = smoothed_centreline(rec, g.corrections(), g.solution.var[:, rec.pose],
+                                 layout_for(cfg))  # fmt: skip
     rec.close()
     result = result_of(g.nav, centre)
     result.summary.update(
@@ -226,14 +230,24 @@ def _graph_result(
 
 
 def smoothed_states(rec: Recording, e: Array, layout: Layout) -> Array:
-    """The smoothed state of every epoch, flat (K, SV_SIZE): lin[k] (+) (x_upd[k] + e[k])."""
-    return inject_many(rec.lin, rec.x_upd + e, layout)
+    """The smoothed state of every epoch, flat (K, SV_SIZE): lin[k] (+) (x_upd[k] + e[k])
+    (in batches of EPOCH_BATCH epochs: bounded temporaries)."""
+    lin, x_upd = rec.lin, rec.x_upd
+    out = np.empty((len(e), lin.shape[1]))
+    for b in range(0, len(e), EPOCH_BATCH):
+        s = slice(b, b + EPOCH_BATCH)
+        out[s] = inject_many(lin[s], x_upd[s] + e[s], layout)
+    return out
 
 
 def step_size(rec: Recording, e: Array, layout: Layout) -> tuple[float, float]:
     """Largest smoothed correction of the position (m) and attitude (rad) relative to the
     pass's linearization points: the Gauss-Newton step of that pass."""
-    d = rec.x_upd + e
-    pos = float(np.max(np.linalg.norm(d[:, layout.pos], axis=1)))
-    att_ = float(np.max(np.linalg.norm(d[:, layout.att], axis=1)))
+    x_upd = rec.x_upd
+    pos = att_ = 0.0
+    for b in range(0, len(e), EPOCH_BATCH):
+        s = slice(b, b + EPOCH_BATCH)
+        d = x_upd[s] + e[s]
+        pos = max(pos, float(np.max(np.linalg.norm(d[:, layout.pos], axis=1))))
+        att_ = max(att_, float(np.max(np.linalg.norm(d[:, layout.att], axis=1))))
     return pos, att_

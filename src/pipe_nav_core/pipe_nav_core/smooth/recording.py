@@ -45,15 +45,15 @@ def phi_rows(layout: Layout) -> Array:
 class Recording:
     """What the smoothers need from a forward pass (see the module docstring).
 
-    Per epoch k (arrays with K rows): ``states`` (K, SV_SIZE) the filter's estimate after the
-    update (flat, :meth:`NavState.vector`; ``t`` its times, s); ``lin`` the linearization
-    point (the estimate itself for the ordinary EKF, the reference state when the filter runs
-    about a reference trajectory); ``x_upd`` (K, n) the filter's mean error state relative to
-    it (zero for the EKF); ``dx`` (K, n) updated minus predicted mean error state (what an RTS
-    smoother carries back); ``end_offset`` (K, n) lin (-) the nominal at the end of the block
-    (the correction that moves the per-sample nominal onto the linearization point; dx for the
-    EKF); the predicted and updated covariances and Phi from k-1 to k (:meth:`P_upd`,
-    :meth:`P_pred`, :meth:`phi`, packed: :meth:`rts_chunks`).
+    Per epoch k (arrays with K rows): ``states`` (K, SV_SIZE) the filter's estimate after the update
+    (flat, :meth:`NavState.vector`; ``t`` its times, s); ``lin`` the linearization point (the
+    estimate itself for the ordinary EKF, the reference state when the filter runs about a reference
+    trajectory); ``x_upd`` (K, n) the filter's mean error state relative to it (zero for the EKF);
+    ``dx`` (K, n) updated minus predicted mean error state (what an RTS smoother carries back);
+    ``end_offset`` (K, 6) lin (-) the nominal at the end of the block (the correction that moves the
+    per-sample nominal onto the linearization point; dx for the EKF), its columns ``pose``
+    (position, attitude) only; the predicted and updated covariances and Phi from k-1 to k
+    (:meth:`P_upd`, :meth:`P_pred`, :meth:`phi`, packed: :meth:`rts_chunks`).
     Per kept IMU sample: ``s_t`` s, ``s_odo`` raw odometer distance m, nominal ``s_lat``,
     ``s_lon`` rad, ``s_h`` m, ``s_q`` [x, y, z, w] base_link -> ENU, and ``s_epoch``: the
     epoch whose block the sample belongs to (the block of epoch k starts at lin[k - 1]).
@@ -77,10 +77,13 @@ class Recording:
         self._packer: ThreadPoolExecutor | None = None
         self._packing: Future[None] | None = None
         n = layout.n
-        self._states = Growable((SV_SIZE,))
-        self._dx = Growable((n,))
-        self._x_upd = Growable((n,)) if linearized else None
-        self._end_offset = Growable((n,)) if linearized else None
+        # a pass about a reference has an epoch per reference state (room reserved up front)
+        rows = len(reference) if reference is not None else 256
+        self._states = Growable((SV_SIZE,), capacity=rows)
+        self._dx = Growable((n,), capacity=rows)
+        self._x_upd = Growable((n,), capacity=rows) if linearized else None
+        self.pose = np.r_[layout.pos, layout.att]  # the columns the centreline is made of
+        self._end_offset = Growable((len(self.pose),), capacity=rows) if linearized else None
         self._s = {name: Growable() for name in ("t", "odo", "lat", "lon", "h")}
         self._s_q = Growable((4,))
         self._s_epoch = Growable((), np.int32)
@@ -132,7 +135,7 @@ class Recording:
         if self.linearized:
             assert self._x_upd is not None and self._end_offset is not None
             self._x_upd.extend(x_upd)
-            self._end_offset.extend(end_offset)
+            self._end_offset.extend(end_offset[:, self.pose])
 
     def add_epoch(self, state: Array, **arrays: Array | None) -> None:
         """One epoch: :meth:`add_epochs` with (SV_SIZE,), (n,) and (n, n) arrays (copied:
@@ -198,11 +201,14 @@ class Recording:
 
     @property
     def x_upd(self) -> Array:
-        return self._x_upd.data if self._x_upd is not None else np.zeros_like(self.dx)
+        if self._x_upd is not None:
+            return self._x_upd.data
+        return np.broadcast_to(np.zeros(self.layout.n), self.dx.shape)  # zeros, read-only
 
     @property
     def end_offset(self) -> Array:
-        return self._end_offset.data if self._end_offset is not None else self.dx
+        """(K, 6) the columns ``pose`` (position m, attitude rad) of end_offset."""
+        return self._end_offset.data if self._end_offset is not None else self.dx[:, self.pose]
 
     def P_upd(self, k: int) -> Array:
         """Updated covariance of epoch k (n, n)."""
@@ -263,11 +269,22 @@ class Recording:
     def s_epoch(self) -> NDArray[np.int32]:
         return self._s_epoch.data
 
+    def trim(self) -> None:
+        """End of the pass: the per-epoch and per-sample arrays let go of the room they had
+        reserved to grow (up to half of each; at 100 km some 0.3 GB)."""
+        for g in (self._states, self._dx, self._x_upd, self._end_offset, *self._s.values(),
+                  self._s_q, self._s_epoch):  # fmt: skip
+            if g is not None:
+                g.trim()
+
     def close(self) -> None:
         """Free the packed rows (the covariances and transitions) and remove their temporary
-        files (also done when the recording is garbage collected); the per-epoch and
-        per-sample arrays stay."""
+        files (also done when the recording is garbage collected), and ``dx`` of a recording
+        about a reference (only the RTS smoother reads it; ``end_offset`` is stored then);
+        the other per-epoch and the per-sample arrays stay."""
         self._rows.close()
+        if self.linearized:
+            self._dx = Growable((self.layout.n,))
         if self._packer is not None:
             self._packer.shutdown(wait=True)
             self._packer = None

@@ -186,6 +186,7 @@ def _rts_backward(
     dx: Array,
     e: Array,
     var: Array,
+    var_cols: NDArray[np.int64],
     P_full: Array,
     Ps: Array,
     Pp: Array,
@@ -193,7 +194,8 @@ def _rts_backward(
     """The RTS recursion over the epochs k0 .. k0 + len(rows) - 1 (rows in the EpochRows form,
     G from :func:`_rts_gains`), from the last to the first. Carried between calls (in place):
     Ps and Pp, the smoothed and the predicted covariance of the epoch after the rows. Writes
-    e[k], var[k] and, if P_full has rows, P_full[k]."""
+    e[k], var[k] (the variances of the error states var_cols) and, if P_full has rows,
+    P_full[k]."""
     n = Ps.shape[0]
     m = n * (n + 1) // 2
     K = e.shape[0]
@@ -224,8 +226,8 @@ def _rts_backward(
                     x = 0.5 * ((Pu[a, b] + GDG[a, b]) + (Pu[b, a] + GDG[b, a]))
                     Ps[a, b] = x
                     Ps[b, a] = x
-        for a in range(n):
-            var[k, a] = Ps[a, a]
+        for c in range(var_cols.shape[0]):
+            var[k, c] = Ps[var_cols[c], var_cols[c]]
         if P_full.shape[0]:
             P_full[k] = Ps
         _unpack(row, m, Pp)
@@ -240,6 +242,7 @@ def rts_packed(
     fmt: EpochRows,
     *,
     full: bool = False,
+    var_cols: Sequence[int] | NDArray[np.int64] | None = None,
 ) -> tuple[Array, Array]:
     """Error-state RTS smoother over packed epochs, compiled.
 
@@ -250,12 +253,14 @@ def rts_packed(
     G = P_upd[k] Phi^T P_pred[k+1]^-1 is solved through a Cholesky factor of P_pred; the gains
     of the next piece of epochs are computed in a second thread while the recursion runs.
     Returns e (K, n): the smoothed correction to x_upd[k], and the smoothed variances (K, n)
-    (in the error state's units), or with full=True the smoothed covariances (K, n, n).
+    (in the error state's units; with var_cols, (K, len(var_cols)) of those error states
+    only), or with full=True the smoothed covariances (K, n, n).
     """
     dx = np.ascontiguousarray(dx, dtype=np.float64)
     K, n = dx.shape
+    cols = np.arange(n) if var_cols is None else np.asarray(var_cols, dtype=np.int64)
     e = np.zeros((K, n))
-    var = np.zeros((K, n))
+    var = np.zeros((K, len(cols)))
     P_full = np.zeros((K if full else 0, n, n))
     Ps, Pp = np.zeros((n, n)), np.zeros((n, n))
     gains = [np.empty((PIECE_EPOCHS, n, n)) for _ in range(2)]
@@ -273,11 +278,11 @@ def rts_packed(
             G = gains[b % 2]
             job = pool.submit(_rts_gains, rows, next_row, fmt.phi_rows, G)
             if pending is not None:  # the piece after this one, while its gains are made
-                _recursion(pending, dx, e, var, P_full, Ps, Pp)
+                _recursion(pending, dx, e, var, cols, P_full, Ps, Pp)
             pending = (k0, rows, job, G)
             end, next_row = k0, rows[0]
         if pending is not None:
-            _recursion(pending, dx, e, var, P_full, Ps, Pp)
+            _recursion(pending, dx, e, var, cols, P_full, Ps, Pp)
     if end != 0:
         raise ValueError("rts_packed: the chunks do not reach epoch 0")
     return e, (P_full if full else var)

@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 from pipe_nav_core.config import NOISE_EPOCH_S, NavConfig
 from pipe_nav_core.geo import earth
 from pipe_nav_core.model.state import SV_K
+from pipe_nav_core.smooth.centreline import SAMPLE_BATCH
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.types import Trajectory
 
@@ -29,10 +30,13 @@ def find_slips(
     count: variance resolution^2 / 6); with a coarse encoder the latter dominates.
     centre: the centreline of rec (:func:`pipe_nav_core.smooth.centreline.smoothed_centreline`,
     one row per recorded sample)."""
-    enu = earth.geodetic_to_enu(
-        centre.lat, centre.lon, centre.h, centre.lat[0], centre.lon[0], centre.h[0]
-    )
-    step = np.linalg.norm(np.diff(enu, axis=0, prepend=enu[:1]), axis=1)
+    lat, lon, h = centre.lat, centre.lon, centre.h
+    step = np.empty(len(lat))  # m, from the sample before (0 for the first)
+    for b in range(0, len(lat), SAMPLE_BATCH):  # in batches: bounded temporaries
+        e, lo = min(b + SAMPLE_BATCH, len(lat)), max(b - 1, 0)
+        enu = earth.geodetic_to_enu(lat[lo:e], lon[lo:e], h[lo:e], lat[0], lon[0], h[0])
+        d = np.diff(enu, axis=0, prepend=enu[:1]) if b == 0 else np.diff(enu, axis=0)
+        step[b:e] = np.linalg.norm(d, axis=1)
     k = rec.s_epoch
     n_ep = len(rec)
     path = np.bincount(k, weights=step, minlength=n_ep)
