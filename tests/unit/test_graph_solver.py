@@ -5,9 +5,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from pipe_nav_core.graph.batch import StreamingSolve, factor_weights
 from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior, whitener
 from pipe_nav_core.graph.robust import cauchy_weight, huber_cost, huber_weight
-from pipe_nav_core.graph.solver import solve_chain, whiten
+from pipe_nav_core.graph.solver import PIECE, inv_triangular, solve_chain, whiten, whiteners
 from pipe_nav_core.smooth.rts import rts
 
 
@@ -173,3 +174,52 @@ def test_batched_whitening_matches_each_factor() -> None:
         assert np.allclose(rows, whitener(f.R) @ f.H, rtol=1e-12, atol=1e-12)
     assert wf.exact[-1] and not wf.exact[:-1].any()
     assert np.all(np.diff(wf.epochs) >= 0)
+
+
+def test_triangular_inverses_and_batched_whiteners() -> None:
+    """inv_triangular (LAPACK's triangular inversion, reading one triangle) equals the general
+    inverse to round-off; whiteners equal whitener one by one, diagonal, full and singular."""
+    rng = np.random.default_rng(11)
+    U = np.triu(rng.standard_normal((7, 9, 9))) + 4.0 * np.eye(9)
+    junk = U + np.tril(rng.standard_normal((7, 9, 9)), -1)  # below the diagonal: not read
+    for T, lower in ((U, False), (np.swapaxes(U, 1, 2), True)):
+        ref = np.linalg.inv(T)
+        inv = inv_triangular(junk if not lower else np.swapaxes(junk, 1, 2), lower=lower)
+        assert np.allclose(inv, ref, rtol=1e-13, atol=1e-13)
+        assert np.all((np.tril(inv, -1) if not lower else np.triu(inv, 1)) == 0.0)
+    A = rng.standard_normal((5, 4, 4))
+    diagonal = np.diag([1e-6, 2.0, 3.0, 1e2])[None]
+    singular = np.diag([0.0, 1.0, 2.0, 3.0])[None]
+    C = np.concatenate([A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(4), diagonal, singular])
+    W = whiteners(C)
+    for c, w in zip(C, W, strict=True):
+        assert np.allclose(w, whitener(c), rtol=1e-12, atol=1e-12 * np.abs(w).max())
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_streaming_solve_in_pieces_equals_the_batch_solve(seed: int) -> None:
+    """StreamingSolve (epochs whitened and weighed PIECE at a time, then eliminated with
+    LAPACK's QR) equals solve_chain with factor_weights' weights to round-off, over more than
+    one piece, with a gated factor, a downweighted robust one and an exact one."""
+    chain = _toy(seed, K=PIECE + 137)
+    f = chain.factors
+    f[3] = replace(f[3], r=100.0 * f[3].r / np.linalg.norm(f[3].r))  # far outside the gate
+    f[5] = replace(f[5], r=40.0 * f[5].r / np.linalg.norm(f[5].r), robust=True, name="m1")
+    f[8] = replace(f[8], R=np.diag(np.r_[0.0, np.ones(len(f[8].r) - 1)]))  # a constraint
+    f.sort(key=lambda x: x.epoch)
+    w, weighing, _ = factor_weights(chain, 0.9999)
+    assert weighing.gated and weighing.downweighted == ["m1"]
+    whole = solve_chain(chain, w)
+    stream = StreamingSolve(chain.n, 0.9999)
+    groups = chain.by_epoch()
+    stream.start(chain.prior, [f[i] for i in groups[0]])
+    for k in range(1, chain.K):
+        phi, qd = chain.transitions(k, k + 1)[0], chain.process_noise(k, k + 1)[0]
+        stream.epoch(phi, qd, chain.offset[k], [f[i] for i in groups[k]])
+    sol, wg = stream.finish()
+    scale = np.abs(whole.delta).max()
+    assert np.abs(sol.delta - whole.delta).max() < 1e-10 * scale
+    assert np.allclose(sol.var, whole.var, rtol=1e-9, atol=0.0)
+    assert wg.gated == weighing.gated and wg.downweighted == weighing.downweighted
+    assert np.isclose(sol.cost0, whole.cost0, rtol=1e-12)
+    assert np.isclose(sol.cost, whole.cost, rtol=1e-9)

@@ -3,11 +3,13 @@ marker factors, started from a smoothed trajectory (the RTS solution).
 
 Each iteration linearizes the whole problem about the current trajectory X
 (:class:`.linearize.FactorRecorder`: the filter's own transition, process noise and
-measurement kernels), weighs the factors (:func:`factor_weight`: Huber IRLS weights on the
+measurement kernels), weighs the factors (:func:`factor_weights_of`: Huber IRLS weights on the
 markers, the filter's chi-square gate on the others, both on the residual at X), solves every
 epoch's correction at once, eliminating epoch by epoch as the linearization goes
 (:class:`StreamingSolve`, :class:`.solver.Eliminator`: the problem is never held whole, so
-memory does not grow with the run beyond a few arrays of K rows) and moves X by it (its turn
+memory does not grow with the run beyond a few arrays of K rows; the epochs are whitened PIECE
+at a time and eliminated on a worker thread while the linearization fills the next piece) and
+moves X by it (its turn
 of the initial heading as an exact rotation about the first marker, :func:`.rotation.retract`).
 A step that raises the robust cost and is not followed by a smaller one is retried at half its
 length (at most MAX_HALVINGS times in a row: a line search in its simplest form). It stops
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,15 +29,24 @@ from numpy.typing import NDArray
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.kalman import chi2_threshold
 from pipe_nav_core.graph.linearize import FactorRecorder
-from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior, whitener
+from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior
 from pipe_nav_core.graph.robust import HUBER_K, huber_cost, huber_weight
 from pipe_nav_core.graph.rotation import Pivot, retract
-from pipe_nav_core.graph.solver import ChainSolution, Eliminator, WhitenedFactors, whiten
+from pipe_nav_core.graph.solver import (
+    PIECE,
+    ChainSolution,
+    Eliminator,
+    WhitenedFactors,
+    whiten,
+    whiteners,
+)
 from pipe_nav_core.model.state import Layout, layout_for
 from pipe_nav_core.types import SensorLog, markers_sorted
 
 Array = NDArray[np.float64]
 
+# the elimination runs on a worker thread beside the linearization (StreamingSolve)
+OVERLAP = True
 MAX_ITERATIONS = 10  # Gauss-Newton iterations (linearizations) at most
 MAX_HALVINGS = 4  # step halvings of one iteration at most when the robust cost rises
 # a step below these ends the iterations (the iterated smoother's thresholds,
@@ -64,21 +76,31 @@ class Weighing:
             self.gated[f.kind] = self.gated.get(f.kind, 0) + 1
 
 
-def factor_weight(
-    f: MeasurementFactor, e: float, exact: bool, gate_probability: float, huber_k: float
-) -> tuple[float, float]:
-    """IRLS weight and robust loss of one factor whose whitened residual norm at the
-    linearization point is e: the Huber weight and loss on a robust factor (marker); for the
-    others weight 1 and loss e^2, or weight 0 (and no loss) when e^2 exceeds the chi-square
-    gate for its rows (the filter's gate, here on the residual of the current trajectory
-    rather than on the innovation); an exact factor (MeasurementFactor.exact) is a
-    constraint: weight 1, and no part in the cost the steps are judged on."""
-    if exact:
-        return 1.0, 0.0
-    if f.robust:
-        return float(huber_weight(e, huber_k)), float(huber_cost(e, huber_k))
-    gate = chi2_threshold(gate_probability, len(f.r))  # (cached)
-    return (1.0, e * e) if e * e <= gate else (0.0, 0.0)
+def factor_weights_of(
+    factors: list[MeasurementFactor],
+    wf: WhitenedFactors,
+    gate_probability: float,
+    huber_k: float = HUBER_K,
+) -> tuple[Array, Array]:
+    """IRLS weights (F,) and robust losses (F,) of factors whose whitened residual norms at
+    the linearization point are wf.norm (:func:`.solver.whiten` of them): the Huber weight and
+    loss on a robust factor (marker); for the others weight 1 and loss e^2, or weight 0 (and
+    no loss) when e^2 exceeds the chi-square gate for its rows (the filter's gate, here on the
+    residual of the current trajectory rather than on the innovation); an exact factor
+    (MeasurementFactor.exact) is a constraint: weight 1, and no part in the cost the steps
+    are judged on."""
+    e, exact = wf.norm, wf.exact
+    robust = np.array([f.robust for f in factors], dtype=bool)
+    sizes = np.array([len(f.r) for f in factors], dtype=np.int64)
+    gate = np.zeros(len(factors))
+    for m in np.unique(sizes):
+        gate[sizes == m] = chi2_threshold(gate_probability, int(m))
+    e2 = e * e
+    inside = e2 <= gate
+    w = np.where(robust, huber_weight(e, huber_k), np.where(inside, 1.0, 0.0))
+    loss = np.where(robust, huber_cost(e, huber_k), np.where(inside, e2, 0.0))
+    w[exact], loss[exact] = 1.0, 0.0
+    return w, loss
 
 
 def factor_weights(
@@ -87,62 +109,146 @@ def factor_weights(
     huber_k: float = HUBER_K,
     whitened: WhitenedFactors | None = None,
 ) -> tuple[Array, Weighing, Array]:
-    """:func:`factor_weight` of every factor of a chain: (weights (F,), what they did, the
+    """:func:`factor_weights_of` every factor of a chain: (weights (F,), what they did, the
     robust loss per factor (F,))."""
     wf = whitened if whitened is not None else whiten(chain.factors, chain.n)
-    F = len(chain.factors)
-    w, loss = np.ones(F), np.zeros(F)
+    w, loss = factor_weights_of(chain.factors, wf, gate_probability, huber_k)
     out = Weighing()
-    for i, f in enumerate(chain.factors):
-        w[i], loss[i] = factor_weight(
-            f, float(wf.norm[i]), bool(wf.exact[i]), gate_probability, huber_k
-        )
-        out.note(f, float(w[i]), bool(wf.exact[i]))
+    for f, wi, ex in zip(chain.factors, w.tolist(), wf.exact.tolist()):
+        out.note(f, wi, ex)
     return w, out, loss
 
 
 class StreamingSolve:
-    """An :class:`~.linearize.EpochSink` that weighs each factor as it comes
-    (:func:`factor_weight`) and eliminates epoch by epoch (:class:`~.solver.Eliminator`): the
-    Gauss-Newton iteration's solve without keeping the problem. :meth:`finish` returns the
-    solution and the weighing (its robust cost included)."""
+    """An :class:`~.linearize.EpochSink` that weighs each factor (:func:`factor_weights_of`) and
+    eliminates epoch by epoch (:class:`~.solver.Eliminator`): the Gauss-Newton iteration's
+    solve without keeping the problem. Epochs are taken PIECE at a time: their
+    between-factors and measurements are whitened at once (:func:`.solver.whiteners`,
+    :func:`.solver.whiten`: one batched Cholesky factor and inverse per PIECE epochs, not one
+    per epoch and factor), then eliminated in order. :meth:`finish` returns the solution and
+    the weighing (its robust cost included)."""
 
-    def __init__(self, n: int, gate_probability: float, huber_k: float = HUBER_K) -> None:
+    def __init__(
+        self,
+        n: int,
+        gate_probability: float,
+        huber_k: float = HUBER_K,
+        overlap: bool | None = None,
+    ) -> None:
         self.n = n
         self.gate_probability = gate_probability
         self.huber_k = huber_k
+        overlap = OVERLAP if overlap is None else overlap
         self.weighing = Weighing()
         self._quad = 0.0  # sum of w e^2: the measurements' part of the weighted cost
         self._loss = 0.0  # sum of their robust loss
         self._elim = Eliminator(n)
+        # the epochs taken and not yet eliminated: phi, qd (n, n), offset (n,), factors
+        self._phi: list[Array] = []
+        self._qd: list[Array] = []
+        self._offset: list[Array] = []
+        self._factors: list[MeasurementFactor] = []
+        self._counts: list[int] = []  # factors per pending epoch
+        # the elimination of full pieces runs on one worker thread while the linearization
+        # goes on (LAPACK releases the GIL), in order; overlap=False: on the caller's thread
+        self._pool = (
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="graph-eliminate")
+            if overlap
+            else None
+        )
+        self._running: Future[None] | None = None
 
-    def _rows(self, factors: list[MeasurementFactor]) -> tuple[Array, Array]:
-        rows, rhs = [np.zeros((0, self.n))], [np.zeros(0)]
-        for f in factors:
-            W = whitener(f.R)
-            wr = W @ f.r
-            e = float(np.linalg.norm(wr))
-            exact = f.exact
-            w, loss = factor_weight(f, e, exact, self.gate_probability, self.huber_k)
-            self.weighing.note(f, w, exact)
-            self._quad += w * e * e
-            self._loss += loss
-            if w > 0.0:
-                rows.append(np.sqrt(w) * (W @ f.H))
-                rhs.append(np.sqrt(w) * wr)
-        return np.vstack(rows), np.concatenate(rhs)
+    def _weigh(self, factors: list[MeasurementFactor]) -> tuple[Array, Array, Array]:
+        """The weighted whitened rows (M, n) and right-hand sides (M,) of factors (in their
+        order, which is epoch order; factors of weight 0 left out), and where each factor's
+        rows start (F + 1,). The weights are `factor_weights_of`'s, for all factors at once."""
+        wf = whiten(factors, self.n)  # sorted by epoch, stably: rows in the factors' order
+        w, loss = factor_weights_of(factors, wf, self.gate_probability, self.huber_k)
+        for i in np.flatnonzero(~wf.exact & (w < 1.0)):  # what the weights did, in order
+            self.weighing.note(factors[i], float(w[i]), False)
+        self._quad += float(np.sum(w * (wf.norm * wf.norm)))
+        self._loss += float(np.sum(loss))
+        # a weight w divides the noise covariance: it scales the whitened rows by sqrt(w);
+        # a factor of weight 0 is left out
+        scale = np.repeat(np.sqrt(w[wf.order]), np.diff(wf.start))
+        keep = scale > 0.0
+        start = np.r_[0, np.cumsum(keep)][wf.start]
+        return wf.rows[keep] * scale[keep, None], wf.rhs[keep] * scale[keep], start
 
     def start(self, prior: Prior, factors: list[MeasurementFactor]) -> None:
-        self._elim.first(prior.x0, prior.P0, *self._rows(factors))
+        rows, rhs, _ = self._weigh(factors)
+        self._elim.first(prior.x0, prior.P0, rows, rhs)
 
     def epoch(self, phi: Array, qd: Array, offset: Array, factors: list[MeasurementFactor]) -> None:
-        self._elim.add(phi, qd, offset, *self._rows(factors))
+        self._phi.append(phi)
+        self._qd.append(qd)
+        self._offset.append(offset)
+        self._factors.extend(factors)
+        self._counts.append(len(factors))
+        if len(self._phi) == PIECE:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Hand the pending epochs to the elimination (:meth:`_eliminate`): on the worker
+        thread when there is one, after the piece before (so at most one piece waits while the
+        linearization fills the next)."""
+        if not self._phi:
+            return
+        piece = (self._phi, self._qd, self._offset, self._factors, self._counts)
+        self._phi, self._qd, self._offset, self._factors, self._counts = [], [], [], [], []
+        if self._pool is None:
+            self._eliminate(*piece)
+            return
+        self._wait()
+        self._running = self._pool.submit(self._eliminate, *piece)
+
+    def _wait(self) -> None:
+        """Wait for the piece being eliminated on the worker thread (raising its error)."""
+        running, self._running = self._running, None
+        if running is not None:
+            running.result()
+
+    def _eliminate(
+        self,
+        phi: list[Array],
+        qd: list[Array],
+        offset: list[Array],
+        factors: list[MeasurementFactor],
+        counts: list[int],
+    ) -> None:
+        """Whiten and weigh a piece of epochs at once, then eliminate them in order."""
+        W = whiteners(np.stack(qd))
+        WPhi = W @ np.stack(phi)
+        Wo = np.einsum("bij,bj->bi", W, np.stack(offset))
+        rows, rhs, start = self._weigh(factors)
+        at = start[np.r_[0, np.cumsum(counts)]]  # rows of epoch j of the piece: at[j] .. at[j+1]
+        for j in range(len(W)):
+            s = slice(at[j], at[j + 1])
+            self._elim.add_whitened(WPhi[j], W[j], Wo[j], rows[s], rhs[s])
+
+    def _stop_worker(self) -> None:
+        """Wait for the worker thread's piece (its error ignored) and end the thread."""
+        running, self._running = self._running, None
+        if running is not None:
+            running.exception()
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
     def close(self) -> None:
         """Free the eliminator's rows without solving."""
+        self._phi, self._qd, self._offset, self._factors, self._counts = [], [], [], [], []
+        self._stop_worker()
         self._elim.close()
 
     def finish(self) -> tuple[ChainSolution, Weighing]:
+        try:
+            self._flush()
+            self._wait()
+        except BaseException:
+            self.close()
+            raise
+        self._stop_worker()
         sol = self._elim.finish()
         self.weighing.robust_cost = sol.cost0 - self._quad + self._loss
         return sol, self.weighing

@@ -24,7 +24,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.filter.epoch import Batch, Filter, Inputs, Settings, context, run_epochs
+from pipe_nav_core.filter.epoch import (
+    Batch,
+    EpochOutputs,
+    Filter,
+    Inputs,
+    Settings,
+    context,
+    run_epochs,
+)
 from pipe_nav_core.filter.navigator import Navigator, PassOptions
 from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Model, Prior
 from pipe_nav_core.model import measurements
@@ -100,6 +108,7 @@ class FactorRecorder(Navigator):
         self.factors: list[MeasurementFactor] = []
         self.prior: Prior | None = None
         self._scratch: Batch | None = None
+        self._buffers: EpochOutputs | None = None  # the scratch batch's (Batch.buffers)
         self._f: Filter | None = None
         self._pending: tuple[Array, Array, Array] = (np.zeros(0), np.zeros(0), np.zeros(0))
 
@@ -141,6 +150,7 @@ class FactorRecorder(Navigator):
         b = self._scratch
         if b is None or len(b.lat) < samples:
             b = self._scratch = Batch(1, max(samples, 256), self.layout.n)
+            self._buffers = b.buffers()
         b.reset()
         return b
 
@@ -181,7 +191,8 @@ class FactorRecorder(Navigator):
                 sb = self._scratch_for(i1 - i0)
                 f.x[:] = 0.0
                 f.P[:] = 0.0
-                run_epochs(True, False, k, f, L, prm, ref, one, no_markers, sb.buffers())
+                assert self._buffers is not None
+                run_epochs(True, False, k, f, L, prm, ref, one, no_markers, self._buffers)
                 if self.sink is not None:
                     self._pending = (sb.phi[0].copy(), sb.P_pred[0].copy(), sb.ws_x.copy())
                 else:
@@ -196,7 +207,10 @@ class FactorRecorder(Navigator):
                 self.sink.epoch(phi, qd, offset, self.factors[first:])
                 del self.factors[first:]
             sb.marker_res = np.zeros((len(mk), 3))
-            run_epochs(False, True, k, f, L, prm, ref, one, mk, sb.buffers())
+            bufs = self._buffers
+            assert bufs is not None
+            bufs = self._buffers = bufs._replace(marker_res=sb.marker_res)
+            run_epochs(False, True, k, f, L, prm, ref, one, mk, bufs)
 
     def _store_transition(self, k: int, phi: Array, qd: Array, offset: Array) -> None:
         """Epoch k's transition phi (n, n), process noise qd (n, n) (predicted from zero

@@ -26,6 +26,11 @@ of every noise covariance) batched, PIECE epochs or all factors of one size at o
 kept for back-substitution (R_kk, R_k,k+1, z_k: 23 kB per epoch with 38 error states) are
 stored like the forward pass's recording, beyond RAM_BUDGET_BYTES in a temporary directory
 (:class:`pipe_nav_core.smooth.chunks.Chunks`).
+
+The step's QR and the triangular inverses (whiteners, back-substitution) call LAPACK's dgeqrf
+and dtrtri through scipy.linalg.lapack, without scipy.linalg's front ends (whose checks cost
+more than the work on these small matrices): a triangular inverse is a third of a general
+one's work, and the QR runs in place on a Fortran-ordered block.
 """
 
 from __future__ import annotations
@@ -65,6 +70,25 @@ class ChainSolution:
     cov: Array | None = None
 
 
+def inv_triangular(T: Array, lower: bool = False) -> Array:
+    """Inverses of a stack of triangular matrices T (B, m, m) (upper, or lower with lower):
+    LAPACK's triangular inversion (dtrtri) of each, which reads only that triangle of T (what
+    lies on the other side is ignored). A third of the work of a general inverse (LU and
+    solves) and a back-substitution's round-off. scipy.linalg.lapack's dtrtri is called
+    directly: scipy.linalg's front ends cost more than the inversion on these matrices."""
+    from scipy.linalg.lapack import dtrtri
+
+    out = np.empty(T.shape)
+    lo = int(bool(lower))
+    for b in range(len(T)):
+        # T[b]^T is Fortran-ordered without a copy, and its inverse is inv(T[b])^T
+        inv, info = dtrtri(T[b].T, lower=1 - lo)
+        if info != 0:
+            raise np.linalg.LinAlgError("singular triangular matrix")
+        out[b] = inv.T
+    return np.tril(out) if lower else np.triu(out)
+
+
 def whiteners(C: Array) -> Array:
     """:func:`problem.whitener` of a stack of covariances C (B, m, m) at once (B, m, m)."""
     C = 0.5 * (C + np.swapaxes(C, 1, 2))
@@ -83,8 +107,8 @@ def whiteners(C: Array) -> Array:
         L = np.linalg.cholesky(C)
     except np.linalg.LinAlgError:  # one of them is not positive definite: one by one
         return np.stack([whitener(c) for c in C])
-    # inverses of the upper triangular L^T: LU without row exchanges (back-substitution)
-    return np.swapaxes(np.linalg.inv(np.swapaxes(L, 1, 2)), 1, 2)
+    # W = L^-1 (lower triangular): W C W^T = I
+    return inv_triangular(L, lower=True)
 
 
 @dataclass
@@ -157,6 +181,7 @@ class Eliminator:
         self._filled = 0
         self._Rt = np.zeros((n, n))
         self._zt = np.zeros(n)
+        self._upper = np.triu(np.ones((n, n)))  # 1 on and above the diagonal, 0 below
 
     def first(self, x0: Array, P0: Array, rows: Array, rhs: Array) -> None:
         """Epoch 0: the prior (mean x0 (n,), covariance P0 (n, n)) and its measurement rows."""
@@ -177,9 +202,13 @@ class Eliminator:
 
     def add_whitened(self, WPhi: Array, W: Array, Wo: Array, rows: Array, rhs: Array) -> None:
         """:meth:`add` with the between-factor whitened: W Phi, W = Qd^(-1/2), W offset."""
+        from scipy.linalg.lapack import dgeqrf
+
         n = self.n
         nn = n * n
-        A = np.zeros((2 * n + len(rhs), 2 * n + 1))
+        m = 2 * n + len(rhs)
+        # Fortran order: LAPACK's QR (dgeqrf) works on it in place, without a copy
+        A = np.zeros((m, 2 * n + 1), order="F")
         A[:n, :n], A[:n, -1] = self._Rt, self._zt
         A[n : 2 * n, :n] = -WPhi
         A[n : 2 * n, n : 2 * n] = W
@@ -187,7 +216,11 @@ class Eliminator:
         A[2 * n :, n : 2 * n] = rows
         A[2 * n :, -1] = rhs
         self.cost0 += float(Wo @ Wo + rhs @ rhs)
-        T = _triangular(A, 2 * n + 1)
+        # the upper triangle of T is R of A = Q R (below it: Householder vectors, not read;
+        # R_kk is kept with them, Eliminator._back_substitute reads its upper triangle)
+        T, _tau, _work, info = dgeqrf(A, overwrite_a=1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"QR failed (dgeqrf info {info})")
         out = self._out[self._filled]
         out[:nn] = T[:n, :n].reshape(nn)
         out[nn : 2 * nn] = T[:n, n : 2 * n].reshape(nn)
@@ -195,8 +228,10 @@ class Eliminator:
         self._filled += 1
         if self._filled == PIECE:
             self._flush()
-        self._Rt, self._zt = T[n : 2 * n, n : 2 * n], T[n : 2 * n, -1]
-        self.cost += float(T[2 * n, -1] ** 2)
+        # (its upper triangle: a product with a mask is one ufunc call, np.triu several)
+        self._Rt, self._zt = T[n : 2 * n, n : 2 * n] * self._upper, T[n : 2 * n, -1].copy()
+        if m > 2 * n:  # else no row is left over: the linear model fits exactly
+            self.cost += float(T[2 * n, -1] ** 2)
         self.K += 1
 
     def _flush(self) -> None:
@@ -237,16 +272,18 @@ class Eliminator:
                 B = len(piece)
                 # per epoch at once: R_kk^-1 (upper triangular: back-substitution), G_k, the
                 # solution given delta_{k+1} = 0 and R_kk^-1 R_kk^-T
-                Ri = np.linalg.inv(piece[:, :nn].reshape(B, n, n))
+                Ri = inv_triangular(piece[:, :nn].reshape(B, n, n))
                 G = Ri @ piece[:, nn : 2 * nn].reshape(B, n, n)
                 d0 = np.einsum("bij,bj->bi", Ri, piece[:, 2 * nn :])
                 RRt = Ri @ np.swapaxes(Ri, 1, 2)
+                k0 = c * CHUNK_EPOCHS + a  # row j holds epoch k0 + j's (from step k0 + j + 1)
                 for j in range(B - 1, -1, -1):
-                    k = c * CHUNK_EPOCHS + a + j  # this row holds epoch k's (from step k + 1)
-                    delta[k] = d0[j] - G[j] @ delta[k + 1]
-                    S = RRt[j] + G[j] @ S @ G[j].T
+                    k = k0 + j
+                    Gj = G[j]
+                    delta[k] = d0[j] - Gj @ delta[k + 1]
+                    S = RRt[j] + Gj @ S @ Gj.T
                     S = 0.5 * (S + S.T)
-                    var[k] = np.diag(S)
+                    var[k] = S.diagonal()
                     if cov is not None:
                         cov[k] = S
         return ChainSolution(delta, var, self.cost0, self.cost, cov)
