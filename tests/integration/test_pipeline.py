@@ -109,3 +109,41 @@ def test_welds_found_beside_the_bends_fail_the_run_whole(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="weld finder broke"):
         pipeline.smooth_bag(sample, out, config=NavConfig(), iterations=1)
     assert not list(tmp_path.iterdir())
+
+
+def test_the_imu_read_from_a_file_changes_no_output(tmp_path, monkeypatch):
+    """At field scale the IMU samples are read from a file (in memory only while a filter pass
+    or the welds' jolt check reads them): every output file is the same bytes as with the IMU
+    in memory throughout, with the welds beside the bends or after them."""
+    from pathlib import Path
+
+    from pipe_nav_core.app import pipeline
+    from pipe_nav_core.app.outputs import Outputs
+    from pipe_nav_core.smooth import logs
+
+    sample = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
+    names = ("o.mcap", "o.csv", "o_bends.csv", "o_strain.csv", "o_welds.csv")
+
+    def run(folder: Path) -> list[bytes]:
+        folder.mkdir()
+        out = Outputs(bag=str(folder / names[0]), csv=str(folder / names[1]),
+                      bends=str(folder / names[2]), strain=str(folder / names[3]),
+                      welds=str(folder / names[4]))  # fmt: skip
+        result, _ = pipeline.smooth_bag(sample, out, config=NavConfig(), iterations=2)
+        assert result.welds
+        return [(folder / n).read_bytes() for n in names]
+
+    plain = run(tmp_path / "plain")
+    monkeypatch.setattr(logs, "MAP_IMU_BYTES", 0)
+    read = []
+    real = logs.map_imu
+
+    def spy(imu):
+        real(imu)
+        read.append(logs._mapping(imu.accel) is not None)
+
+    monkeypatch.setattr(pipeline, "map_imu", spy)
+    assert run(tmp_path / "mapped") == plain
+    monkeypatch.setattr(pipeline, "WELDS_BESIDE_BENDS_MAX", 0)  # the welds after the bends
+    assert run(tmp_path / "after") == plain
+    assert read == [True, True]  # mapped in both runs

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator, PassOptions
-from pipe_nav_core.sim import simulate
+from pipe_nav_core.sim import get_scenario, simulate
 from pipe_nav_core.smooth import forward
 from pipe_nav_core.smooth.forward import run_forward
 
@@ -41,3 +41,17 @@ def test_progress_slices_give_identical_results(monkeypatch):
     np.testing.assert_array_equal(
         whole.covariances(np.arange(len(whole))), sliced.covariances(np.arange(len(sliced)))
     )
+
+
+def test_a_pass_reserves_about_what_it_records():
+    """The recording is sized for the pass up front (growing by doubling held the old arrays
+    beside new ones twice their size): the counts are a few percent over what is recorded."""
+    from pipe_nav_core.smooth.forward import expected_counts
+
+    run = simulate("demo", 0)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    epochs, samples = expected_counts(run.log, cfg)
+    rec = run_forward(run.log, cfg).recording
+    assert len(rec.states) <= epochs <= 1.05 * len(rec.states)
+    assert len(rec.s_t) <= samples <= 1.05 * len(rec.s_t)
+    assert len(rec._states._a) == epochs and len(rec._s["t"]._a) == samples  # never grown

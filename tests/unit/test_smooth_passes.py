@@ -121,3 +121,36 @@ def test_the_centreline_velocity_is_numpys_gradient(monkeypatch, uniform):
         monkeypatch.setattr(centreline, "SAMPLE_BATCH", batch)
         assert centreline.enu_velocity(t, lat, lon, h).tobytes() == ref.tobytes(), batch
     assert centreline.enu_velocity(t[:1], lat[:1], lon[:1], h[:1]).tolist() == [[0.0] * 3]
+
+
+def test_the_imu_read_from_a_file_gives_the_same_result(monkeypatch):
+    """At field scale the log's IMU samples are read from a file they are put in (at 100 km
+    0.58 GB), and each pass gives back what it has read: the result is the same bytes, the
+    log's samples have the same values, and their memory can be let go of."""
+    from pipe_nav_core.smooth import forward, logs
+
+    run = simulate(get_scenario("demo"), seed=2)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    imu = run.log.imu
+    before = [a.copy() for a in (imu.t, imu.gyro, imu.accel)]
+    plain = smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert imu.gyro.flags.writeable  # small: left in memory
+    released: list[float] = []
+    real = forward.let_go
+
+    def spy(samples, before=np.inf):
+        real(samples, before)
+        released.append(before)
+
+    monkeypatch.setattr(logs, "MAP_IMU_BYTES", 0)
+    monkeypatch.setattr(forward, "SLICE_MIN_S", 10.0)  # several slices a pass
+    monkeypatch.setattr(forward, "let_go", spy)
+    again = smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert not imu.gyro.flags.writeable and logs._mapping(imu.gyro) is not None
+    assert len(released) > 10  # slice by slice, in every pass
+    for name in ("t", "lat", "lon", "h", "vel_n", "quat_nb", "distance", "sigma_enu"):
+        assert (
+            getattr(again.centreline, name).tobytes() == getattr(plain.centreline, name).tobytes()
+        ), name
+    logs.let_go(imu)
+    assert all(a.tobytes() == b.tobytes() for a, b in zip((imu.t, imu.gyro, imu.accel), before))

@@ -47,6 +47,7 @@ from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends
 from pipe_nav_core.products.welds import Weld, detect_welds
 from pipe_nav_core.smooth.centreline import SmoothResult
 from pipe_nav_core.smooth.chunks import drop_spare
+from pipe_nav_core.smooth.logs import let_go, map_imu
 from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.smooth.segments import smooth_segments
 from pipe_nav_core.types import Marker, SensorLog
@@ -156,6 +157,7 @@ def smooth_bag(
     say("reading bag")
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
     require_imu(log, report, bag, topics)
+    map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
     if not log.markers:
         left = [w for w in report.warnings if w.startswith("marker ")]
         why = f" ({left[0]}{f' and {len(left) - 1} more' if len(left) > 1 else ''})" if left else ""
@@ -198,6 +200,7 @@ def smooth_bag(
             found = welds.result() if welds is not None else run_welds(log, result, cfg)
             result.welds = found
             result.summary["welds"] = weld_summary(found)
+        let_go(log.imu)  # what the jolt check read (when the IMU is read from a file)
 
     write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter,
                    meanwhile=find_welds)  # fmt: skip

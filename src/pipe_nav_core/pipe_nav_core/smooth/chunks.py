@@ -42,6 +42,13 @@ class Growable:
             a[: self._n] = self._a[: self._n]
             self._a = a
 
+    def reserve(self, rows: int) -> None:
+        """Room for ``rows`` rows in all (a guess: more rows still fit, by growing)."""
+        if rows > len(self._a):
+            a = np.empty((rows, *self._a.shape[1:]), self._a.dtype)
+            a[: self._n] = self._a[: self._n]
+            self._a = a
+
     def extend(self, rows: Array) -> None:
         self._reserve(len(rows))
         self._a[self._n : self._n + len(rows)] = rows

@@ -17,7 +17,8 @@ from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator, PassOptions
 from pipe_nav_core.model.state import NavState
-from pipe_nav_core.smooth.logs import slice_log
+from pipe_nav_core.smooth.logs import let_go, slice_log
+from pipe_nav_core.smooth.recording import SAMPLE_SPACING_S
 from pipe_nav_core.types import SensorLog
 
 Array = NDArray[np.float64]
@@ -38,10 +39,13 @@ def run_forward(
     record: bool = True,
     free_heading: bool | None = None,
     progress: Progress = QUIET,
+    release: bool = False,
 ) -> Navigator:
     """One filter pass over a time-sorted log, recorded for the smoothers unless record=False;
     the other arguments are :class:`~pipe_nav_core.filter.navigator.PassOptions`' (reference: flat
-    states (K, SV_SIZE) to linearize about). ``progress`` hears the fraction of the pass done.
+    states (K, SV_SIZE) to linearize about). ``progress`` hears the fraction of the pass done;
+    ``release``: the memory of log samples mapped from a file (:func:`.logs.map_imu`) is let
+    go of slice by slice, once the navigator has copied them.
     ValueError when the log gives no navigation solution."""
     nav = Navigator(
         config,
@@ -58,6 +62,8 @@ def run_forward(
             free_heading=free_heading,
         ),
     )
+    if record and nav.recording is not None and len(log.imu) >= 2:
+        nav.recording.reserve(*expected_counts(log, config))
     if len(log.imu) < 2:
         nav.run(log)
     else:
@@ -68,8 +74,23 @@ def run_forward(
             last = i == slices - 1
             nav.run(slice_log(log, edges[i], math.inf if last else edges[i + 1]), final=last)
             progress.fraction((i + 1) / slices)
+            if release:  # the navigator has copied the slice's samples
+                let_go(log.imu, edges[i + 1])
     if nav.state is None:
         raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
     if nav.recording is not None:
         nav.recording.trim()
     return nav
+
+
+def expected_counts(log: SensorLog, config: NavConfig) -> tuple[int, int]:
+    """The epochs and the kept per-sample nominal rows (Recording.add_blocks) a pass over the
+    log is expected to record: an epoch per filter period and per marker, and of the IMU
+    samples one per SAMPLE_SPACING_S (a few percent over, so that the arrays need not grow;
+    where a pass has more, they grow)."""
+    t = log.imu.t
+    span = float(t[-1] - t[0])
+    epochs = int(1.02 * span * config.filter_rate_hz) + len(log.markers) + 16
+    dt = float(np.median(np.diff(t[: 1 << 12])))
+    every = max(1, int(SAMPLE_SPACING_S / dt + 1e-6)) if SAMPLE_SPACING_S > 0 and dt > 0 else 1
+    return epochs, int(1.02 * len(t) / every) + 16

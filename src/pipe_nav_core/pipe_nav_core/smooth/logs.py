@@ -1,9 +1,12 @@
 """Cutting and turning sensor logs for the smoothing passes: a time slice, the log up to a
-time, and the log in reversed time (for the backward filter and runs aligned at their end)."""
+time, and the log in reversed time (for the backward filter and runs aligned at their end);
+and a log's IMU samples read from a file, in memory only while they are read (:func:`map_imu`)."""
 
 from __future__ import annotations
 
 import math
+import mmap
+import tempfile
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,6 +19,8 @@ from pipe_nav_core.types import (
     SensorLog,
     markers_sorted,
 )
+
+MAP_IMU_BYTES = 256 << 20  # IMU samples larger than this are read from a file (map_imu)
 
 
 def slice_log(log: SensorLog, t0: float, t1: float) -> SensorLog:
@@ -52,3 +57,59 @@ def reverse_log(log: SensorLog) -> SensorLog:
         for k in markers_sorted(log.markers)[::-1]
     ]
     return SensorLog(rimu, rodo, rmag, markers)
+
+
+def map_imu(imu: ImuSamples) -> None:
+    """Put the samples of ``imu`` in a file and read them from there, mapped read-only (in
+    place; the same values): then only what is read is in memory, and what has been read can
+    be let go (:func:`let_go`). At 100 km the IMU is 0.58 GB that the RTS smoother, the
+    centreline and most products never read, and that a filter pass reads once, in order.
+    Nothing is done when the samples are under MAP_IMU_BYTES, already mapped, or not the whole
+    of their memory (a slice keeps its base in memory anyway). The file's name is removed at
+    once: its space goes with the mapping."""
+    arrays = (imu.t, imu.gyro, imu.accel)
+    if not len(imu) or sum(a.nbytes for a in arrays) < MAP_IMU_BYTES:
+        return
+    if any(_mapping(a) is not None for a in arrays) or not all(map(_whole, arrays)):
+        return
+    mapped = []
+    for a in arrays:
+        with tempfile.TemporaryFile(prefix="pipe_nav_imu_") as f:
+            np.ascontiguousarray(a, dtype=np.float64).tofile(f)
+            f.flush()
+            m = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        mapped.append(np.frombuffer(m, dtype=np.float64).reshape(a.shape))
+    imu.t, imu.gyro, imu.accel = mapped
+
+
+def let_go(imu: ImuSamples, before: float = math.inf) -> None:
+    """Give back the memory of the mapped samples (:func:`map_imu`) stamped before ``before``
+    (s; all by default): read again, they come back from the file."""
+    arrays = (imu.t, imu.gyro, imu.accel)
+    maps = [_mapping(a) for a in arrays]
+    if any(m is None for m in maps):
+        return
+    rows = len(imu) if before == math.inf else int(np.searchsorted(imu.t, before))
+    for a, m in zip(arrays, maps):
+        size = rows * a.strides[0]
+        size -= size % mmap.PAGESIZE
+        if size > 0 and m is not None:
+            m.madvise(mmap.MADV_DONTNEED, 0, size)
+
+
+def _mapping(a: NDArray[np.float64]) -> mmap.mmap | None:
+    """The file mapping whose memory a is, from its start (None for other arrays)."""
+    base = a
+    while isinstance(base.base, np.ndarray):
+        base = base.base
+    view = base.base
+    m = view.obj if isinstance(view, memoryview) else view
+    return m if isinstance(m, mmap.mmap) and base.ctypes.data == a.ctypes.data else None
+
+
+def _whole(a: NDArray[np.float64]) -> bool:
+    """Whether a is contiguous and all of the memory it views (its own, or a reshape's)."""
+    base = a
+    while isinstance(base.base, np.ndarray):
+        base = base.base
+    return a.flags.c_contiguous and base.nbytes == a.nbytes

@@ -48,6 +48,7 @@ from pipe_nav_core.smooth.centreline import (
 )
 from pipe_nav_core.smooth.forward import run_forward
 from pipe_nav_core.smooth.heading import smoothing_config
+from pipe_nav_core.smooth.logs import map_imu
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.smooth.rts import rts_packed
 from pipe_nav_core.smooth.slips import find_slips
@@ -94,6 +95,7 @@ def smooth_log(
         method = "rts"  # its backward filter would run forward in time: the same as rts here
     if len(log.imu) < 10:
         raise ValueError("the log has fewer than 10 IMU samples")
+    map_imu(log.imu)  # read from a file: each filter pass lets go of what it has read
     say = progress.stage
     layout = layout_for(config)
     markers = markers_sorted(log.markers)
@@ -101,7 +103,7 @@ def smooth_log(
     if method != "forward":
         cfg = smoothing_config(log, config, progress, reverse=reverse)
     say("forward filter" if cfg is config else "forward filter (re-anchored heading)")
-    nav = run_forward(log, cfg, reverse=reverse, progress=progress)
+    nav = run_forward(log, cfg, reverse=reverse, progress=progress, release=True)
     assert nav.recording is not None
     forward = with_free_heading(forward_trajectory(nav.recording), nav.free_heading)
     first = nav.recording.states[0].copy()  # a view would keep every pass-1 state alive
@@ -134,7 +136,7 @@ def smooth_log(
         if it:
             say(f"forward filter about the smoothed trajectory (pass {it + 1})")
             nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude,
-                              reverse=reverse, progress=progress)  # fmt: skip
+                              reverse=reverse, progress=progress, release=True)  # fmt: skip
         rec = nav.recording
         assert rec is not None
         if method in ("rts", "graph"):
