@@ -154,3 +154,19 @@ def test_the_imu_read_from_a_file_gives_the_same_result(monkeypatch):
         ), name
     logs.let_go(imu)
     assert all(a.tobytes() == b.tobytes() for a, b in zip((imu.t, imu.gyro, imu.accel), before))
+
+
+def test_no_room_for_the_imu_file_leaves_it_in_memory(monkeypatch):
+    import tempfile
+
+    from pipe_nav_core.smooth import logs
+
+    def full(*_args, **_kwargs):
+        raise OSError(28, "No space left on device")
+
+    imu = simulate(get_scenario("demo"), seed=2).log.imu
+    monkeypatch.setattr(logs, "MAP_IMU_BYTES", 0)
+    monkeypatch.setattr(tempfile, "TemporaryFile", full)
+    gyro = imu.gyro
+    logs.map_imu(imu)
+    assert imu.gyro is gyro and logs._mapping(imu.gyro) is None

@@ -65,20 +65,24 @@ def map_imu(imu: ImuSamples) -> None:
     be let go (:func:`let_go`). At 100 km the IMU is 0.58 GB that the RTS smoother, the
     centreline and most products never read, and that a filter pass reads once, in order.
     Nothing is done when the samples are under MAP_IMU_BYTES, already mapped, or not the whole
-    of their memory (a slice keeps its base in memory anyway). The file's name is removed at
-    once: its space goes with the mapping."""
+    of their memory (a slice keeps its base in memory anyway), or when the temporary folder
+    has no room for them. The file's name is removed at once: its space goes with the
+    mapping."""
     arrays = (imu.t, imu.gyro, imu.accel)
     if not len(imu) or sum(a.nbytes for a in arrays) < MAP_IMU_BYTES:
         return
     if any(_mapping(a) is not None for a in arrays) or not all(map(_whole, arrays)):
         return
     mapped = []
-    for a in arrays:
-        with tempfile.TemporaryFile(prefix="pipe_nav_imu_") as f:
-            np.ascontiguousarray(a, dtype=np.float64).tofile(f)
-            f.flush()
-            m = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-        mapped.append(np.frombuffer(m, dtype=np.float64).reshape(a.shape))
+    try:
+        for a in arrays:
+            with tempfile.TemporaryFile(prefix="pipe_nav_imu_") as f:
+                np.ascontiguousarray(a, dtype=np.float64).tofile(f)
+                f.flush()
+                m = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+            mapped.append(np.frombuffer(m, dtype=np.float64).reshape(a.shape))
+    except OSError:  # no room for the file (a full or read-only temporary folder): in memory
+        return
     imu.t, imu.gyro, imu.accel = mapped
 
 
