@@ -171,6 +171,27 @@ def test_ekf_node_follows_the_truth_latches_the_datum_and_reports(ctx, graph, ru
     assert {"imu.rate_hz", "imu.malformed", "markers.received", "engine.state"} <= keys
 
 
+def test_ekf_node_reports_its_counts_at_the_end_of_data(ctx, graph, run):
+    """~/finish publishes a last /diagnostics report before it resets, with every input the
+    node received counted (a periodic report can come before the last inputs)."""
+    executor, helper, _ = graph
+    ekf = add(graph, EkfNode(context=ctx, parameter_overrides=scenario_overrides(
+        run, diagnostics_period_s=3600.0)))  # fmt: skip
+    diagnostics = []
+    helper.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 50)
+    pub = helper.create_publisher(Imu, "/imu/data", RELIABLE)
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0)
+    imu = [m for _, role, m in input_messages(run, 2.0) if role == "imu"]
+    for msg in imu:
+        pub.publish(msg)
+    assert spin_until(executor, lambda: ekf.core.counters["imu"].received == len(imu), 5.0)
+    assert not diagnostics
+    assert call(executor, helper, "/ekf_node/finish").success
+    assert spin_until(executor, lambda: diagnostics, 5.0)
+    values = {kv.key: kv.value for s in diagnostics[-1].status for kv in s.values}
+    assert int(values["imu.received"]) == int(values["engine.received_imu"]) == len(imu)
+
+
 def test_ekf_node_publishes_tf(ctx, graph, run):
     tf2_msgs = pytest.importorskip("tf2_msgs.msg")
     executor, helper, _ = graph

@@ -13,8 +13,9 @@ local), ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, every ``diagnostics_p
 with ``publish_tf``, the TF map -> base_link.
 
 Services: ``~/reset`` (std_srvs/Trigger): restart the estimator (applying estimator parameters
-changed since start); ``~/finish`` (std_srvs/Trigger): end of data, flush the estimates still
-held for reordering, publish them, then restart (used at the end of a bag replay).
+changed since start); ``~/finish`` (std_srvs/Trigger): end of data: a last ``/diagnostics``
+report (every input counted), flush the estimates still held for reordering, publish them,
+then restart (used at the end of a bag replay).
 
 All estimator settings are parameters (config/ekf.yaml); invalid values stop the node at start
 with a message naming the parameter (exit status 2), and are refused when set at run time.
@@ -251,6 +252,7 @@ class EkfNode(PipeNavNode):
         return response
 
     def _finish(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self._publish_diagnostics()  # the counts at the end of data, before the reset
         out = self.core.finish(config=self._pending_config)
         self._pending_config = None
         self._publish(out)
