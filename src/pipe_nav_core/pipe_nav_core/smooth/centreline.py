@@ -18,7 +18,7 @@ from pipe_nav_core.filter.anchoring import FreeHeading
 from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.geo import earth
-from pipe_nav_core.model.state import SV_DIST, SV_H, SV_LAT, SV_LON, SV_Q, SV_T, SV_VEL, Layout
+from pipe_nav_core.model.state import SV_DIST, SV_H, SV_LAT, SV_LON, SV_Q, SV_T, SV_VEL
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.types import Datum, Marker, Trajectory
 
@@ -86,7 +86,7 @@ class Parked:
         return self.result
 
 
-def smoothed_centreline(rec: Recording, e: Array, var: Array, layout: Layout) -> Trajectory:
+def smoothed_centreline(rec: Recording, e: Array, var: Array) -> Trajectory:
     """The smoothed corrections applied to the recorded per-sample nominal trajectory.
 
     e (K, n): smoothed corrections to the filter's estimates, var (K, 6) the variances of its
@@ -100,7 +100,6 @@ def smoothed_centreline(rec: Recording, e: Array, var: Array, layout: Layout) ->
     d_end = d_lin + rec.end_offset  # its columns are cols
     if var.shape[1:] != (len(cols),):
         raise ValueError(f"smoothed_centreline: var has {var.shape[1]} columns, not rec.pose's")
-    var_c = var
     t_ep = rec.t
     t = rec.s_t.copy()
     N = len(t)
@@ -116,7 +115,7 @@ def smoothed_centreline(rec: Recording, e: Array, var: Array, layout: Layout) ->
         dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, P], rec.s_lat[s], rec.s_h[s])
         lat[s], lon[s], h[s] = rec.s_lat[s] + dlat, rec.s_lon[s] + dlon, rec.s_h[s] + dh
         q[s] = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(corr[:, A]), rec.s_q[s]))
-        var_s = w0 * var_c[k - 1] + w1 * var_c[k]
+        var_s = w0 * var[k - 1] + w1 * var[k]
         sig_p[s] = np.sqrt(np.maximum(var_s[:, P], 0.0))
         sig_a[s] = np.sqrt(np.maximum(var_s[:, A], 0.0))
     distance = arc_chainage(lat, lon, h, q)

@@ -38,9 +38,7 @@ class Growable:
     def _reserve(self, extra: int) -> None:
         need = self._n + extra
         if need > len(self._a):
-            a = np.empty((max(need, 2 * len(self._a)), *self._a.shape[1:]), self._a.dtype)
-            a[: self._n] = self._a[: self._n]
-            self._a = a
+            self.reserve(max(need, 2 * len(self._a)))
 
     def reserve(self, rows: int) -> None:
         """Room for ``rows`` rows in all (a guess: more rows still fit, by growing)."""

@@ -103,9 +103,7 @@ def let_go(imu: ImuSamples, before: float = math.inf) -> None:
 
 def _mapping(a: NDArray[np.float64]) -> mmap.mmap | None:
     """The file mapping whose memory a is, from its start (None for other arrays)."""
-    base = a
-    while isinstance(base.base, np.ndarray):
-        base = base.base
+    base = _root(a)
     view = base.base
     m = view.obj if isinstance(view, memoryview) else view
     return m if isinstance(m, mmap.mmap) and base.ctypes.data == a.ctypes.data else None
@@ -113,7 +111,12 @@ def _mapping(a: NDArray[np.float64]) -> mmap.mmap | None:
 
 def _whole(a: NDArray[np.float64]) -> bool:
     """Whether a is contiguous and all of the memory it views (its own, or a reshape's)."""
-    base = a
-    while isinstance(base.base, np.ndarray):
-        base = base.base
-    return a.flags.c_contiguous and base.nbytes == a.nbytes
+    return a.flags.c_contiguous and _root(a).nbytes == a.nbytes
+
+
+def _root(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The array at the end of a's chain of views (a itself when it has its own memory or
+    views a buffer that is not an array)."""
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a

@@ -125,7 +125,7 @@ def smooth_log(
     if method == "forward":
         rec = nav.recording
         e = np.zeros((len(rec), layout.n))
-        result = result_of(nav, smoothed_centreline(rec, e, rec.variances()[:, rec.pose], layout))
+        result = result_of(nav, smoothed_centreline(rec, e, rec.variances()[:, rec.pose]))
         result.summary.update(passes=1, passes_run=1)
         return result
     exclude: Array | None = None
@@ -152,7 +152,7 @@ def smooth_log(
         rejected = int(nav.diagnostics().get("rejected_marker", 0))
         if best is not None and rejected <= best[0]:
             best = None
-        centre = smoothed_centreline(rec, e, var, layout)
+        centre = smoothed_centreline(rec, e, var)
         result = result_of(nav, centre)
         result.summary["passes"] = it + 1
         if best is None or rejected <= best[0]:
@@ -214,8 +214,7 @@ def _graph_result(
                      say=progress.stage)  # fmt: skip
     rec = g.nav.recording
     assert rec is not None
-    centre = smoothed_centreline(rec, g.corrections(), g.solution.var[:, rec.pose],
-                                 layout_for(cfg))  # fmt: skip
+    centre = smoothed_centreline(rec, g.corrections(), g.solution.var[:, rec.pose])
     rec.close()
     result = result_of(g.nav, centre)
     result.summary.update(
