@@ -32,6 +32,14 @@ def test_verdicts():
                                                   "marker agm_9 passes 5 s after"]  # fmt: skip
     assert judge({**good, "odometer_scale": -40.0}, _line()).status == FAILED
     assert judge(good, _line(sigma=52_000.0)).status == FAILED
+    # a sigma of a good share of the chainage: a filter that has lost its way (not only km)
+    lost = dataclasses.replace(_line(200), distance=np.linspace(0.0, 90.0, 200))
+    lost.sigma_enu[120:] = 30.0
+    v = judge(good, lost)
+    assert v.status == FAILED and "lost its way" in v.line() and "90.0 m of chainage" in v.line()
+    lost.sigma_enu[120:] = 0.5  # 0.7 m over 90 m: poor, not lost
+    assert judge(good, lost).status == OK
+    assert judge(good, _line(sigma=0.5)).status == OK  # a short run is judged as 10 m long
     assert judge({**good, "markers_used": 0}, _line()).status == FAILED
     nan = dataclasses.replace(_line(), h=np.array([0, 0, np.nan, 0, 0]))
     v = judge(good, nan)
@@ -46,7 +54,8 @@ def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tm
     with open(out, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert meta["pipe_nav"]["quality"] == "OK" and meta["pipe_nav"]["markers_used"] == "4"
-    # a consumer IMU smoothed as industrial does not fit: DEGRADED, and --strict exits 3
+    # a consumer IMU smoothed as industrial does not fit: the filter is lost (marker residuals
+    # of some 90 m), the verdict FAILED names the grade, and --strict exits 3
     from pipe_nav_core.app.cli import main
 
     run = tmp_path / "run.mcap"
@@ -54,5 +63,11 @@ def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tm
     cmd = [sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(run), "--out", str(out)]
     r = subprocess.run([*cmd, "--strict", "--imu-grade", "industrial"], capture_output=True,
                        text=True, timeout=300)  # fmt: skip
-    assert "quality DEGRADED" in r.stderr, r.stdout + r.stderr
+    assert "quality FAILED" in r.stderr and "check imu_grade" in r.stdout, r.stdout + r.stderr
     assert r.returncode == 3 and out.exists()
+    # too long a filter epoch for this run's motion: the filter diverges (sigmas of about 100 m
+    # on a 180 m pipe) and the verdict says so instead of a DEGRADED centreline 60 m off
+    r = subprocess.run([*cmd, "--strict", "--set", "filter_rate_hz=2.5"], capture_output=True,
+                       text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 3 and "quality FAILED" in r.stderr, r.stdout + r.stderr
+    assert "the filter lost its way" in r.stdout

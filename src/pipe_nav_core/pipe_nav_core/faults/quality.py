@@ -1,7 +1,8 @@
 """The quality verdict of a smoothed run: OK, DEGRADED (with its reasons) or FAILED.
 
 A centreline is only worth its verdict: FAILED when the solution is physically absurd (an
-odometer scale factor far from 1, position sigmas of kilometres, nothing finite) or nothing
+odometer scale factor far from 1, position sigmas of kilometres or of a tenth of the run's
+chainage: a filter that has lost its way, nothing finite) or nothing
 tied it to the ground; DEGRADED when something the engineer must know about happened (the IMU
 model did not fit, markers were rejected or left out, the heading is not anchored, messages
 were skipped, the bag was cut short); else OK. ``pipe-nav smooth`` prints it, writes it into
@@ -21,6 +22,9 @@ from pipe_nav_core.types import Trajectory
 OK, DEGRADED, FAILED = "OK", "DEGRADED", "FAILED"
 SCALE_LIMITS = (0.8, 1.25)  # odometer scale factors outside: a wrong solution, not a wheel
 MAX_SIGMA_H_M = 1000.0  # m, a horizontal sigma beyond which the centreline locates nothing
+# a horizontal sigma beyond this share of the run's chainage span: the filter is lost (a
+# diverged run reaches sigmas like the pipe's length; a sound one stays under 0.1 % of it)
+LOST_SHARE, LOST_MIN_SPAN_M = 0.1, 10.0  # (a run shorter than the span is judged as that long)
 
 
 @dataclass
@@ -57,8 +61,15 @@ def judge(
     if c.sigma_enu is not None and len(c.t):
         sig_h = np.hypot(c.sigma_enu[:, 0], c.sigma_enu[:, 1])
         worst = float(np.nanmax(sig_h)) if np.isfinite(sig_h).any() else math.inf
+        span = float(np.ptp(c.distance)) if np.isfinite(c.distance).all() else math.inf
         if not worst <= MAX_SIGMA_H_M:
             failed.append(f"horizontal sigma up to {worst:.0f} m")
+        elif worst > LOST_SHARE * max(span, LOST_MIN_SPAN_M):
+            failed.append(
+                f"horizontal sigma up to {worst:.1f} m over {span:.1f} m of chainage: the "
+                "filter lost its way (a filter_rate_hz too low for the run's motion, or an "
+                "IMU grade that does not fit)"
+            )
     if int(summary.get("markers_used", 0)) == 0:  # type: ignore[call-overload]
         failed.append("no marker was used: nothing ties the run to the ground")
     rejected = int(summary.get("markers_rejected", 0))  # type: ignore[call-overload]
