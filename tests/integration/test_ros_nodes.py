@@ -391,9 +391,12 @@ def test_serial_driver_reads_the_line_protocol(ctx, graph):
 
     time.sleep(0.2)
     os.write(master, b"garbage line\r\n")
-    for k in range(10):  # written a little slower than the device clock, as a device would
+    # written slower than the device clock (a late line keeps the offset of the least delayed
+    # one): 0.05 s of lag per line, so that the driver reading the first line up to 50 ms later
+    # than the next (a loaded machine) cannot lower the offset; with 0.01 s a 10 ms hiccup could
+    for k in range(10):
         os.write(master, format_line(MagSample(5.0 + 0.05 * k, (21e-6, 0.0, -40e-6))).encode())
-        time.sleep(0.06)
+        time.sleep(0.1)
     assert spin_until(executor, lambda: len(msgs) == 10, 10.0)
     assert msgs[0].magnetic_field.x == pytest.approx(20e-6)
     stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msgs]
