@@ -38,6 +38,24 @@ def test_verdict_judges_accuracy_and_consistency():
     assert bench.verdict(case, [{"max_h": 0.1, "inside_3sigma": None}], "cf-baseline") == ""
 
 
+def test_default_is_judged_against_the_best_smoother():
+    """Issue 17: the default within 10 % of the best smoother's max error (worst seed), per
+    axis; the forward filter is not a smoother and is left out."""
+
+    def rows(method, h, v):
+        return [{"method": method, "max_h": h, "max_v": v}, {"method": method, "max_h": h / 2,
+                                                              "max_v": v / 2}]  # fmt: skip
+
+    base = rows(bench.DEFAULT_METHOD, 0.030, 0.020) + rows("forward", 0.001, 0.001)
+    d = bench.default_against_best(base + rows("graph", 0.028, 0.025))
+    assert d["within"] and d["h"] == (0.030, 0.028, "graph") and d["v"][2] == bench.DEFAULT_METHOD
+    d = bench.default_against_best(base + rows("two-filter", 0.026, 0.030))  # 15 % better in h
+    assert not d["within"] and d["h"] == (0.030, 0.026, "two-filter")
+    assert bench.default_against_best(rows("graph", 0.01, 0.01)) is None
+    md = bench.markdown({"sag104": [{**r, "scenario": "sag104"} for r in base]}, "cmd", 1)
+    assert "| sag104 | 3.0 / 2.0 | 3.0 (rts) | 2.0 (rts) | yes |" in md
+
+
 def test_bench_runs_through_another_pipe_on_request():
     """--pipe-seed: the same runs through another pipe, so another marker survey."""
     case = next(c for c in bench.CASES if c.scenario == "sag104")

@@ -190,6 +190,23 @@ def test_smoother_settings_derive_the_output(tmp_path):
     assert len(names) == len(set(names))
 
 
+def test_smoother_node_and_launch_offer_the_methods_of_pipe_nav_smooth():
+    """The method parameter's default and choices are pipe-nav smooth's (smooth.methods): the
+    node and the launch file cannot drift to another default."""
+    from pipe_nav_core.smooth.methods import DEFAULT_METHOD, METHODS
+
+    spec = next(s for s in SMOOTHER_NODE_SPECS if s.name == "method")
+    assert spec.default == DEFAULT_METHOD
+    assert set(re.findall(r"[a-z-]+", spec.description.partition(":")[2])) == set(METHODS)
+    launch = ast.parse((PKG / "launch" / "smooth.launch.py").read_text())
+    declared = [
+        n.elts for n in ast.walk(launch)
+        if isinstance(n, ast.Tuple) and n.elts and getattr(n.elts[0], "value", None) == "method"
+    ]  # fmt: skip
+    assert len(declared) == 1 and declared[0][1].value == DEFAULT_METHOD
+    assert set(METHODS) <= set(re.findall(r"[a-z-]+", declared[0][2].value))
+
+
 def test_nav_parameter_descriptions_and_ranges_come_from_the_settings():
     """Each NavConfig parameter's description is its Setting.doc, and a double's range is its
     rule's bounds (degrees for angles, the largest double for no bound): it holds the default,

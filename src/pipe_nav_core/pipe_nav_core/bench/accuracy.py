@@ -33,7 +33,8 @@ from pipe_nav_core.geo import earth
 from pipe_nav_core.io.atomic import atomic_write
 from pipe_nav_core.sim import SimRun, get_scenario, simulate
 from pipe_nav_core.smooth.centreline import interpolate_enu
-from pipe_nav_core.smooth.passes import METHODS, smooth_log
+from pipe_nav_core.smooth.methods import DEFAULT_METHOD, METHODS
+from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.types import Datum, Trajectory, markers_sorted
 
 Array = NDArray[np.float64]
@@ -274,6 +275,32 @@ def _pct(x: float) -> str:
 
 
 CONSISTENT = 0.95  # the issue's target share of samples inside 3 sigma, for every estimator
+# the default method is judged within this share of the best smoother's max error (worst
+# seed), horizontal and vertical each (issue 17)
+DEFAULT_WITHIN = 0.10
+
+
+def default_against_best(rows: list[dict[str, object]]) -> dict[str, object] | None:
+    """The default method (DEFAULT_METHOD) on one scenario's rows against the best smoother
+    (every method but the forward filter), max horizontal and vertical error each (worst
+    seed, m): {"h": (default, best, best's method), "v": (...), "within": bool}, whether
+    both are within DEFAULT_WITHIN of the best; None without the default's rows."""
+    worst = {
+        m: (_agg(rs, "max_h", max), _agg(rs, "max_v", max))
+        for m in METHODS
+        if m != "forward" and (rs := [r for r in rows if r["method"] == m])
+    }
+    if DEFAULT_METHOD not in worst:
+        return None
+    out: dict[str, object] = {}
+    within = True
+    for i, axis in enumerate(("h", "v")):
+        best = min(worst, key=lambda m: worst[m][i])
+        mine, top = worst[DEFAULT_METHOD][i], worst[best][i]
+        out[axis] = (mine, top, best)
+        within &= mine <= (1.0 + DEFAULT_WITHIN) * top
+    out["within"] = within
+    return out
 
 
 def verdict(case: BenchCase, rows: list[dict[str, object]], method: str) -> str:
@@ -365,6 +392,7 @@ def markdown(
                 f"| {verdict(case, rows, method)} "
                 f"| {_agg(rows, 'x_real_time', np.mean):.0f} | {_mb(_agg(rows, 'peak_mb', max))} |"
             )
+    lines += _default_lines(results)
     lines += [
         "",
         f"`{BASELINE}`: seed 002's complementary filter (k = 0.02) with odometer dead reckoning,",
@@ -381,6 +409,31 @@ def markdown(
     ]
     lines += [f"- `{c.scenario}`: {c.description}." for c in CASES if c.scenario in results]
     return "\n".join(lines) + "\n"
+
+
+def _default_lines(results: dict[str, list[dict[str, object]]]) -> list[str]:
+    """The table of the default method against the best smoother per scenario."""
+    rows = [
+        (c.scenario, d) for c in CASES if (d := default_against_best(results.get(c.scenario, [])))
+    ]
+    if not rows:
+        return []
+    lines = [
+        "",
+        f"The default method (`{DEFAULT_METHOD}`) against the best smoother per scenario, max",
+        f"error of the worst seed in cm; within: at most {DEFAULT_WITHIN:.0%} above the best,",
+        "horizontal and vertical each:",
+        "",
+        f"| scenario | {DEFAULT_METHOD} h / v | best h | best v | within {DEFAULT_WITHIN:.0%} |",
+        "|---|---|---|---|---|",
+    ]
+    for name, d in rows:
+        (h, bh, mh), (v, bv, mv) = d["h"], d["v"]  # type: ignore[misc]
+        lines.append(
+            f"| {name} | {_cm(h)} / {_cm(v)} | {_cm(bh)} ({mh}) | {_cm(bv)} ({mv}) "
+            f"| {'yes' if d['within'] else 'NO'} |"
+        )
+    return lines
 
 
 # the tables beside the accuracy table: option name -> module (run(quick) and markdown(rows,

@@ -49,6 +49,7 @@ from pipe_nav_core.smooth.centreline import (
 from pipe_nav_core.smooth.forward import run_forward
 from pipe_nav_core.smooth.heading import smoothing_config
 from pipe_nav_core.smooth.logs import map_imu
+from pipe_nav_core.smooth.methods import DEFAULT_METHOD, METHODS
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.smooth.rts import rts_packed
 from pipe_nav_core.smooth.slips import find_slips
@@ -56,7 +57,6 @@ from pipe_nav_core.smooth.two_filter import two_filter
 from pipe_nav_core.types import Datum, SensorLog, Trajectory, markers_sorted
 
 Array = NDArray[np.float64]
-METHODS = ("forward", "rts", "two-filter", "graph")
 # A pass linearized within these of its smoothed result has converged: Gauss-Newton converges
 # quadratically here (a 0.1 m step is followed by about 2 mm, a 2 mm one by microns), so the
 # result of such a pass is the optimum to well below a millimetre.
@@ -69,7 +69,7 @@ def smooth_log(
     log: SensorLog,
     config: NavConfig,
     *,
-    method: str = "rts",
+    method: str = DEFAULT_METHOD,
     iterations: int = 5,
     progress: Progress = QUIET,
     reverse: bool = False,
