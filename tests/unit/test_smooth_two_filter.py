@@ -3,9 +3,12 @@ the fused estimate at a marker holds the marker exactly once."""
 
 from __future__ import annotations
 
+from concurrent.futures import Future
+
 import numpy as np
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.sim import simulate
+from pipe_nav_core.smooth import passes
 from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.smooth.two_filter import fuse
 
@@ -44,3 +47,31 @@ def test_two_filter_keeps_each_marker_at_the_epoch_before_it():
         near = np.abs(t - tm) <= 0.3
         before = np.argmin(np.abs(t - (tm - 2.0)))
         assert sig[near].max() <= 1.02 * sig[before], (tm, sig[near].max(), sig[before])
+
+
+def test_backward_filter_runs_beside_the_forward_one_with_the_same_result(monkeypatch):
+    """From the second pass on the backward filter runs on a thread of its own while the forward
+    filter runs (it needs only the reference's epochs and end heading); the result is the one of
+    the same passes run one after the other, to the bit."""
+    run = simulate("sag104", seed=1)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    threads = []
+
+    def watched(fn, *args):
+        threads.append(fn.__name__)
+        return beside(fn, *args)
+
+    beside = passes._beside
+    monkeypatch.setattr(passes, "_beside", watched)
+    both = smooth_log(run.log, cfg, method="two-filter", iterations=2).centreline
+    assert threads == ["backward_pass"]  # pass 2 only: pass 1's needs the forward's end
+
+    def after(fn, *args):
+        done: Future = Future()
+        done.set_result(fn(*args))
+        return done
+
+    monkeypatch.setattr(passes, "_beside", after)
+    one_by_one = smooth_log(run.log, cfg, method="two-filter", iterations=2).centreline
+    for name in ("t", "lat", "lon", "h", "quat_nb", "sigma_enu"):
+        np.testing.assert_array_equal(getattr(both, name), getattr(one_by_one, name))

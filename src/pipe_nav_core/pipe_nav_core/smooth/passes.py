@@ -4,7 +4,8 @@ Methods (``method``):
 - ``forward``: the forward filter alone (what the live node sees);
 - ``rts``: Rauch-Tung-Striebel over the recorded forward filter (:mod:`.rts`);
 - ``two-filter``: the forward filter fused with a filter run on the time-reversed data
-  (:mod:`.two_filter`);
+  (:mod:`.two_filter`); from the second pass on the two run at once, on two cores (the
+  backward filter takes its epochs and its initial heading from the reference trajectory);
 - ``graph``: the batch (factor-graph) smoother (:mod:`pipe_nav_core.graph`): Gauss-Newton over
   the whole run with a robust loss on the markers, started from the ``rts`` result.
 
@@ -29,6 +30,7 @@ each stage is named as it begins.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,7 +38,7 @@ from numpy.typing import NDArray
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator
-from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, Layout, inject_many, layout_for
+from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, SV_T, Layout, inject_many, layout_for
 from pipe_nav_core.smooth.centreline import (
     Parked,
     SmoothResult,
@@ -53,7 +55,7 @@ from pipe_nav_core.smooth.methods import DEFAULT_METHOD, METHODS
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.smooth.rts import rts_packed
 from pipe_nav_core.smooth.slips import find_slips
-from pipe_nav_core.smooth.two_filter import two_filter
+from pipe_nav_core.smooth.two_filter import backward_pass, end_azimuth, fuse_passes, two_filter
 from pipe_nav_core.types import Datum, SensorLog, Trajectory, markers_sorted
 
 Array = NDArray[np.float64]
@@ -133,8 +135,13 @@ def smooth_log(
     best: tuple[int, SmoothResult | Parked] | None = None  # the pass taken so far
     n_pass = max(1, iterations)
     for it in range(n_pass):
+        back: Future[Navigator] | None = None
         if it:
-            say(f"forward filter about the smoothed trajectory (pass {it + 1})")
+            if method == "two-filter":  # its backward half beside the forward one
+                back = _beside(backward_pass, log, cfg, reference[:, SV_T].copy(),
+                               end_azimuth(reference[-1]), exclude)  # fmt: skip
+            say(f"forward filter about the smoothed trajectory (pass {it + 1})"
+                + (", the backward filter beside it" if back else ""))  # fmt: skip
             nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude,
                               reverse=reverse, progress=progress, release=True)  # fmt: skip
         rec = nav.recording
@@ -144,7 +151,10 @@ def smooth_log(
             e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format, var_cols=rec.pose)
         else:
             say(f"backward filter (pass {it + 1})")
-            e, var = two_filter(log, cfg, rec, layout, exclude, progress)
+            if back is None:
+                e, var = two_filter(log, cfg, rec, layout, exclude, progress)
+            else:
+                e, var = fuse_passes(rec, back.result(), layout)
             var = var[:, rec.pose]
         rec.close()  # the covariances are no longer needed
         # a pass that rejects more markers than an earlier one is not taken; the one it
@@ -192,6 +202,15 @@ def smooth_log(
     taken = best[1].restore() if isinstance(best[1], Parked) else best[1]
     taken.summary["passes_run"] = it + 1
     return taken
+
+
+def _beside(fn: Callable[..., Navigator], *args: object) -> Future[Navigator]:
+    """fn(*args) started on a thread of its own: its compiled epochs let go of the GIL, so it
+    runs on the other core; the future's result() waits for it and raises what it raised."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"pipe-nav {fn.__name__}")
+    future = pool.submit(fn, *args)
+    pool.shutdown(wait=False)  # the thread ends with fn
+    return future
 
 
 def _graph_result(

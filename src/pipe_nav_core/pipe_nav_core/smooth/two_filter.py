@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import NavConfig
+from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.model.state import (
     SV_BG,
@@ -49,28 +50,56 @@ def two_filter(
     exclude: Array | None = None,
     progress: Progress = QUIET,
 ) -> tuple[Array, Array]:
-    """Fuse the forward pass recorded in ``rec`` with a filter run over the time-reversed log.
+    """Fuse the forward pass recorded in ``rec`` with a filter run over the time-reversed log
+    (:func:`backward_pass` at rec's epochs from the forward estimate's azimuth at the end, then
+    :func:`fuse_passes`). Returns the corrections (K, n) to the forward estimates and the
+    variances (K, n) of the fused covariances; ``progress`` hears the backward pass."""
+    back = backward_pass(log, config, rec.t, end_azimuth(rec.states[-1]), exclude, progress)
+    return fuse_passes(rec, back, layout)
 
-    The backward filter starts at the receive trap with the forward estimate's azimuth there as
-    its initial heading (with the configured sigma: a prior, not the forward's information)
-    and leaves out the same odometer epochs (``exclude``, (N, 2) s); its heading prior stays
-    outside it until its second marker (:class:`~pipe_nav_core.filter.anchoring.FreeHeading`) and is
-    added to its covariance here. Returns the corrections (K, n) to the forward estimates and
-    the variances (K, n) of the fused covariances; ``progress`` hears the backward pass.
-    """
-    t_f = rec.t
-    _, _, az_end = att.euler_from_dcm(NavState.from_vector(rec.states[-1]).c_nb)
-    cfg_b = replace(config, heading_source="fixed", initial_azimuth=float(az_end))
+
+def end_azimuth(state: Array) -> float:
+    """The azimuth (rad, from north, clockwise) of a flat state (SV_SIZE,): the backward
+    filter's initial heading."""
+    _, _, az = att.euler_from_dcm(NavState.from_vector(state).c_nb)
+    return float(az)
+
+
+def backward_pass(
+    log: SensorLog,
+    config: NavConfig,
+    t_f: Array,
+    azimuth: float,
+    exclude: Array | None = None,
+    progress: Progress = QUIET,
+) -> Navigator:
+    """The backward filter: the forward engine run over the time-reversed log, with its epochs
+    at the forward epochs' times ``t_f`` (s), from the receive trap with ``azimuth`` (rad) as
+    its initial heading (with the configured sigma: a prior, not the forward's information),
+    leaving out the same odometer epochs (``exclude``, (N, 2) s); its heading prior stays
+    outside it until its second marker (:class:`~pipe_nav_core.filter.anchoring.FreeHeading`).
+    It needs no more of the forward pass than those epochs and that heading, so it can run
+    beside it (the GIL is let go in the compiled epochs)."""
+    cfg_b = replace(config, heading_source="fixed", initial_azimuth=azimuth)
     ex_b = None if exclude is None else -np.asarray(exclude)[::-1, ::-1]
-    back = run_forward(
+    return run_forward(
         reverse_log(log),
         cfg_b,
         reverse=True,
-        epoch_times=-t_f[::-1],
+        epoch_times=-np.asarray(t_f)[::-1],
         odometer_exclude=ex_b,
         free_heading=True,
         progress=progress,
     )
+
+
+def fuse_passes(rec: Recording, back: Navigator, layout: Layout) -> tuple[Array, Array]:
+    """Fuse the forward pass recorded in ``rec`` with the backward filter ``back``
+    (:func:`backward_pass`), epoch by epoch where both have one: the corrections (K, n) to the
+    forward estimates and the variances (K, n) of the fused covariances. The backward filter's
+    heading prior, kept outside it until its second marker, is added to its covariance here;
+    its recording is closed."""
+    t_f = rec.t
     rb = back.recording
     assert rb is not None
     # the backward epoch j at the time of forward epoch k (to the microsecond; the backward
