@@ -3,9 +3,8 @@ the fused estimate at a marker holds the marker exactly once."""
 
 from __future__ import annotations
 
-from concurrent.futures import Future
-
 import numpy as np
+from pipe_nav_core.background import Background
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.sim import simulate
 from pipe_nav_core.smooth import passes
@@ -55,23 +54,25 @@ def test_backward_filter_runs_beside_the_forward_one_with_the_same_result(monkey
     the same passes run one after the other, to the bit."""
     run = simulate("sag104", seed=1)
     cfg = NavConfig.from_dict(run.scenario.estimator_settings())
-    threads = []
+    started = []
 
-    def watched(fn, *args):
-        threads.append(fn.__name__)
-        return beside(fn, *args)
+    class Watched(Background):
+        def __init__(self, name, fn, *args):
+            started.append(fn.__name__)
+            super().__init__(name, fn, *args)
 
-    beside = passes._beside
-    monkeypatch.setattr(passes, "_beside", watched)
+    monkeypatch.setattr(passes, "Background", Watched)
     both = smooth_log(run.log, cfg, method="two-filter", iterations=2).centreline
-    assert threads == ["backward_pass"]  # pass 2 only: pass 1's needs the forward's end
+    assert started == ["backward_pass"]  # pass 2 only: pass 1's needs the forward's end
 
-    def after(fn, *args):
-        done: Future = Future()
-        done.set_result(fn(*args))
-        return done
+    class After:  # the same call, done before the forward filter starts
+        def __init__(self, name, fn, *args):
+            self.value = fn(*args)
 
-    monkeypatch.setattr(passes, "_beside", after)
+        def result(self):
+            return self.value
+
+    monkeypatch.setattr(passes, "Background", After)
     one_by_one = smooth_log(run.log, cfg, method="two-filter", iterations=2).centreline
     for name in ("t", "lat", "lon", "h", "quat_nb", "sigma_enu"):
         np.testing.assert_array_equal(getattr(both, name), getattr(one_by_one, name))

@@ -10,16 +10,15 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
 from pipe_nav_core.app.outputs import Outputs, Say, write_products, write_products_csv
 from pipe_nav_core.app.plot_process import PlotProcess
 from pipe_nav_core.app.progress import QUIET, Progress
+from pipe_nav_core.background import Background
 from pipe_nav_core.config import AUTO_GRADE, NavConfig
 from pipe_nav_core.faults import quality
 from pipe_nav_core.faults.gaps import (
@@ -188,9 +187,9 @@ def smooth_bag(
     # unless the run is so long that their working sets together would raise the peak
     # memory (some 400 bytes per magnetometer sample: 1 GB at 100 km)
     cfg = result.config or config
-    welds: _Background | None = None
+    welds: Background | None = None
     if 0 < len(log.mag.t) <= WELDS_BESIDE_BENDS_MAX:
-        welds = _Background("pipe-nav-welds", run_welds, log, result, cfg)
+        welds = Background("pipe-nav-welds", run_welds, log, result, cfg)
     say("bends and strain")
     result.products = integrity_report(result.centreline, cfg, spacing=spacing, reference=reference)
     result.summary["integrity"] = result.products.summary()
@@ -206,30 +205,6 @@ def smooth_bag(
     write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter,
                    meanwhile=find_welds)  # fmt: skip
     return result, report
-
-
-class _Background:
-    """``fn(*args)`` in a daemon thread named ``name`` (an interrupted run does not wait for it
-    at exit); :meth:`result` waits for it and returns its value or raises its exception."""
-
-    def __init__(self, name: str, fn: Callable[..., object], *args: object) -> None:
-        self._out: list[object] = []
-        self._error: list[BaseException] = []
-
-        def run() -> None:
-            try:
-                self._out.append(fn(*args))
-            except BaseException as e:  # handed to the caller by result()
-                self._error.append(e)
-
-        self._thread = threading.Thread(target=run, name=name, daemon=True)
-        self._thread.start()
-
-    def result(self) -> Any:
-        self._thread.join()
-        if self._error:
-            raise self._error[0]
-        return self._out[0]
 
 
 def _smooth_segments(

@@ -30,12 +30,12 @@ each stage is named as it begins.
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.app.progress import QUIET, Progress
+from pipe_nav_core.background import Background
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, SV_T, Layout, inject_many, layout_for
@@ -135,11 +135,12 @@ def smooth_log(
     best: tuple[int, SmoothResult | Parked] | None = None  # the pass taken so far
     n_pass = max(1, iterations)
     for it in range(n_pass):
-        back: Future[Navigator] | None = None
+        back: Background | None = None
         if it:
-            if method == "two-filter":  # its backward half beside the forward one
-                back = _beside(backward_pass, log, cfg, reference[:, SV_T].copy(),
-                               end_azimuth(reference[-1]), exclude)  # fmt: skip
+            if method == "two-filter":  # its backward half on the other core
+                back = Background("pipe-nav backward filter", backward_pass, log, cfg,
+                                  reference[:, SV_T].copy(), end_azimuth(reference[-1]),
+                                  exclude)  # fmt: skip
             say(f"forward filter about the smoothed trajectory (pass {it + 1})"
                 + (", the backward filter beside it" if back else ""))  # fmt: skip
             nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude,
@@ -202,15 +203,6 @@ def smooth_log(
     taken = best[1].restore() if isinstance(best[1], Parked) else best[1]
     taken.summary["passes_run"] = it + 1
     return taken
-
-
-def _beside(fn: Callable[..., Navigator], *args: object) -> Future[Navigator]:
-    """fn(*args) started on a thread of its own: its compiled epochs let go of the GIL, so it
-    runs on the other core; the future's result() waits for it and raises what it raised."""
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"pipe-nav {fn.__name__}")
-    future = pool.submit(fn, *args)
-    pool.shutdown(wait=False)  # the thread ends with fn
-    return future
 
 
 def _graph_result(
