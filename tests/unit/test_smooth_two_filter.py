@@ -28,6 +28,9 @@ def test_fuse_is_inverse_covariance_weighting():
         x = P @ (np.linalg.solve(P_f[k], x_f[k]) + np.linalg.solve(P_b[k], x_b[k]))
         np.testing.assert_allclose(x_f[k] + e[k], x, atol=1e-12)
         np.testing.assert_allclose(var[k], np.diag(P), atol=1e-12)
+    e2, var2 = fuse(P_f, P_b, x_b - x_f, np.array([2, 0]))  # only the variances asked for
+    np.testing.assert_array_equal(e2, e)
+    np.testing.assert_allclose(var2, var[:, [2, 0]], atol=1e-12)
 
 
 def test_two_filter_keeps_each_marker_at_the_epoch_before_it():

@@ -153,10 +153,9 @@ def smooth_log(
         else:
             say(f"backward filter (pass {it + 1})")
             if back is None:
-                e, var = two_filter(log, cfg, rec, layout, exclude, progress)
+                e, var = two_filter(log, cfg, rec, layout, exclude, progress, rec.pose)
             else:
-                e, var = fuse_passes(rec, back.result(), layout)
-            var = var[:, rec.pose]
+                e, var = fuse_passes(rec, back.result(), layout, rec.pose)
         rec.close()  # the covariances are no longer needed
         # a pass that rejects more markers than an earlier one is not taken; the one it
         # replaces is let go before its centreline is built, so that two are never held

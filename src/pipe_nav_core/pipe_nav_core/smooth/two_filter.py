@@ -32,14 +32,19 @@ Array = NDArray[np.float64]
 FUSE_BATCH = 1024  # epochs fused at once (bounds the (B, n, n) temporaries)
 
 
-def fuse(P_f: Array, P_b: Array, d: Array) -> tuple[Array, Array]:
+def fuse(P_f: Array, P_b: Array, d: Array, cols: Array | None = None) -> tuple[Array, Array]:
     """Inverse-covariance weighting (seed 001 eq. 29-30) of B pairs of independent estimates
-    of the same error state: forward covariances P_f (B, n, n), backward ones P_b (B, n, n),
-    d (B, n) the backward estimate minus the forward one. Returns the corrections to the
-    forward estimates K d (B, n) and the variances (B, n) of the fused covariances
-    P_f - K P_f, where K = P_f (P_f + P_b)^-1."""
-    gain = np.linalg.solve(P_f + P_b, P_f).transpose(0, 2, 1)
-    return (gain @ d[:, :, None])[:, :, 0], np.diagonal(P_f - gain @ P_f, axis1=1, axis2=2)
+    of the same error state: forward covariances P_f (B, n, n) (symmetric), backward ones P_b
+    (B, n, n), d (B, n) the backward estimate minus the forward one. Returns the corrections to
+    the forward estimates K d (B, n) and the variances (B, len(cols)) of the fused covariances
+    P_f - K P_f at the states ``cols`` (every state when None), where K = P_f (P_f + P_b)^-1.
+    One solve with the columns asked for: K d = P_f y with (P_f + P_b) y = d, and the fused
+    variance of state c is P_f[c, c] - P_f[:, c] . z_c with (P_f + P_b) z_c = P_f[:, c]."""
+    cols = np.arange(P_f.shape[1]) if cols is None else np.asarray(cols)
+    rhs = np.concatenate([d[:, :, None], P_f[:, :, cols]], axis=2)
+    y = np.linalg.solve(P_f + P_b, rhs)
+    e = (P_f @ y[:, :, :1])[:, :, 0]
+    return e, P_f[:, cols, cols] - np.einsum("bic,bic->bc", P_f[:, :, cols], y[:, :, 1:])
 
 
 def two_filter(
@@ -49,13 +54,15 @@ def two_filter(
     layout: Layout,
     exclude: Array | None = None,
     progress: Progress = QUIET,
+    cols: Array | None = None,
 ) -> tuple[Array, Array]:
     """Fuse the forward pass recorded in ``rec`` with a filter run over the time-reversed log
     (:func:`backward_pass` at rec's epochs from the forward estimate's azimuth at the end, then
     :func:`fuse_passes`). Returns the corrections (K, n) to the forward estimates and the
-    variances (K, n) of the fused covariances; ``progress`` hears the backward pass."""
+    variances (K, len(cols)) of the fused covariances at the states ``cols`` (every state when
+    None); ``progress`` hears the backward pass."""
     back = backward_pass(log, config, rec.t, end_azimuth(rec.states[-1]), exclude, progress)
-    return fuse_passes(rec, back, layout)
+    return fuse_passes(rec, back, layout, cols)
 
 
 def end_azimuth(state: Array) -> float:
@@ -93,10 +100,13 @@ def backward_pass(
     )
 
 
-def fuse_passes(rec: Recording, back: Navigator, layout: Layout) -> tuple[Array, Array]:
+def fuse_passes(
+    rec: Recording, back: Navigator, layout: Layout, cols: Array | None = None
+) -> tuple[Array, Array]:
     """Fuse the forward pass recorded in ``rec`` with the backward filter ``back``
     (:func:`backward_pass`), epoch by epoch where both have one: the corrections (K, n) to the
-    forward estimates and the variances (K, n) of the fused covariances. The backward filter's
+    forward estimates and the variances (K, len(cols)) of the fused covariances at the states
+    ``cols`` (every state when None; elsewhere the forward ones). The backward filter's
     heading prior, kept outside it until its second marker, is added to its covariance here;
     its recording is closed."""
     t_f = rec.t
@@ -126,7 +136,7 @@ def fuse_passes(rec: Recording, back: Navigator, layout: Layout) -> tuple[Array,
         g = free.direction(xb[:, SV_LAT], xb[:, SV_LON], xb[:, SV_H], xb[:, SV_VEL], layout)
         g *= np.sqrt(free.variance) * on[:, None]
     e = np.zeros((len(t_f), layout.n))
-    var = rec.variances()
+    var = rec.variances() if cols is None else rec.variances()[:, cols]
     for b in range(0, len(ks), FUSE_BATCH):
         sel = slice(b, b + FUSE_BATCH)
         P_f = rec.covariances(ks[sel], "upd")
@@ -141,7 +151,7 @@ def fuse_passes(rec: Recording, back: Navigator, layout: Layout) -> tuple[Array,
             P_b[:, :, q] = 0.0
             P_b[:, q, q] = 1.0
             d_b[:, q] = 0.0
-        e[ks[sel]], var[ks[sel]] = fuse(P_f, P_b, d_b)
+        e[ks[sel]], var[ks[sel]] = fuse(P_f, P_b, d_b, cols)
     rb.close()
     return e, var
 
