@@ -179,10 +179,12 @@ def test_the_axis_track_built_in_batches_is_the_same(monkeypatch):
     batches of a few points give the track of one batch, bit for bit, sigmas included."""
     from pipe_nav_core.products import curvature
 
+    from pipe_nav_core import batched
+
     traj = pipe(lambda s: arc(5.0, 30 * DEG, 10.0)(s), lambda s: arc(12.0, -5 * DEG, 40.0)(s), 30.0)
     traj.sigma_enu = np.random.default_rng(0).random((len(traj.t), 3))
     whole = curvature.axis_track(traj)
-    monkeypatch.setattr(curvature, "TRACK_BATCH", 7)
+    monkeypatch.setattr(batched, "BATCH", 7)
     batched = curvature.axis_track(traj)
     for name in whole.__dataclass_fields__:
         assert getattr(batched, name).tobytes() == getattr(whole, name).tobytes(), name

@@ -89,14 +89,15 @@ def test_smoothing_in_small_batches_gives_the_same_bytes(monkeypatch):
     """The smoothed states, the step, the centreline (positions, velocity, chainage) and the path
     lengths of the slip check are built in batches at field scale (bounded memory): batches of a few
     epochs and samples give the result of one batch, bit for bit."""
-    from pipe_nav_core.smooth import centreline, passes, slips
+    from pipe_nav_core.smooth import passes
+
+    from pipe_nav_core import batched
 
     run = simulate(get_scenario("demo"), seed=2)
     cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
     plain = smooth_log(run.log, cfg, method="rts", iterations=2)
     monkeypatch.setattr(passes, "EPOCH_BATCH", 7)
-    monkeypatch.setattr(centreline, "SAMPLE_BATCH", 5)
-    monkeypatch.setattr(slips, "SAMPLE_BATCH", 3)
+    monkeypatch.setattr(batched, "BATCH", 5)
     again = smooth_log(run.log, cfg, method="rts", iterations=2)
     assert again.summary["last_step_m"] == plain.summary["last_step_m"]
     for name in ("t", "lat", "lon", "h", "vel_n", "quat_nb", "distance", "sigma_enu"):
@@ -110,6 +111,8 @@ def test_the_centreline_velocity_is_numpys_gradient(monkeypatch, uniform):
     from pipe_nav_core.geo.earth import geodetic_to_enu
     from pipe_nav_core.smooth import centreline
 
+    from pipe_nav_core import batched
+
     rng = np.random.default_rng(3)
     n = 50
     t = np.arange(n) * 0.25 if uniform else np.cumsum(rng.uniform(0.001, 0.01, n))
@@ -118,7 +121,7 @@ def test_the_centreline_velocity_is_numpys_gradient(monkeypatch, uniform):
     h = np.cumsum(rng.normal(0, 0.1, n))
     ref = np.gradient(geodetic_to_enu(lat, lon, h, lat[0], lon[0], h[0]), t, axis=0)
     for batch in (1, 2, 7, 64):
-        monkeypatch.setattr(centreline, "SAMPLE_BATCH", batch)
+        monkeypatch.setattr(batched, "BATCH", batch)
         assert centreline.enu_velocity(t, lat, lon, h).tobytes() == ref.tobytes(), batch
     assert centreline.enu_velocity(t[:1], lat[:1], lon[:1], h[:1]).tolist() == [[0.0] * 3]
 

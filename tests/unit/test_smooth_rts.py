@@ -201,6 +201,8 @@ def test_arc_chainage_in_batches_equals_one_batch(monkeypatch):
     from pipe_nav_core.geo import attitude as att
     from pipe_nav_core.smooth import centreline
 
+    from pipe_nav_core import batched
+
     rng = np.random.default_rng(3)
     n = 5000
     for lon0 in (0.1, np.pi - 1e-6):
@@ -210,7 +212,7 @@ def test_arc_chainage_in_batches_equals_one_batch(monkeypatch):
         h = 10 + np.cumsum(rng.normal(0, 1e-3, n))
         q = att.quat_normalize(rng.normal(0, 1, (n, 4)))
         whole = centreline.arc_chainage(lat, lon, h, q)
-        monkeypatch.setattr(centreline, "SAMPLE_BATCH", 333)
+        monkeypatch.setattr(batched, "BATCH", 333)
         parts = centreline.arc_chainage(lat, lon, h, q)
         monkeypatch.undo()
         assert whole.tobytes() == parts.tobytes()

@@ -65,9 +65,11 @@ def test_the_magnetometer_placed_on_the_centreline_in_batches_is_the_same(demo, 
     bit."""
     from pipe_nav_core.products import welds
 
+    from pipe_nav_core import batched
+
     run, res = demo
     whole = welds.mag_residual(run.log, res.centreline)
-    monkeypatch.setattr(welds, "SAMPLE_BATCH", 7)
+    monkeypatch.setattr(batched, "BATCH", 7)
     batched = welds.mag_residual(run.log, res.centreline)
     assert all(a.tobytes() == b.tobytes() for a, b in zip(whole, batched))
     assert len(whole[0]) > 1000

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
-BATCH = 1 << 18  # rows at a time
+BATCH = 1 << 18  # rows at a time, wherever a whole run's samples are worked through in batches
 
 
 def gradient(f: Array, t: Array, batch: int = BATCH) -> Array:

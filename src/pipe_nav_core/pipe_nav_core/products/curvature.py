@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core import batched
 from pipe_nav_core.geo.attitude import dcm_from_quat
 from pipe_nav_core.geo.earth import radii
 from pipe_nav_core.io.centreline import chainage_times, interpolate_trajectory
@@ -38,7 +39,6 @@ from pipe_nav_core.types import Trajectory
 FloatArray = NDArray[np.float64]
 
 TRACK_STEP_M = 0.02  # m, chainage step of the axis track (about an IMU sample at 2 m/s)
-TRACK_BATCH = 1 << 18  # track points built at once (bounds the temporaries)
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,7 @@ class AxisTrack:
 def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
     """The pipe axis of a smoothed trajectory every ``step`` m of chainage (see the module).
 
-    Built TRACK_BATCH points at a time: at 100 km the track has 5 million points, and the
+    Built batched.BATCH points at a time: at 100 km the track has 5 million points, and the
     whole trajectory interpolated onto it at once took 1.7 GB of temporaries."""
     if len(traj.t) < 2:
         raise ValueError("a curvature profile needs a trajectory of at least two samples")
@@ -102,8 +102,8 @@ def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
         raise ValueError("the run covers less than one chainage step: no curvature profile")
     t, distance, lat, lon, h, sigma_h, sigma_v = (np.empty(n) for _ in range(7))
     axis = np.empty((n, 3))
-    for b in range(0, n, TRACK_BATCH):
-        s = slice(b, b + TRACK_BATCH)
+    for b in range(0, n, batched.BATCH):
+        s = slice(b, b + batched.BATCH)
         p = interpolate_trajectory(traj, times[s])
         t[s], distance[s], lat[s], lon[s], h[s] = p.t, p.distance, p.lat, p.lon, p.h
         a = dcm_from_quat(np.asarray(p.quat_nb).reshape(-1, 4))[:, :, 0]
@@ -114,8 +114,8 @@ def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
     del times, p, a, sig
     lon_u = np.unwrap(lon)
     steps = np.empty(n - 1)  # m, from each point to the next
-    for b in range(1, n, TRACK_BATCH):
-        e = min(b + TRACK_BATCH, n)
+    for b in range(1, n, batched.BATCH):
+        e = min(b + batched.BATCH, n)
         j, i = slice(b, e), slice(b - 1, e - 1)  # the steps' last and first points
         rm, rn = radii(lat[j])
         d_n = (lat[j] - lat[i]) * (rm + h[j])

@@ -64,7 +64,6 @@ JOINT_TOLERANCE = 0.15  # relative tolerance of a joint length against the typic
 JOLT_MATCH_M = 0.5  # m, a jolt and a weak magnetic peak this close are one weld
 JOLT_SNR = 8.0  # robust sigmas of the vertical specific-force spike
 JOLT_BASELINE_S = 0.3  # s, running-median baseline of the vertical specific force
-SAMPLE_BATCH = 1 << 18  # magnetometer samples placed on the centreline at once
 
 
 @dataclass
@@ -145,8 +144,8 @@ def _mag_samples(log: SensorLog, centreline: Trajectory) -> _MagSamples | None:
     b = np.asarray(log.mag.field, dtype=np.float64)[keep]
     mt = mt[keep]
     x, d = np.ones((len(b), 10)), np.empty(len(b))
-    for a in range(0, len(b), SAMPLE_BATCH):  # in batches: the centreline's columns at the
-        s = slice(a, a + SAMPLE_BATCH)  # 2.6 million samples of 100 km took 0.35 GB at once
+    for a in range(0, len(b), batched.BATCH):  # in batches: the centreline's columns at the
+        s = slice(a, a + batched.BATCH)  # 2.6 million samples of 100 km took 0.35 GB at once
         at = interpolate_trajectory(centreline, mt[s])
         x[s, :9] = dcm_from_quat(at.quat_nb).reshape(-1, 9)
         d[s] = at.distance
@@ -189,8 +188,8 @@ def _residual(
     res_i = b - x @ coef
     r_bi = np.eye(3) if r_base_imu is None else np.asarray(r_base_imu, dtype=np.float64)
     res_n = np.empty_like(res_i)
-    for a in range(0, len(b), SAMPLE_BATCH):  # in batches: bounded temporaries
-        s = slice(a, a + SAMPLE_BATCH)
+    for a in range(0, len(b), batched.BATCH):  # in batches: bounded temporaries
+        s = slice(a, a + batched.BATCH)
         res_n[s] = np.einsum("kij,kj->ki", c_nb[s] @ r_bi, res_i[s])
     grid, res = _binned(d, res_n, GRID_STEP_M)
     size = max(3, int(round(BASELINE_M / GRID_STEP_M)) | 1)

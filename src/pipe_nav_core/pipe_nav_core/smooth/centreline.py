@@ -27,7 +27,6 @@ if TYPE_CHECKING:
     from pipe_nav_core.products.welds import Weld
 
 Array = NDArray[np.float64]
-SAMPLE_BATCH = 1 << 18  # samples corrected at once by smoothed_centreline (bounds temporaries)
 PARK_BYTES = 256 << 20  # a kept centreline larger than this waits on disk (Parked)
 
 
@@ -106,8 +105,8 @@ def smoothed_centreline(rec: Recording, e: Array, var: Array) -> Trajectory:
     lat, lon, h = np.empty(N), np.empty(N), np.empty(N)
     q = np.empty((N, 4))
     sig_p, sig_a = np.empty((N, 3)), np.empty((N, 3))
-    for b in range(0, N, SAMPLE_BATCH):
-        s = slice(b, b + SAMPLE_BATCH)
+    for b in range(0, N, batched.BATCH):  # bounded temporaries
+        s = slice(b, b + batched.BATCH)
         k = rec.s_epoch[s]
         frac = (t[s] - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
         w0, w1 = (1.0 - frac)[:, None], frac[:, None]
@@ -124,7 +123,7 @@ def smoothed_centreline(rec: Recording, e: Array, var: Array) -> Trajectory:
 
 def enu_velocity(t: Array, lat: Array, lon: Array, h: Array) -> Array:
     """Velocity (N, 3) m/s in the ENU frame at the first sample: ``np.gradient`` of the
-    positions (lat, lon rad, h m) over the times t (s, increasing), SAMPLE_BATCH samples at a
+    positions (lat, lon rad, h m) over the times t (s, increasing), batched.BATCH samples at a
     time (:func:`pipe_nav_core.batched.gradient_of`: the values np.gradient gives)."""
     if not len(t):
         return np.zeros((0, 3))
@@ -132,7 +131,7 @@ def enu_velocity(t: Array, lat: Array, lon: Array, h: Array) -> Array:
     def enu(lo: int, hi: int) -> Array:
         return earth.geodetic_to_enu(lat[lo:hi], lon[lo:hi], h[lo:hi], lat[0], lon[0], h[0])
 
-    return batched.gradient_of(enu, t, SAMPLE_BATCH)
+    return batched.gradient_of(enu, t, batched.BATCH)
 
 
 def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
@@ -145,8 +144,8 @@ def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
     if np.any(np.abs(dlon) >= np.pi):  # across the antimeridian (else unwrap adds exact zeros)
         dlon = np.diff(np.unwrap(lon))
     along = np.empty(len(lat) - 1)
-    for b in range(0, len(along), SAMPLE_BATCH):  # in batches: bounded temporaries
-        end = min(b + SAMPLE_BATCH, len(along))
+    for b in range(0, len(along), batched.BATCH):  # in batches: bounded temporaries
+        end = min(b + batched.BATCH, len(along))
         s, s1 = slice(b, end), slice(b + 1, end + 1)  # the steps' first and last samples
         rm, rn = earth.radii(lat[s1])
         step = np.stack([dlon[s] * (rn + h[s1]) * np.cos(lat[s1]),

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core import batched
 from pipe_nav_core.config import NOISE_EPOCH_S, NavConfig
 from pipe_nav_core.geo import earth
 from pipe_nav_core.model.state import SV_K
-from pipe_nav_core.smooth.centreline import SAMPLE_BATCH
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.types import Trajectory
 
@@ -32,8 +32,8 @@ def find_slips(
     one row per recorded sample)."""
     lat, lon, h = centre.lat, centre.lon, centre.h
     step = np.empty(len(lat))  # m, from the sample before (0 for the first)
-    for b in range(0, len(lat), SAMPLE_BATCH):  # in batches: bounded temporaries
-        e, lo = min(b + SAMPLE_BATCH, len(lat)), max(b - 1, 0)
+    for b in range(0, len(lat), batched.BATCH):  # in batches: bounded temporaries
+        e, lo = min(b + batched.BATCH, len(lat)), max(b - 1, 0)
         enu = earth.geodetic_to_enu(lat[lo:e], lon[lo:e], h[lo:e], lat[0], lon[0], h[0])
         d = np.diff(enu, axis=0, prepend=enu[:1]) if b == 0 else np.diff(enu, axis=0)
         step[b:e] = np.linalg.norm(d, axis=1)
