@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from pipe_nav_core.graph.problem import (
     EIG_FLOOR,
     MIN_VARIANCE,
+    Factors,
     LinearChain,
     MeasurementFactor,
     whitener,
@@ -127,11 +128,13 @@ class WhitenedFactors:
     exact: NDArray[np.bool_]
 
 
-def whiten(factors: Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
-    """Whiten every factor, batched by its number of rows."""
-    F = len(factors)
-    order = np.argsort(np.array([f.epoch for f in factors], dtype=np.int64), kind="stable")
-    sizes = np.array([len(factors[i].r) for i in order], dtype=np.int64)
+def whiten(factors: Factors | Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
+    """Whiten every factor (:class:`~.problem.Factors`, or a list of them), batched by its
+    number of rows."""
+    fs = factors if isinstance(factors, Factors) else Factors.of(factors, n)
+    F = len(fs)
+    order = np.argsort(fs.epoch, kind="stable")
+    sizes = fs.m[order]
     start = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     rows = np.zeros((int(start[-1]), n))
     rhs = np.zeros(int(start[-1]))
@@ -140,9 +143,9 @@ def whiten(factors: Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
     for m in np.unique(sizes):
         pos = np.flatnonzero(sizes == m)  # positions in the sorted order
         idx = order[pos]
-        R = np.stack([factors[i].R for i in idx])
-        H = np.stack([factors[i].H for i in idx])
-        r = np.stack([factors[i].r for i in idx])
+        R = fs.R[idx, :m, :m]
+        H = fs.H[idx, :m]
+        r = fs.r[idx, :m]
         W = whiteners(R)
         wr = np.einsum("bij,bj->bi", W, r)
         at = start[pos][:, None] + np.arange(m)[None, :]
@@ -151,8 +154,7 @@ def whiten(factors: Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
         norm[idx] = np.linalg.norm(wr, axis=1)
         s = np.linalg.eigvalsh(0.5 * (R + np.swapaxes(R, 1, 2)))
         exact[idx] = s[:, 0] <= np.maximum(1e-12 * s[:, -1], MIN_VARIANCE)
-    epochs = np.array([factors[i].epoch for i in order], dtype=np.int64)
-    return WhitenedFactors(rows, rhs, start, order, epochs, norm, exact)
+    return WhitenedFactors(rows, rhs, start, order, fs.epoch[order], norm, exact)
 
 
 def _triangular(A: Array, rows: int) -> Array:
