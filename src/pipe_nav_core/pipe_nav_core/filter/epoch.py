@@ -547,8 +547,9 @@ def linearize_epochs(
     (pipe_nav_core.graph.linearize). Epoch e leaves its transition in out.phi[e], its
     process noise in out.P_pred[e] (predicted from zero covariance) and its offset (the
     mechanization from ref[k - 1] minus ref[k], predicted from zero error) in offset[e]
-    (B, n); the updates it applies are recorded (out.fac, out.fac_i with e in column 2,
-    out.fac_n: :func:`.context.update`) when out.fac has room for them."""
+    (B, n); the updates it would apply are recorded instead (out.fac, out.fac_i with e in
+    column 2, out.fac_n: :func:`.context.update`) when out.fac has rows: no more is read of
+    an epoch, whose error and covariance the next one sets to zero again."""
     no_markers = np.zeros((0, 7))
     for e in range(inp.ends.shape[0]):
         f.x[:] = 0.0

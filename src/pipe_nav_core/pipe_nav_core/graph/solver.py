@@ -27,10 +27,11 @@ kept for back-substitution (R_kk, R_k,k+1, z_k: 23 kB per epoch with 38 error st
 stored like the forward pass's recording, beyond RAM_BUDGET_BYTES in a temporary directory
 (:class:`pipe_nav_core.smooth.chunks.Chunks`).
 
-The step's QR and the triangular inverses (whiteners, back-substitution) call LAPACK's dgeqrf
-and dtrtri through scipy.linalg.lapack, without scipy.linalg's front ends (whose checks cost
-more than the work on these small matrices): a triangular inverse is a third of a general
-one's work, and the QR runs in place on a Fortran-ordered block.
+The step's QR calls LAPACK's dgeqrf through scipy.linalg.lapack, without scipy.linalg's front
+ends (whose checks cost more than the work on these small matrices), in place on a
+Fortran-ordered block. The whiteners (Cholesky factors and their inverses), the triangular
+inverses and the back-substitution's recursion run compiled, a piece of epochs per call
+(:mod:`.linalg`): a triangular inverse is a third of a general one's work.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core.graph.linalg import back_substitute_k, inv_lower_k, whiteners_k
 from pipe_nav_core.graph.problem import (
     EIG_FLOOR,
     MIN_VARIANCE,
@@ -72,44 +74,29 @@ class ChainSolution:
 
 
 def inv_triangular(T: Array, lower: bool = False) -> Array:
-    """Inverses of a stack of triangular matrices T (B, m, m) (upper, or lower with lower):
-    LAPACK's triangular inversion (dtrtri) of each, which reads only that triangle of T (what
-    lies on the other side is ignored). A third of the work of a general inverse (LU and
-    solves) and a back-substitution's round-off. scipy.linalg.lapack's dtrtri is called
-    directly: scipy.linalg's front ends cost more than the inversion on these matrices."""
-    from scipy.linalg.lapack import dtrtri
-
+    """Inverses of a stack of triangular matrices T (B, m, m) (upper, or lower with lower),
+    each by substitution (:func:`.linalg.inv_lower_k`), which reads only that triangle of T
+    (what lies on the other side is ignored); zero on the other side of the inverses."""
+    if np.any(np.diagonal(T, axis1=1, axis2=2) == 0.0):
+        raise np.linalg.LinAlgError("singular triangular matrix")
     out = np.empty(T.shape)
-    lo = int(bool(lower))
-    for b in range(len(T)):
-        # T[b]^T is Fortran-ordered without a copy, and its inverse is inv(T[b])^T
-        inv, info = dtrtri(T[b].T, lower=1 - lo)
-        if info != 0:
-            raise np.linalg.LinAlgError("singular triangular matrix")
-        out[b] = inv.T
-    return np.tril(out) if lower else np.triu(out)
+    # an upper triangular T's inverse is the transpose of that of its (lower) transpose
+    inv_lower_k(np.ascontiguousarray(T if lower else np.swapaxes(T, 1, 2)), out)
+    return out if lower else np.swapaxes(out, 1, 2)
 
 
 def whiteners(C: Array) -> Array:
-    """:func:`problem.whitener` of a stack of covariances C (B, m, m) at once (B, m, m)."""
-    C = 0.5 * (C + np.swapaxes(C, 1, 2))
+    """:func:`problem.whitener` of a stack of covariances C (B, m, m) at once (B, m, m):
+    compiled (:func:`.linalg.whiteners_k`), one by one where one is not positive definite."""
+    C = np.ascontiguousarray(C, dtype=np.float64)
     if not len(C):
         return C.copy()
-    m = C.shape[1]
-    i = np.arange(m)
-    d = C[:, i, i]
-    floor = np.maximum(EIG_FLOOR * d.max(axis=1), MIN_VARIANCE)
-    low = d <= floor[:, None]
-    if low.any():
-        C = C.copy()
-        b, j = np.nonzero(low)
-        C[b, j, j] = floor[b]
-    try:
-        L = np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:  # one of them is not positive definite: one by one
-        return np.stack([whitener(c) for c in C])
-    # W = L^-1 (lower triangular): W C W^T = I
-    return inv_triangular(L, lower=True)
+    i = np.arange(C.shape[1])
+    floor = np.maximum(EIG_FLOOR * C[:, i, i].max(axis=1), MIN_VARIANCE)
+    W = np.empty(C.shape)
+    if whiteners_k(C, floor, W):
+        return W
+    return np.stack([whitener(c) for c in C])
 
 
 @dataclass
@@ -260,13 +247,13 @@ class Eliminator:
         store = self._store
         delta = np.empty((K, n))
         var = np.empty((K, n))
-        cov = np.empty((K, n, n)) if full else None
+        full_cov = np.empty((K if full else 0, n, n))
         Ri = np.linalg.inv(self._Rt)  # upper triangular: back-substitution
         delta[-1] = Ri @ self._zt
-        S = Ri @ Ri.T
+        S = np.ascontiguousarray(Ri @ Ri.T)  # the marginal covariance, from the last epoch back
         var[-1] = np.diag(S)
-        if cov is not None:
-            cov[-1] = S
+        if full:
+            full_cov[-1] = S
         for c in range(store.n_chunks - 1, -1, -1):
             block = store.chunk(c)
             for a in range(((len(block) - 1) // PIECE) * PIECE, -1, -PIECE):
@@ -279,16 +266,8 @@ class Eliminator:
                 d0 = np.einsum("bij,bj->bi", Ri, piece[:, 2 * nn :])
                 RRt = Ri @ np.swapaxes(Ri, 1, 2)
                 k0 = c * CHUNK_EPOCHS + a  # row j holds epoch k0 + j's (from step k0 + j + 1)
-                for j in range(B - 1, -1, -1):
-                    k = k0 + j
-                    Gj = G[j]
-                    delta[k] = d0[j] - Gj @ delta[k + 1]
-                    S = RRt[j] + Gj @ S @ Gj.T
-                    S = 0.5 * (S + S.T)
-                    var[k] = S.diagonal()
-                    if cov is not None:
-                        cov[k] = S
-        return ChainSolution(delta, var, self.cost0, self.cost, cov)
+                back_substitute_k(G, d0, RRt, S, delta, var, full_cov, k0)
+        return ChainSolution(delta, var, self.cost0, self.cost, full_cov if full else None)
 
 
 def solve_chain(
