@@ -175,8 +175,8 @@ class FactorRecorder(Navigator):
         (:func:`pipe_nav_core.filter.epoch.linearize_epochs`: each from zero error and
         covariance on a scratch copy of the filter's memory, as :meth:`_linearize` runs them
         one at a time), handed to the sink at once: their transitions, process noises,
-        offsets, and as factors the updates they apply, recorded by the filter's own update
-        (before its innovation gate)."""
+        offsets, and as factors the updates the filter would apply, recorded by its own
+        update (ungated)."""
         assert self._prm is not None and self.reference is not None and self.sink is not None
         n, B = self.layout.n, len(inputs.ends)
         k0 = self._epoch + 1
