@@ -17,6 +17,7 @@ from pipe_nav_core.geo import earth
 from pipe_nav_core.graph import graph_smooth, solve_chain
 from pipe_nav_core.graph.batch import StreamingSolve, factor_weights
 from pipe_nav_core.graph.linearize import FactorRecorder, linearize
+from pipe_nav_core.graph.problem import Factors, Prior
 from pipe_nav_core.graph.rotation import rotate_about
 from pipe_nav_core.model.state import (
     SV_H,
@@ -136,6 +137,52 @@ def test_streaming_solve_equals_the_batch_solve(converged) -> None:
     assert np.allclose(sol.var, whole.var, rtol=1e-9, atol=0.0)
     assert wg.gated == weighing.gated and wg.downweighted == weighing.downweighted
     assert np.isclose(sol.cost0, whole.cost0, rtol=1e-9)
+
+
+class _Kept:
+    """An EpochSink that keeps what it is handed."""
+
+    def __init__(self) -> None:
+        self.blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray, Factors]] = []
+
+    def start(self, prior: Prior, factors: Factors) -> None:
+        self.prior, self.first = prior, factors
+
+    def epochs(self, phi: np.ndarray, qd: np.ndarray, offset: np.ndarray, f: Factors) -> None:
+        self.blocks.append((phi, qd, offset, f))
+
+
+def test_batched_linearization_is_the_per_epoch_one(converged) -> None:
+    """The compiled batches of epochs a sink is handed (epoch.linearize_epochs, the factors
+    recorded by the filter's own update) are, bytes for bytes, what the per-epoch path
+    builds from each measurement's factors front end (whose models the test above checks):
+    transitions, process noises, offsets, and every factor's kind, epoch, r, H and R."""
+    _, log, cfg, lay, X, ex = converged
+    chain, _ = linearize(log, cfg, X, odometer_exclude=ex)
+    kept = _Kept()
+    FactorRecorder(cfg, log.markers, reference=X, odometer_exclude=ex, sink=kept).run(log)
+    assert len(kept.first) == 0 and np.array_equal(kept.prior.P0, chain.prior.P0)
+    assert len(kept.blocks) < chain.K // 10  # batches, not epochs
+    phi, qd, offset = (np.concatenate([b[i] for b in kept.blocks]) for i in range(3))
+    assert len(phi) == chain.K - 1  # epochs 1 .. K-1 (0 is the prior's)
+    assert np.array_equal(phi[:, chain.phi_rows], chain.phi[1:])
+    assert np.array_equal(qd[:, chain.qd_rows], chain.qd[1:])
+    assert np.array_equal(np.diagonal(qd, axis1=1, axis2=2), chain.qd_diag[1:])
+    assert np.array_equal(offset, chain.offset[1:])
+    got, want = (
+        Factors.join([b[3] for b in kept.blocks], lay.n),
+        Factors.of(chain.factors, lay.n),
+    )
+    for name in ("kind", "epoch", "m", "robust", "name"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
+    rows = np.arange(want.r.shape[1]) < want.m[:, None]  # (F, M): each factor's own rows
+    assert np.array_equal(got.r[rows], want.r[rows])
+    assert np.array_equal(got.H[rows], want.H[rows])
+    assert np.array_equal(
+        got.R[rows[:, :, None] & rows[:, None, :]],
+        want.R[rows[:, :, None] & rows[:, None, :]],
+    )
+    assert {"nhc", "odometer", "zupt", "zaru", "marker"} <= set(got.kind)
 
 
 def _scored(run, res):  # noqa: ANN001, ANN202

@@ -6,6 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from pipe_nav_core.graph.batch import StreamingSolve, factor_weights
+from pipe_nav_core.graph.linalg import back_substitute_k
 from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior, whitener
 from pipe_nav_core.graph.robust import cauchy_weight, huber_cost, huber_weight
 from pipe_nav_core.graph.solver import PIECE, inv_triangular, solve_chain, whiten, whiteners
@@ -177,8 +178,9 @@ def test_batched_whitening_matches_each_factor() -> None:
 
 
 def test_triangular_inverses_and_batched_whiteners() -> None:
-    """inv_triangular (LAPACK's triangular inversion, reading one triangle) equals the general
-    inverse to round-off; whiteners equal whitener one by one, diagonal, full and singular."""
+    """inv_triangular (compiled substitution, reading one triangle) equals the general inverse
+    to round-off; whiteners (compiled) equal whitener one by one, diagonal, full and singular,
+    and so does their fallback when one covariance is not positive definite."""
     rng = np.random.default_rng(11)
     U = np.triu(rng.standard_normal((7, 9, 9))) + 4.0 * np.eye(9)
     junk = U + np.tril(rng.standard_normal((7, 9, 9)), -1)  # below the diagonal: not read
@@ -194,6 +196,41 @@ def test_triangular_inverses_and_batched_whiteners() -> None:
     W = whiteners(C)
     for c, w in zip(C, W, strict=True):
         assert np.allclose(w, whitener(c), rtol=1e-12, atol=1e-12 * np.abs(w).max())
+    indefinite = np.eye(4)[None].copy()
+    indefinite[0, 0, 1] = indefinite[0, 1, 0] = 2.0
+    C = np.concatenate([C, indefinite])
+    for c, w in zip(C, whiteners(C), strict=True):
+        assert np.array_equal(w, whitener(c))
+
+
+def test_compiled_back_substitution_is_the_recursion() -> None:
+    """linalg.back_substitute_k equals the back-substitution's recursion written out with
+    numpy epoch by epoch (round-off): delta_k = d0_k - G_k delta_{k+1}, Sigma_k = RRt_k +
+    G_k Sigma_{k+1} G_k^T; the covariances only where asked for."""
+    rng = np.random.default_rng(4)
+    B, n, k0 = 7, 5, 3
+    K = k0 + B + 1
+    G = 0.3 * rng.standard_normal((B, n, n))
+    d0 = rng.standard_normal((B, n))
+    A = rng.standard_normal((B, n, n))
+    RRt = A @ np.swapaxes(A, 1, 2)
+    S0 = np.eye(n) + 0.1 * np.ones((n, n))
+    delta, var, cov = np.zeros((K, n)), np.zeros((K, n)), np.zeros((K, n, n))
+    delta[-1] = rng.standard_normal(n)
+    S = S0.copy()
+    back_substitute_k(G, d0, RRt, S, delta, var, cov, k0)
+    d, want = delta[-1].copy(), S0.copy()
+    for j in range(B - 1, -1, -1):
+        d = d0[j] - G[j] @ d
+        T = RRt[j] + G[j] @ want @ G[j].T
+        want = 0.5 * (T + T.T)
+        assert np.allclose(delta[k0 + j], d, rtol=1e-13, atol=1e-13)
+        assert np.allclose(cov[k0 + j], want, rtol=1e-13, atol=1e-13)
+        assert np.array_equal(var[k0 + j], np.diag(cov[k0 + j]))
+    assert np.array_equal(S, cov[k0]) and not delta[:k0].any() and not cov[:k0].any()
+    var2 = np.zeros((K, n))
+    back_substitute_k(G, d0, RRt, S0.copy(), delta.copy(), var2, np.empty((0, n, n)), k0)
+    assert np.array_equal(var2, var)
 
 
 @pytest.mark.parametrize("seed", [1, 2])

@@ -184,6 +184,9 @@ class EpochOutputs(NamedTuple):
     ws_sv: Array
     ws_x: Array
     ws_m: Array
+    fac: Array
+    fac_i: Index
+    fac_n: Index
 
 
 class Prediction(NamedTuple):
@@ -215,9 +218,13 @@ class Batch:
     correction), ``end_offset``, ``P_pred``, ``P_upd``, ``phi``, ``stopped``, ``omega``
     (rad/s base_link); per sample ``lat``, ``lon`` (rad), ``h`` (m), ``q`` and the odometer
     reading ``s_odo`` (m); marker residuals (ENU m) per marker of the call; counters and
-    update statistics (``acc``, ``rej``, ``nis``, ``dof`` per kind of KINDS)."""
+    update statistics (``acc``, ``rej``, ``nis``, ``dof`` per kind of KINDS); with
+    ``factors``, room for that many updates recorded (:func:`linearize_epochs`): ``fac``
+    (factors, 3, n + 4) the rows of each update's H (n columns), r (1) and R (3), ``fac_i``
+    (factors, 3) its kind (index into KINDS), rows and epoch of the batch, ``fac_n`` (1,)
+    how many."""
 
-    def __init__(self, size: int, samples: int, n: int) -> None:
+    def __init__(self, size: int, samples: int, n: int, factors: int = 0) -> None:
         self.sv = np.zeros((size, SV_SIZE))
         self.x_upd = np.zeros((size, n))
         self.dx = np.zeros((size, n))
@@ -243,10 +250,13 @@ class Batch:
         self.ws_sv = np.zeros((2, SV_SIZE))
         self.ws_x = np.zeros(n)
         self.ws_m = np.zeros((3, 12))
+        self.fac = np.zeros((factors, 3, n + 4))
+        self.fac_i = np.zeros((factors, 3), dtype=np.int64)
+        self.fac_n = np.zeros(1, dtype=np.int64)
 
     def reset(self) -> None:
         """Zero the counters and statistics (before reusing the buffers)."""
-        for a in (self.counts, self.acc, self.rej, self.nis, self.dof):
+        for a in (self.counts, self.acc, self.rej, self.nis, self.dof, self.fac_n):
             a[:] = 0
 
     def buffers(self) -> EpochOutputs:
@@ -519,3 +529,33 @@ def run_epochs(
         if stop and e == B - 1:
             return
         _updates(e, k0 + e, f, L, prm, ref, inp, markers if e == B - 1 else markers[:0], out)
+
+
+@kernel(nogil=True)
+def linearize_epochs(
+    k0: int,
+    f: Filter,
+    L: Index,
+    prm: Settings,
+    ref: Array,
+    inp: Inputs,
+    out: EpochOutputs,
+    offset: Array,
+) -> None:
+    """:func:`run_epochs` of a batch without markers about a reference trajectory ``ref``,
+    every epoch from zero error and covariance: what the batch smoother linearizes
+    (pipe_nav_core.graph.linearize). Epoch e leaves its transition in out.phi[e], its
+    process noise in out.P_pred[e] (predicted from zero covariance) and its offset (the
+    mechanization from ref[k - 1] minus ref[k], predicted from zero error) in offset[e]
+    (B, n); the updates it would apply are recorded instead (out.fac, out.fac_i with e in
+    column 2, out.fac_n: :func:`.context.update`) when out.fac has rows: no more is read of
+    an epoch, whose error and covariance the next one sets to zero again."""
+    no_markers = np.zeros((0, 7))
+    for e in range(inp.ends.shape[0]):
+        f.x[:] = 0.0
+        f.P[:] = 0.0
+        _predict(e, k0 + e, f, L, prm, ref, inp, out)
+        offset[e] = out.ws_x
+        j0 = out.fac_n[0]
+        _updates(e, k0 + e, f, L, prm, ref, inp, no_markers, out)
+        out.fac_i[j0 : min(out.fac_n[0], out.fac.shape[0]), 2] = e

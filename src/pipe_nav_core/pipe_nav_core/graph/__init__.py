@@ -5,6 +5,8 @@
 - :mod:`.linearize`: builds it from the filter's own epoch and measurement kernels;
 - :mod:`.solver`: the sparse least-squares solve (QR elimination in time order) with marginal
   covariances;
+- :mod:`.linalg`: its compiled small dense algebra (whiteners, triangular inverses, the
+  back-substitution's recursion);
 - :mod:`.robust`: robust losses (IRLS weights);
 - :mod:`.rotation`: a step's turn of the initial heading applied as an exact rotation;
 - :mod:`.batch`: Gauss-Newton with a robust loss on the markers, from the RTS solution,

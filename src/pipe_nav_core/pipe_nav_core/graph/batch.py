@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.kalman import chi2_threshold
 from pipe_nav_core.graph.linearize import FactorRecorder
-from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Prior
+from pipe_nav_core.graph.problem import Factors, LinearChain, MeasurementFactor, Prior
 from pipe_nav_core.graph.robust import HUBER_K, huber_cost, huber_weight
 from pipe_nav_core.graph.rotation import Pivot, retract
 from pipe_nav_core.graph.solver import (
@@ -44,6 +44,7 @@ from pipe_nav_core.model.state import Layout, layout_for
 from pipe_nav_core.types import SensorLog, markers_sorted
 
 Array = NDArray[np.float64]
+Index = NDArray[np.int64]
 
 # the elimination runs on a worker thread beside the linearization (StreamingSolve)
 OVERLAP = True
@@ -66,18 +67,17 @@ class Weighing:
     gated: dict[str, int] = field(default_factory=dict)
     robust_cost: float = math.nan
 
-    def note(self, f: MeasurementFactor, weight: float, exact: bool) -> None:
-        """Count factor f with its weight."""
-        if exact:
-            return
-        if f.robust and weight < 1.0:
-            self.downweighted.append(f.name or f"{f.kind}@{f.epoch}")
-        elif not f.robust and weight == 0.0:
-            self.gated[f.kind] = self.gated.get(f.kind, 0) + 1
+    def note(self, f: Factors, i: int, weight: float) -> None:
+        """Count factor i of f (not an exact one) with its weight."""
+        if f.robust[i] and weight < 1.0:
+            self.downweighted.append(str(f.name[i]) or f"{f.kind[i]}@{f.epoch[i]}")
+        elif not f.robust[i] and weight == 0.0:
+            kind = str(f.kind[i])
+            self.gated[kind] = self.gated.get(kind, 0) + 1
 
 
 def factor_weights_of(
-    factors: list[MeasurementFactor],
+    factors: Factors,
     wf: WhitenedFactors,
     gate_probability: float,
     huber_k: float = HUBER_K,
@@ -90,8 +90,7 @@ def factor_weights_of(
     (MeasurementFactor.exact) is a constraint: weight 1, and no part in the cost the steps
     are judged on."""
     e, exact = wf.norm, wf.exact
-    robust = np.array([f.robust for f in factors], dtype=bool)
-    sizes = np.array([len(f.r) for f in factors], dtype=np.int64)
+    robust, sizes = factors.robust, factors.m
     gate = np.zeros(len(factors))
     for m in np.unique(sizes):
         gate[sizes == m] = chi2_threshold(gate_probability, int(m))
@@ -111,11 +110,12 @@ def factor_weights(
 ) -> tuple[Array, Weighing, Array]:
     """:func:`factor_weights_of` every factor of a chain: (weights (F,), what they did, the
     robust loss per factor (F,))."""
-    wf = whitened if whitened is not None else whiten(chain.factors, chain.n)
-    w, loss = factor_weights_of(chain.factors, wf, gate_probability, huber_k)
+    fs = Factors.of(chain.factors, chain.n)
+    wf = whitened if whitened is not None else whiten(fs, chain.n)
+    w, loss = factor_weights_of(fs, wf, gate_probability, huber_k)
     out = Weighing()
-    for f, wi, ex in zip(chain.factors, w.tolist(), wf.exact.tolist()):
-        out.note(f, wi, ex)
+    for i in np.flatnonzero(~wf.exact):
+        out.note(fs, int(i), float(w[i]))
     return w, out, loss
 
 
@@ -143,12 +143,15 @@ class StreamingSolve:
         self._quad = 0.0  # sum of w e^2: the measurements' part of the weighted cost
         self._loss = 0.0  # sum of their robust loss
         self._elim = Eliminator(n)
-        # the epochs taken and not yet eliminated: phi, qd (n, n), offset (n,), factors
+        self.K = 0  # epochs taken
+        # the epochs taken and not yet eliminated, in blocks: phi, qd (B, n, n), offset (B, n),
+        # their factors and how many of them each epoch has (B,)
         self._phi: list[Array] = []
         self._qd: list[Array] = []
         self._offset: list[Array] = []
-        self._factors: list[MeasurementFactor] = []
-        self._counts: list[int] = []  # factors per pending epoch
+        self._factors: list[Factors] = []
+        self._counts: list[Index] = []
+        self._pending = 0  # epochs in those blocks
         # the elimination of full pieces runs on one worker thread while the linearization
         # goes on (LAPACK releases the GIL), in order; overlap=False: on the caller's thread
         self._pool = (
@@ -158,14 +161,14 @@ class StreamingSolve:
         )
         self._running: Future[None] | None = None
 
-    def _weigh(self, factors: list[MeasurementFactor]) -> tuple[Array, Array, Array]:
+    def _weigh(self, factors: Factors) -> tuple[Array, Array, Array]:
         """The weighted whitened rows (M, n) and right-hand sides (M,) of factors (in their
         order, which is epoch order; factors of weight 0 left out), and where each factor's
         rows start (F + 1,). The weights are `factor_weights_of`'s, for all factors at once."""
         wf = whiten(factors, self.n)  # sorted by epoch, stably: rows in the factors' order
         w, loss = factor_weights_of(factors, wf, self.gate_probability, self.huber_k)
         for i in np.flatnonzero(~wf.exact & (w < 1.0)):  # what the weights did, in order
-            self.weighing.note(factors[i], float(w[i]), False)
+            self.weighing.note(factors, int(i), float(w[i]))
         self._quad += float(np.sum(w * (wf.norm * wf.norm)))
         self._loss += float(np.sum(loss))
         # a weight w divides the noise covariance: it scales the whitened rows by sqrt(w);
@@ -175,17 +178,29 @@ class StreamingSolve:
         start = np.r_[0, np.cumsum(keep)][wf.start]
         return wf.rows[keep] * scale[keep, None], wf.rhs[keep] * scale[keep], start
 
-    def start(self, prior: Prior, factors: list[MeasurementFactor]) -> None:
-        rows, rhs, _ = self._weigh(factors)
+    def start(self, prior: Prior, factors: Factors | list[MeasurementFactor]) -> None:
+        fs = factors if isinstance(factors, Factors) else Factors.of(factors, self.n)
+        rows, rhs, _ = self._weigh(fs)
         self._elim.first(prior.x0, prior.P0, rows, rhs)
+        self.K = 1
 
     def epoch(self, phi: Array, qd: Array, offset: Array, factors: list[MeasurementFactor]) -> None:
+        """The next epoch: :meth:`epochs` of one, its factors a list."""
+        self.epochs(phi[None], qd[None], offset[None], Factors.of(factors, self.n))
+
+    def epochs(self, phi: Array, qd: Array, offset: Array, factors: Factors) -> None:
+        """The next B epochs (K .. K + B - 1, K the epochs taken so far): their
+        between-factors phi, qd (B, n, n), offset (B, n) and their factors (epochs in that
+        range, in epoch order); the arrays are kept, not copied."""
+        B = len(phi)
         self._phi.append(phi)
         self._qd.append(qd)
         self._offset.append(offset)
-        self._factors.extend(factors)
-        self._counts.append(len(factors))
-        if len(self._phi) == PIECE:
+        self._factors.append(factors)
+        self._counts.append(np.bincount(factors.epoch - self.K, minlength=B))
+        self.K += B
+        self._pending += B
+        if self._pending >= PIECE:
             self._flush()
 
     def _flush(self) -> None:
@@ -196,6 +211,7 @@ class StreamingSolve:
             return
         piece = (self._phi, self._qd, self._offset, self._factors, self._counts)
         self._phi, self._qd, self._offset, self._factors, self._counts = [], [], [], [], []
+        self._pending = 0
         if self._pool is None:
             self._eliminate(*piece)
             return
@@ -213,15 +229,17 @@ class StreamingSolve:
         phi: list[Array],
         qd: list[Array],
         offset: list[Array],
-        factors: list[MeasurementFactor],
-        counts: list[int],
+        factors: list[Factors],
+        counts: list[Index],
     ) -> None:
-        """Whiten and weigh a piece of epochs at once, then eliminate them in order."""
-        W = whiteners(np.stack(qd))
-        WPhi = W @ np.stack(phi)
-        Wo = np.einsum("bij,bj->bi", W, np.stack(offset))
-        rows, rhs, start = self._weigh(factors)
-        at = start[np.r_[0, np.cumsum(counts)]]  # rows of epoch j of the piece: at[j] .. at[j+1]
+        """Whiten and weigh a piece of epochs (blocks of them) at once, then eliminate them in
+        order."""
+        W = whiteners(np.concatenate(qd))
+        WPhi = W @ np.concatenate(phi)
+        Wo = np.einsum("bij,bj->bi", W, np.concatenate(offset))
+        rows, rhs, start = self._weigh(Factors.join(factors, self.n))
+        # rows of epoch j of the piece: at[j] .. at[j+1]
+        at = start[np.r_[0, np.cumsum(np.concatenate(counts))]]
         for j in range(len(W)):
             s = slice(at[j], at[j + 1])
             self._elim.add_whitened(WPhi[j], W[j], Wo[j], rows[s], rhs[s])
@@ -238,6 +256,7 @@ class StreamingSolve:
     def close(self) -> None:
         """Free the eliminator's rows without solving."""
         self._phi, self._qd, self._offset, self._factors, self._counts = [], [], [], [], []
+        self._pending = 0
         self._stop_worker()
         self._elim.close()
 

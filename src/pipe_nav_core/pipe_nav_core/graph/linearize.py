@@ -9,7 +9,11 @@ itself (a prediction from zero error and zero covariance returns exactly those),
 measurement the epoch would apply, as a :class:`~.problem.MeasurementFactor` evaluated by the
 same kernel of :mod:`pipe_nav_core.model.measurements` with the same inputs, preconditions, gates
 and row splits: each measurement's ``factors`` front end runs the same compiled policy as the
-``apply`` that :func:`epoch._updates` calls.
+``apply`` that :func:`epoch._updates` calls. Handing the problem to a sink (the Gauss-Newton
+iteration's solve), the batches of epochs without a marker run in one compiled call instead
+(:func:`pipe_nav_core.filter.epoch.linearize_epochs`), whose factors are the updates as the
+filter's own :func:`~pipe_nav_core.model.measurements.context.update` records them: the same
+arrays, bytes for bytes (tested), without a Python call per epoch.
 
 The chi-square gates on the innovation are not applied here (they depend on the forward
 filter's covariance): the batch solver gates and weighs the factors itself (:mod:`.batch`).
@@ -31,10 +35,11 @@ from pipe_nav_core.filter.epoch import (
     Inputs,
     Settings,
     context,
+    linearize_epochs,
     run_epochs,
 )
 from pipe_nav_core.filter.navigator import Navigator, PassOptions
-from pipe_nav_core.graph.problem import LinearChain, MeasurementFactor, Model, Prior
+from pipe_nav_core.graph.problem import Factors, LinearChain, MeasurementFactor, Model, Prior
 from pipe_nav_core.model import measurements
 from pipe_nav_core.smooth.recording import Recording, phi_rows
 from pipe_nav_core.types import Marker, SensorLog
@@ -42,29 +47,33 @@ from pipe_nav_core.types import Marker, SensorLog
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 
+KIND_NAMES = np.array(measurements.KINDS, dtype=np.str_)  # the update kinds, by their index
 # bytes of the pass's packed covariances kept in memory when a sink takes the problem (the
 # rest spills to disk: only the per-sample nominal and the mean errors are read)
 SINK_RAM_BUDGET = 32 * 2**20
 
 
 class EpochSink(Protocol):
-    """Receives the linearized problem epoch by epoch, in order, instead of the recorder
-    keeping it (a solver that eliminates as it goes: memory independent of the run's length)."""
+    """Receives the linearized problem a block of epochs at a time, in order, instead of the
+    recorder keeping it (a solver that eliminates as it goes: memory independent of the run's
+    length)."""
 
-    def start(self, prior: Prior, factors: list[MeasurementFactor]) -> None:
+    def start(self, prior: Prior, factors: Factors) -> None:
         """The prior on epoch 0 and epoch 0's factors."""
 
-    def epoch(self, phi: Array, qd: Array, offset: Array, factors: list[MeasurementFactor]) -> None:
-        """The next epoch's between-factor (phi, qd (n, n), offset (n,)) and its factors."""
+    def epochs(self, phi: Array, qd: Array, offset: Array, factors: Factors) -> None:
+        """The next B epochs' between-factors (phi, qd (B, n, n), offset (B, n)) and their
+        factors (arrays the sink keeps)."""
 
 
 class FactorRecorder(Navigator):
     """A Navigator pass about ``reference`` (flat states (K, SV_SIZE) at the epochs of an
     earlier pass over the same data) that records the batch problem linearized about it:
-    :meth:`problem` after :meth:`Navigator.run`, or, with a ``sink``, hands it over epoch by
-    epoch and keeps none of it. Its recording (``recording``) is the pass's, for the centreline
-    at the IMU rate (:func:`pipe_nav_core.smooth.centreline.smoothed_centreline`); with a sink
-    its covariances are spilled to disk beyond SINK_RAM_BUDGET (nothing here reads them)."""
+    :meth:`problem` after :meth:`Navigator.run`, or, with a ``sink``, hands it over a batch of
+    epochs at a time and keeps none of it. Its recording (``recording``) is the pass's, for
+    the centreline at the IMU rate (:func:`pipe_nav_core.smooth.centreline.smoothed_centreline`);
+    with a sink its covariances are spilled to disk beyond SINK_RAM_BUDGET (nothing here reads
+    them)."""
 
     def __init__(
         self,
@@ -118,7 +127,7 @@ class FactorRecorder(Navigator):
         assert self.kf is not None
         self.prior = Prior(self.kf.x.copy(), self.kf.P.copy())
         if self.sink is not None:
-            self.sink.start(self.prior, [])
+            self.sink.start(self.prior, Factors.of([], self.layout.n))
 
     def _call(
         self,
@@ -129,7 +138,10 @@ class FactorRecorder(Navigator):
         stop: bool = False,
         resume: bool = False,
     ) -> None:
-        self._linearize(inputs, markers, stop, resume)
+        if self.sink is not None and not (stop or resume or len(markers)):
+            self._linearize_batch(inputs)
+        else:
+            self._linearize(inputs, markers, stop, resume)
         super()._call(batch, inputs, markers, stop=stop, resume=resume)
 
     # ------------------------------------------------------------------ the problem
@@ -146,13 +158,46 @@ class FactorRecorder(Navigator):
             self.phi_rows, self.qd_rows, list(self.factors),
         )  # fmt: skip
 
-    def _scratch_for(self, samples: int) -> Batch:
+    def _scratch_for(self, samples: int, epochs: int = 1) -> Batch:
+        """The scratch batch, for this many IMU samples and epochs (room for every update
+        of them recorded), cleared."""
         b = self._scratch
-        if b is None or len(b.lat) < samples:
-            b = self._scratch = Batch(1, max(samples, 256), self.layout.n)
+        if b is None or len(b.lat) < samples or len(b.sv) < epochs:
+            size = max(epochs, 1 if b is None else len(b.sv))
+            b = self._scratch = Batch(size, max(samples, 256), self.layout.n,
+                                      factors=size * len(measurements.KINDS))  # fmt: skip
             self._buffers = b.buffers()
         b.reset()
         return b
+
+    def _linearize_batch(self, inputs: Inputs) -> None:
+        """The epochs of a batch without markers in one compiled call
+        (:func:`pipe_nav_core.filter.epoch.linearize_epochs`: each from zero error and
+        covariance on a scratch copy of the filter's memory, as :meth:`_linearize` runs them
+        one at a time), handed to the sink at once: their transitions, process noises,
+        offsets, and as factors the updates the filter would apply, recorded by its own
+        update (ungated)."""
+        assert self._prm is not None and self.reference is not None and self.sink is not None
+        n, B = self.layout.n, len(inputs.ends)
+        k0 = self._epoch + 1
+        f = Filter(
+            self._sv.copy(), np.zeros(n), np.zeros((n, n)), self._carry.copy(),
+            self._dyn.copy(), self._dyn_i.copy(),
+        )  # fmt: skip
+        sb = self._scratch_for(int(inputs.ends[-1]) + 1, B)
+        offset = np.empty((B, n))
+        linearize_epochs(k0, f, self.layout.index, self._prm, self.reference, inputs,
+                         sb.buffers(), offset)  # fmt: skip
+        F = int(sb.fac_n[0])
+        if len(sb.fac) < F:
+            raise RuntimeError(f"{F} updates in {B} epochs: more than the scratch records")
+        fac, info = sb.fac[:F], sb.fac_i[:F]
+        kind = KIND_NAMES[info[:, 0]]
+        factors = Factors(
+            kind, info[:, 2] + k0, info[:, 1].copy(), fac[:, :, n].copy(), fac[:, :, :n].copy(),
+            fac[:, :, n + 1 :].copy(), kind == "marker", np.full(F, "", dtype=np.str_),
+        )  # fmt: skip
+        self.sink.epochs(sb.phi[:B].copy(), sb.P_pred[:B].copy(), offset, factors)
 
     def _linearize(self, inputs: Inputs, markers: Array, stop: bool, resume: bool) -> None:
         """Each epoch of a batch once more, one at a time, from zero error and covariance on
@@ -204,7 +249,8 @@ class FactorRecorder(Navigator):
             self._factors_of_epoch(k, sb, one, f, prm, mk)
             if self.sink is not None:  # epoch k is complete: hand it over
                 phi, qd, offset = self._pending
-                self.sink.epoch(phi, qd, offset, self.factors[first:])
+                self.sink.epochs(phi[None], qd[None], offset[None],
+                                 Factors.of(self.factors[first:], n))  # fmt: skip
                 del self.factors[first:]
             sb.marker_res = np.zeros((len(mk), 3))
             bufs = self._buffers

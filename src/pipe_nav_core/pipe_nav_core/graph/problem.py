@@ -19,7 +19,7 @@ The problem holds no solver (:mod:`.solver`) and no knowledge of where its facto
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -106,6 +106,68 @@ class MeasurementFactor:
         else:
             s = np.linalg.eigvalsh(0.5 * (self.R + self.R.T))
         return bool(s[0] <= max(1e-12 * s[-1], MIN_VARIANCE))
+
+
+@dataclass
+class Factors:
+    """Measurement factors as arrays, F of them with at most M rows each (rows and columns
+    beyond a factor's own m are not read): kind (F,) the filter's update kind (as
+    MeasurementFactor.kind), epoch (F,) k, m (F,) rows, r (F, M), H (F, M, n), R (F, M, M)
+    (as MeasurementFactor's), robust (F,) the factor takes the robust loss, name (F,) e.g.
+    the marker's name. What the batch solver reads of the factors (:func:`.solver.whiten`):
+    the compiled linearization writes them so (:mod:`.linearize`), without a model each."""
+
+    kind: NDArray[np.str_]
+    epoch: Index
+    m: Index
+    r: Array
+    H: Array
+    R: Array
+    robust: NDArray[np.bool_]
+    name: NDArray[np.str_]
+
+    def __len__(self) -> int:
+        return len(self.epoch)
+
+    @classmethod
+    def of(cls, factors: Sequence[MeasurementFactor], n: int) -> Factors:
+        """The arrays of a list of factors on n error states (in its order)."""
+        F = len(factors)
+        m = np.array([len(f.r) for f in factors], dtype=np.int64)
+        M = int(m.max()) if F else 1
+        r, H, R = np.zeros((F, M)), np.zeros((F, M, n)), np.zeros((F, M, M))
+        for i, f in enumerate(factors):
+            r[i, : m[i]], H[i, : m[i]], R[i, : m[i], : m[i]] = f.r, f.H, f.R
+        return cls(
+            np.array([f.kind for f in factors], dtype=np.str_),
+            np.array([f.epoch for f in factors], dtype=np.int64),
+            m, r, H, R,
+            np.array([f.robust for f in factors], dtype=bool),
+            np.array([f.name for f in factors], dtype=np.str_),
+        )  # fmt: skip
+
+    @classmethod
+    def join(cls, parts: Sequence[Factors], n: int) -> Factors:
+        """The factors of parts, one after the other (rows padded to the widest)."""
+        if not parts:
+            return cls.of([], n)
+        M = max(p.r.shape[1] for p in parts)
+
+        def widened(a: Array, axes: tuple[int, ...]) -> Array:
+            """a with zeros appended along axes up to M."""
+            pad = [(0, M - a.shape[i] if i in axes else 0) for i in range(a.ndim)]
+            return np.pad(a, pad) if any(w for _, w in pad) else a
+
+        return cls(
+            np.concatenate([p.kind for p in parts]),
+            np.concatenate([p.epoch for p in parts]),
+            np.concatenate([p.m for p in parts]),
+            np.concatenate([widened(p.r, (1,)) for p in parts]),
+            np.concatenate([widened(p.H, (1,)) for p in parts]),
+            np.concatenate([widened(p.R, (1, 2)) for p in parts]),
+            np.concatenate([p.robust for p in parts]),
+            np.concatenate([p.name for p in parts]),
+        )
 
 
 @dataclass

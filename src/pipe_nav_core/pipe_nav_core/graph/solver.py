@@ -27,10 +27,11 @@ kept for back-substitution (R_kk, R_k,k+1, z_k: 23 kB per epoch with 38 error st
 stored like the forward pass's recording, beyond RAM_BUDGET_BYTES in a temporary directory
 (:class:`pipe_nav_core.smooth.chunks.Chunks`).
 
-The step's QR and the triangular inverses (whiteners, back-substitution) call LAPACK's dgeqrf
-and dtrtri through scipy.linalg.lapack, without scipy.linalg's front ends (whose checks cost
-more than the work on these small matrices): a triangular inverse is a third of a general
-one's work, and the QR runs in place on a Fortran-ordered block.
+The step's QR calls LAPACK's dgeqrf through scipy.linalg.lapack, without scipy.linalg's front
+ends (whose checks cost more than the work on these small matrices), in place on a
+Fortran-ordered block. The whiteners (Cholesky factors and their inverses), the triangular
+inverses and the back-substitution's recursion run compiled, a piece of epochs per call
+(:mod:`.linalg`): a triangular inverse is a third of a general one's work.
 """
 
 from __future__ import annotations
@@ -41,9 +42,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core.graph.linalg import back_substitute_k, inv_lower_k, whiteners_k
 from pipe_nav_core.graph.problem import (
     EIG_FLOOR,
     MIN_VARIANCE,
+    Factors,
     LinearChain,
     MeasurementFactor,
     whitener,
@@ -71,44 +74,29 @@ class ChainSolution:
 
 
 def inv_triangular(T: Array, lower: bool = False) -> Array:
-    """Inverses of a stack of triangular matrices T (B, m, m) (upper, or lower with lower):
-    LAPACK's triangular inversion (dtrtri) of each, which reads only that triangle of T (what
-    lies on the other side is ignored). A third of the work of a general inverse (LU and
-    solves) and a back-substitution's round-off. scipy.linalg.lapack's dtrtri is called
-    directly: scipy.linalg's front ends cost more than the inversion on these matrices."""
-    from scipy.linalg.lapack import dtrtri
-
+    """Inverses of a stack of triangular matrices T (B, m, m) (upper, or lower with lower),
+    each by substitution (:func:`.linalg.inv_lower_k`), which reads only that triangle of T
+    (what lies on the other side is ignored); zero on the other side of the inverses."""
+    if np.any(np.diagonal(T, axis1=1, axis2=2) == 0.0):
+        raise np.linalg.LinAlgError("singular triangular matrix")
     out = np.empty(T.shape)
-    lo = int(bool(lower))
-    for b in range(len(T)):
-        # T[b]^T is Fortran-ordered without a copy, and its inverse is inv(T[b])^T
-        inv, info = dtrtri(T[b].T, lower=1 - lo)
-        if info != 0:
-            raise np.linalg.LinAlgError("singular triangular matrix")
-        out[b] = inv.T
-    return np.tril(out) if lower else np.triu(out)
+    # an upper triangular T's inverse is the transpose of that of its (lower) transpose
+    inv_lower_k(np.ascontiguousarray(T if lower else np.swapaxes(T, 1, 2)), out)
+    return out if lower else np.swapaxes(out, 1, 2)
 
 
 def whiteners(C: Array) -> Array:
-    """:func:`problem.whitener` of a stack of covariances C (B, m, m) at once (B, m, m)."""
-    C = 0.5 * (C + np.swapaxes(C, 1, 2))
+    """:func:`problem.whitener` of a stack of covariances C (B, m, m) at once (B, m, m):
+    compiled (:func:`.linalg.whiteners_k`), one by one where one is not positive definite."""
+    C = np.ascontiguousarray(C, dtype=np.float64)
     if not len(C):
         return C.copy()
-    m = C.shape[1]
-    i = np.arange(m)
-    d = C[:, i, i]
-    floor = np.maximum(EIG_FLOOR * d.max(axis=1), MIN_VARIANCE)
-    low = d <= floor[:, None]
-    if low.any():
-        C = C.copy()
-        b, j = np.nonzero(low)
-        C[b, j, j] = floor[b]
-    try:
-        L = np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:  # one of them is not positive definite: one by one
-        return np.stack([whitener(c) for c in C])
-    # W = L^-1 (lower triangular): W C W^T = I
-    return inv_triangular(L, lower=True)
+    i = np.arange(C.shape[1])
+    floor = np.maximum(EIG_FLOOR * C[:, i, i].max(axis=1), MIN_VARIANCE)
+    W = np.empty(C.shape)
+    if whiteners_k(C, floor, W):
+        return W
+    return np.stack([whitener(c) for c in C])
 
 
 @dataclass
@@ -127,11 +115,13 @@ class WhitenedFactors:
     exact: NDArray[np.bool_]
 
 
-def whiten(factors: Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
-    """Whiten every factor, batched by its number of rows."""
-    F = len(factors)
-    order = np.argsort(np.array([f.epoch for f in factors], dtype=np.int64), kind="stable")
-    sizes = np.array([len(factors[i].r) for i in order], dtype=np.int64)
+def whiten(factors: Factors | Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
+    """Whiten every factor (:class:`~.problem.Factors`, or a list of them), batched by its
+    number of rows."""
+    fs = factors if isinstance(factors, Factors) else Factors.of(factors, n)
+    F = len(fs)
+    order = np.argsort(fs.epoch, kind="stable")
+    sizes = fs.m[order]
     start = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     rows = np.zeros((int(start[-1]), n))
     rhs = np.zeros(int(start[-1]))
@@ -140,9 +130,9 @@ def whiten(factors: Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
     for m in np.unique(sizes):
         pos = np.flatnonzero(sizes == m)  # positions in the sorted order
         idx = order[pos]
-        R = np.stack([factors[i].R for i in idx])
-        H = np.stack([factors[i].H for i in idx])
-        r = np.stack([factors[i].r for i in idx])
+        R = fs.R[idx, :m, :m]
+        H = fs.H[idx, :m]
+        r = fs.r[idx, :m]
         W = whiteners(R)
         wr = np.einsum("bij,bj->bi", W, r)
         at = start[pos][:, None] + np.arange(m)[None, :]
@@ -151,8 +141,7 @@ def whiten(factors: Sequence[MeasurementFactor], n: int) -> WhitenedFactors:
         norm[idx] = np.linalg.norm(wr, axis=1)
         s = np.linalg.eigvalsh(0.5 * (R + np.swapaxes(R, 1, 2)))
         exact[idx] = s[:, 0] <= np.maximum(1e-12 * s[:, -1], MIN_VARIANCE)
-    epochs = np.array([factors[i].epoch for i in order], dtype=np.int64)
-    return WhitenedFactors(rows, rhs, start, order, epochs, norm, exact)
+    return WhitenedFactors(rows, rhs, start, order, fs.epoch[order], norm, exact)
 
 
 def _triangular(A: Array, rows: int) -> Array:
@@ -258,13 +247,13 @@ class Eliminator:
         store = self._store
         delta = np.empty((K, n))
         var = np.empty((K, n))
-        cov = np.empty((K, n, n)) if full else None
+        full_cov = np.empty((K if full else 0, n, n))
         Ri = np.linalg.inv(self._Rt)  # upper triangular: back-substitution
         delta[-1] = Ri @ self._zt
-        S = Ri @ Ri.T
+        S = np.ascontiguousarray(Ri @ Ri.T)  # the marginal covariance, from the last epoch back
         var[-1] = np.diag(S)
-        if cov is not None:
-            cov[-1] = S
+        if full:
+            full_cov[-1] = S
         for c in range(store.n_chunks - 1, -1, -1):
             block = store.chunk(c)
             for a in range(((len(block) - 1) // PIECE) * PIECE, -1, -PIECE):
@@ -277,16 +266,8 @@ class Eliminator:
                 d0 = np.einsum("bij,bj->bi", Ri, piece[:, 2 * nn :])
                 RRt = Ri @ np.swapaxes(Ri, 1, 2)
                 k0 = c * CHUNK_EPOCHS + a  # row j holds epoch k0 + j's (from step k0 + j + 1)
-                for j in range(B - 1, -1, -1):
-                    k = k0 + j
-                    Gj = G[j]
-                    delta[k] = d0[j] - Gj @ delta[k + 1]
-                    S = RRt[j] + Gj @ S @ Gj.T
-                    S = 0.5 * (S + S.T)
-                    var[k] = S.diagonal()
-                    if cov is not None:
-                        cov[k] = S
-        return ChainSolution(delta, var, self.cost0, self.cost, cov)
+                back_substitute_k(G, d0, RRt, S, delta, var, full_cov, k0)
+        return ChainSolution(delta, var, self.cost0, self.cost, full_cov if full else None)
 
 
 def solve_chain(

@@ -133,8 +133,22 @@ def update(
     kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Settings, out: EpochOutputs
 ) -> None:
     """One gated update of (x, P) in place, counted under kind in out's statistics
-    (epoch.EpochOutputs)."""
+    (epoch.EpochOutputs). Where out records the updates instead (epoch.linearize_epochs:
+    out.fac has rows), the update is not applied but kept, ungated, as the batch smoother's
+    factor: r, H, R in out.fac's next row, its kind and rows in out.fac_i's, counted in
+    out.fac_n (also beyond out.fac's rows, which are then not written)."""
     m = r.shape[0]
+    if out.fac.shape[0] > 0:
+        j = out.fac_n[0]
+        out.fac_n[0] = j + 1
+        if j < out.fac.shape[0]:
+            n = H.shape[1]
+            out.fac[j, :m, :n] = H
+            out.fac[j, :m, n] = r
+            out.fac[j, :m, n + 1 : n + 1 + m] = R
+            out.fac_i[j, 0] = kind
+            out.fac_i[j, 1] = m
+        return
     nis, dx, x_new, P_new = joseph_update(P, x, H, R, r, prm.chi2[m - 1])
     if dx.shape[0] == 0:
         out.rej[kind] += 1
