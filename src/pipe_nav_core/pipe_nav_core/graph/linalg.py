@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.jit import kernel
+from pipe_nav_core.smooth.rts import cholesky_k
 
 Array = NDArray[np.float64]
 
@@ -54,19 +55,8 @@ def whiteners_k(C: Array, floor: Array, W: Array) -> bool:
                 L[i, j] = 0.5 * (C[b, i, j] + C[b, j, i])
             if L[i, i] <= floor[b]:
                 L[i, i] = floor[b]
-        for j in range(m):  # Cholesky, in L's lower triangle
-            s = L[j, j]
-            for k in range(j):
-                s -= L[j, k] * L[j, k]
-            if not s > 0.0:
-                return False
-            d = np.sqrt(s)
-            L[j, j] = d
-            for i in range(j + 1, m):
-                t = L[i, j]
-                for k in range(j):
-                    t -= L[i, k] * L[j, k]
-                L[i, j] = t / d
+        if not cholesky_k(L, L):  # in L's lower triangle
+            return False
         _inv_lower(L, W[b])
     return True
 

@@ -100,8 +100,9 @@ def _unpack(row: Array, start: int, P: Array) -> None:
 
 
 @kernel
-def _cholesky(A: Array, L: Array) -> bool:
-    """L <- the lower Cholesky factor of A (symmetric); False if A is not positive definite.
+def cholesky_k(A: Array, L: Array) -> bool:
+    """L <- the lower Cholesky factor of A (symmetric, lower triangle read; L may be A itself:
+    in place); False if A is not positive definite.
 
     Written out with :func:`_cho_solve` because, at the error-state sizes here (21 to 42),
     they take half the time of numba's np.linalg.solve (its LAPACK call copies and pivots);
@@ -170,7 +171,7 @@ def _rts_gains(rows: Array, next_row: Array, phi_rows: NDArray[np.int64], G: Arr
         np.dot(phi_r, Pu, Bp)
         for a in range(r):
             B[phi_rows[a], :] = Bp[a]
-        if _cholesky(Pp, L):
+        if cholesky_k(Pp, L):
             _cho_solve(L, B)
         elif np.all(np.isfinite(Pp)):  # singular or indefinite: least squares
             B[:, :] = np.linalg.lstsq(Pp, B)[0]
