@@ -7,7 +7,7 @@ def test_test_pipe_case_scores_rts_with_and_without_survey_error():
     case = next(c for c in bench.CASES if c.scenario == "sag104")
     rows = bench.run_case(case, 1, ["rts"])
     by = {r["method"]: r for r in rows}
-    assert set(by) == {"rts", bench.EXACT, bench.BASELINE}
+    assert set(by) == {"rts", bench.EXACT, bench.LIMIT, bench.BASELINE}
     # the same runs: only the markers' survey error differs (this pipe's survey is 2.6 cm off
     # horizontally at the receive marker), and at the markers the centreline carries it
     assert max(by[bench.EXACT]["survey_h"], by[bench.EXACT]["survey_v"]) < 1e-6
@@ -20,6 +20,32 @@ def test_test_pipe_case_scores_rts_with_and_without_survey_error():
     assert "| met |" in line or "| NOT met |" in line
     assert "| 0.0 / 0.0 |" in line  # the survey column
     assert "surveyed exactly" in md
+    # the markers-only limit: the same markers, so the same survey error, and nothing more
+    limit = by[bench.LIMIT]
+    assert (limit["survey_h"], limit["survey_v"]) == (by["rts"]["survey_h"], by["rts"]["survey_v"])
+    assert limit["survey_h"] - 0.002 < limit["max_h"] < by["rts"]["max_h"]
+    assert limit["max_v"] < by["rts"]["max_v"]
+    ratio = bench.against_limit(rows)
+    assert ratio["rts"][0] == by["rts"]["max_h"] / limit["max_h"] > 1.0
+    assert f"| sag104 | {100 * limit['max_h']:.1f} / {100 * limit['max_v']:.1f} |" in md
+
+
+def test_smoothers_are_judged_against_the_markers_only_limit():
+    """Issue 17: every smoother within 1.2x of the markers-only limit (worst seed), per axis."""
+
+    def rows(method, h, v):
+        row = {"method": method, "scenario": "sag104"}
+        return [{**row, "max_h": h, "max_v": v}, {**row, "max_h": h / 2, "max_v": v / 2}]
+
+    base = rows(bench.LIMIT, 0.020, 0.010) + rows("forward", 1.0, 1.0) + rows("rts", 0.022, 0.011)
+    d = bench.against_limit(base)
+    assert d[bench.LIMIT] == (0.020, 0.010) and "forward" not in d
+    assert abs(d["rts"][0] - 1.1) < 1e-12 and abs(d["rts"][1] - 1.1) < 1e-12
+    md = bench.markdown({"sag104": base}, "cmd", 1)
+    assert "| sag104 | 2.0 / 1.0 | 1.10 / 1.10 | yes |" in md
+    md = bench.markdown({"sag104": base + rows("graph", 0.020, 0.013)}, "cmd", 1)
+    assert "| sag104 | 2.0 / 1.0 | 1.10 / 1.10 | 1.00 / 1.30 | NO |" in md
+    assert bench.against_limit(rows("rts", 0.02, 0.01)) is None
 
 
 def test_verdict_judges_accuracy_and_consistency():

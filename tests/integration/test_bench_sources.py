@@ -4,7 +4,7 @@ the sigmas cover what the real sensors leave (the error budget of a simulated ru
 from __future__ import annotations
 
 import pytest
-from pipe_nav_core.bench.sources import CASES, error_budget, variant
+from pipe_nav_core.bench.sources import CASES, MARKERS_ONLY, error_budget, variant
 from pipe_nav_core.sim import get_scenario
 
 
@@ -25,5 +25,9 @@ def test_the_cases_remove_only_their_sources():
     assert variant(sc, "IMU error-free").odo_scale_sigma == sc.odo_scale_sigma
     assert variant(sc, "odometer exact").imu_spec is sc.imu_spec
     assert all(variant(sc, c).survey_sigma_v == 0.0 for c in CASES)
+    markers = variant(sc, MARKERS_ONLY)  # the sensors exact, the markers as they were
+    assert markers.imu_spec.gyro_turn_on_bias == 0.0 and markers.odo_scale_sigma == 0.0
+    assert markers.survey_sigma_h == sc.survey_sigma_h > 0.0
+    assert markers.marker_time_sigma == sc.marker_time_sigma > 0.0
     with pytest.raises(ValueError, match="unknown case"):
         variant(sc, "no gravity")

@@ -27,20 +27,28 @@ from pipe_nav_core.smooth.centreline import interpolate_enu
 from pipe_nav_core.smooth.passes import smooth_log
 
 CASES = ("as simulated", "IMU error-free", "odometer exact", "both exact")
+# both sensors exact, the markers as simulated (their survey and passage-time errors): the
+# error the markers alone leave, the floor of every smoother on the run (the accuracy bench's
+# "markers-only limit")
+MARKERS_ONLY = "markers only"
 
 
 def variant(scenario: Scenario, case: str) -> Scenario:
-    """The scenario with the markers surveyed exactly and the error sources of ``case`` (one of
-    CASES) removed."""
-    sc = replace(scenario, survey_sigma_h=0.0, survey_sigma_v=0.0)
-    if case in ("IMU error-free", "both exact"):
+    """The scenario with the error sources of ``case`` removed: one of CASES (the markers
+    surveyed exactly besides) or MARKERS_ONLY (the IMU and the odometer exact, the markers'
+    survey and passage-time errors kept)."""
+    if case not in (*CASES, MARKERS_ONLY):
+        raise ValueError(f"unknown case {case!r}; choose one of {', '.join(CASES)}")
+    sc = scenario
+    if case != MARKERS_ONLY:
+        sc = replace(sc, survey_sigma_h=0.0, survey_sigma_v=0.0)
+    if case in ("IMU error-free", "both exact", MARKERS_ONLY):
         spec = scenario.imu_spec or imu_grade(scenario.imu_grade)
         sc = replace(sc, imu_spec=spec.scaled(0.0))
+    if case in ("odometer exact", "both exact", MARKERS_ONLY):
+        sc = replace(sc, odo_scale_sigma=0.0, odo_slip_interval=1e9, odo_tick=1e-6)
     if case in ("odometer exact", "both exact"):
-        sc = replace(sc, odo_scale_sigma=0.0, odo_slip_interval=1e9, odo_tick=1e-6,
-                     marker_time_sigma=0.0)  # fmt: skip
-    if case not in CASES:
-        raise ValueError(f"unknown case {case!r}; choose one of {', '.join(CASES)}")
+        sc = replace(sc, marker_time_sigma=0.0)
     return sc
 
 
