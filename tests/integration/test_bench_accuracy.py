@@ -28,6 +28,8 @@ def test_test_pipe_case_scores_rts_with_and_without_survey_error():
     ratio = bench.against_limit(rows)
     assert ratio["rts"][0] == by["rts"]["max_h"] / limit["max_h"] > 1.0
     assert f"| sag104 | {100 * limit['max_h']:.1f} / {100 * limit['max_v']:.1f} |" in md
+    line = next(x for x in md.splitlines() if f"| {bench.LIMIT} |" in x)
+    assert "| max h, v < 2 cm; sag depth within 1 cm |  |" in line  # a floor, not judged
 
 
 def test_smoothers_are_judged_against_the_markers_only_limit():

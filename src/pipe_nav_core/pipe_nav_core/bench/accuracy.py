@@ -418,7 +418,7 @@ def markdown(
                 f"| {sag} | {_cm(repeatability(rows))} "
                 f"| {_cm(_agg(rows, 'survey_h', max))} / {_cm(_agg(rows, 'survey_v', max))} "
                 f"| {case.target} "
-                f"| {verdict(case, rows, method)} "
+                f"| {'' if method == LIMIT else verdict(case, rows, method)} "
                 f"| {_agg(rows, 'x_real_time', np.mean):.0f} | {_mb(_agg(rows, 'peak_mb', max))} |"
             )
     lines += _default_lines(results)
