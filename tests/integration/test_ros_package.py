@@ -207,6 +207,19 @@ def test_smoother_node_and_launch_offer_the_methods_of_pipe_nav_smooth():
     assert set(METHODS) <= set(re.findall(r"[a-z-]+", declared[0][2].value))
 
 
+def test_smoother_node_and_launch_run_as_many_passes_as_pipe_nav_smooth():
+    """The iterations parameter's default is pipe-nav smooth's (smooth.methods.MAX_PASSES)."""
+    from pipe_nav_core.smooth.methods import MAX_PASSES
+
+    assert next(s for s in SMOOTHER_NODE_SPECS if s.name == "iterations").default == MAX_PASSES
+    launch = ast.parse((PKG / "launch" / "smooth.launch.py").read_text())
+    declared = [
+        n.elts for n in ast.walk(launch)
+        if isinstance(n, ast.Tuple) and n.elts and getattr(n.elts[0], "value", None) == "iterations"
+    ]  # fmt: skip
+    assert len(declared) == 1 and declared[0][1].value == str(MAX_PASSES)
+
+
 def test_nav_parameter_descriptions_and_ranges_come_from_the_settings():
     """Each NavConfig parameter's description is its Setting.doc, and a double's range is its
     rule's bounds (degrees for angles, the largest double for no bound): it holds the default,

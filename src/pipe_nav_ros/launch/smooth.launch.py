@@ -71,7 +71,7 @@ def generate_launch_description():
         ("bag", "", "input bag: .mcap file or rosbag2 directory (required)"),
         ("output", "", "output .mcap (default <bag stem>_smoothed.mcap beside the bag)"),
         ("method", "rts", "smoother: rts | two-filter | forward | graph (smooth --method)"),
-        ("iterations", "2", "re-linearization passes"),
+        ("iterations", "5", "smoothing passes at most (they stop once converged)"),
         ("spacing", "0.5", "centreline sample spacing, m of chainage"),
         ("markers_csv", "", "marker CSV adding to or replacing /markers"),
         ("csv", "", "centreline CSV output"),

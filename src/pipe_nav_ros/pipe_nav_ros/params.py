@@ -387,7 +387,7 @@ SMOOTHER_NODE_SPECS = [
     ParamSpec(
         "method", "rts", STR, "smoother (smooth --method): rts | two-filter | forward | graph"
     ),
-    ParamSpec("iterations", 2, INT, "re-linearization passes, as pipe-nav smooth --iterations"),
+    ParamSpec("iterations", 5, INT, "smoothing passes at most, as pipe-nav smooth --iterations"),
     ParamSpec("spacing", 0.5, FLOAT, "centreline sample spacing along the chainage, m"),
     ParamSpec("markers_csv", "", STR, "optional marker CSV adding to or replacing /markers"),
     ParamSpec("csv", "", STR, "optional centreline CSV output path"),

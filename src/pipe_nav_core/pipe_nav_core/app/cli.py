@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, NoReturn
 
 from pipe_nav_core.errors import PipeNavError
-from pipe_nav_core.smooth.methods import DEFAULT_METHOD, METHODS
+from pipe_nav_core.smooth.methods import DEFAULT_METHOD, MAX_PASSES, METHODS
 
 if TYPE_CHECKING:
     pass
@@ -110,7 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="report PNG")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS,
                    help=f"smoother (default {DEFAULT_METHOD})")  # fmt: skip
-    p.add_argument("--iterations", type=int, default=2, help="re-linearization passes (default 2)")
+    p.add_argument("--iterations", type=int, default=MAX_PASSES,
+                   help=f"smoothing passes at most, fewer once converged "
+                   f"(default {MAX_PASSES})")  # fmt: skip
     p.add_argument("--spacing", type=float, default=0.5, help="CSV row spacing, m of chainage")
     p.add_argument("--strict", action="store_true", help="exit 3 unless the quality verdict is OK")
     p.add_argument("--bends-reference", metavar="CSV",

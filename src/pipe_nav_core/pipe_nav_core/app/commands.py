@@ -237,6 +237,12 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
     print("  accel bias          " + " ".join(f"{x:+.3f}" for x in s["accel_bias_mg"]) + " mg")
     print(f"  max sigma between markers (horizontal) {s['max_sigma_h_between_markers_m']:.3f} m")
     print(f"  max marker residual {s['max_marker_residual_m']:.3f} m")
+    if "converged" in s:
+        print(
+            f"  passes              {s['passes_run']} "
+            + ("(converged" if s["converged"] else "(NOT converged: more --iterations may help")
+            + f"; last attitude step {1e3 * float(s['last_step_rad']):.3f} mrad)"
+        )
     products = s.get("integrity") or {}
     if products:
         print(

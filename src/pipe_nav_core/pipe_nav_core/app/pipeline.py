@@ -47,7 +47,7 @@ from pipe_nav_core.products.welds import Weld, detect_welds
 from pipe_nav_core.smooth.centreline import SmoothResult
 from pipe_nav_core.smooth.chunks import drop_spare
 from pipe_nav_core.smooth.logs import let_go, map_imu
-from pipe_nav_core.smooth.methods import DEFAULT_METHOD
+from pipe_nav_core.smooth.methods import DEFAULT_METHOD, MAX_PASSES
 from pipe_nav_core.smooth.passes import smooth_log
 from pipe_nav_core.smooth.segments import smooth_segments
 from pipe_nav_core.types import Marker, SensorLog
@@ -137,7 +137,7 @@ def smooth_bag(
     *,
     config: NavConfig,
     method: str = DEFAULT_METHOD,
-    iterations: int = 2,
+    iterations: int = MAX_PASSES,
     markers_csv: str | os.PathLike[str] | None = None,
     spacing: float = 0.5,
     topics: TopicNames = DEFAULT_TOPICS,
@@ -239,7 +239,7 @@ def smooth_with_imu_model(
     *,
     declared: dict[str, list[float]] | None = None,
     method: str = DEFAULT_METHOD,
-    iterations: int = 2,
+    iterations: int = MAX_PASSES,
     progress: Progress = QUIET,
     reverse: bool = False,
 ) -> SmoothResult:
