@@ -19,7 +19,7 @@ from pipe_nav_core.io import read_centreline_csv, write_sensor_bag
 from pipe_nav_core.sim import simulate
 from pipe_nav_core.sim.faults import clock_step, data_gap, imu_dropped, imu_shock
 from pipe_nav_core.smooth.logs import reverse_log
-from pipe_nav_core.smooth.passes import smooth_log
+from pipe_nav_core.smooth.passes import CONVERGED_RAD, smooth_log
 from pipe_nav_core.smooth.segments import _reversed
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
@@ -77,6 +77,8 @@ def test_across_a_data_gap_the_run_is_smoothed_in_segments(log, tmp_path: Path):
     assert q["status"] == "DEGRADED"
     assert any("data gap of 30.0 s" in r and "not mapped" in r for r in q["reasons"])
     assert [s["how"] for s in result.summary["segments"]] == ["forward", "reversed"]
+    assert result.summary["converged"] and not any("did not converge" in r for r in q["reasons"])
+    assert result.summary["last_step_rad"] < CONVERGED_RAD  # the least converged segment's
     est, _ = read_centreline_csv(csv)
     assert not np.any((est.t > t0 + 0.5) & (est.t < t0 + 29.5))  # nothing across the gap
     assert est.t[-1] > t0 + 60.0  # the pipe after it is mapped

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -41,6 +42,15 @@ def test_verdicts():
     assert judge(good, lost).status == OK
     assert judge(good, _line(sigma=0.5)).status == OK  # a short run is judged as 10 m long
     assert judge({**good, "markers_used": 0}, _line()).status == FAILED
+    # smoothing passes that stopped short: DEGRADED a little off, FAILED far off; one pass asked
+    # for (nothing to converge) is not judged on it
+    short = {**good, "converged": False, "passes_run": 2, "last_step_rad": 0.004}
+    v = judge(short, _line())
+    assert v.status == DEGRADED and "2 smoothing passes did not converge" in v.line()
+    assert "4.0 mrad" in v.line()
+    assert judge({**short, "last_step_rad": 0.024}, _line()).status == FAILED
+    assert judge({**short, "last_step_rad": 0.024, "passes_run": 1}, _line()).status == OK
+    assert judge({**short, "converged": True}, _line()).status == OK
     nan = dataclasses.replace(_line(), h=np.array([0, 0, np.nan, 0, 0]))
     v = judge(good, nan)
     assert v.status == FAILED and "non-finite" in v.line()
@@ -51,6 +61,7 @@ def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tm
     cmd = [sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(SAMPLE), "--out", str(out)]
     r = subprocess.run([*cmd, "--strict"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and "quality             OK" in r.stdout, r.stderr
+    assert re.search(r"passes +\d \(converged; last attitude step 0\.\d+ mrad\)", r.stdout)
     with open(out, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert meta["pipe_nav"]["quality"] == "OK" and meta["pipe_nav"]["markers_used"] == "4"
@@ -66,8 +77,13 @@ def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tm
     assert "quality FAILED" in r.stderr and "check imu_grade" in r.stdout, r.stdout + r.stderr
     assert r.returncode == 3 and out.exists()
     # too long a filter epoch for this run's motion: the filter diverges (sigmas of about 100 m
-    # on a 180 m pipe) and the verdict says so instead of a DEGRADED centreline 60 m off
-    r = subprocess.run([*cmd, "--strict", "--set", "filter_rate_hz=2.5"], capture_output=True,
-                       text=True, timeout=300)  # fmt: skip
+    # on a 180 m pipe after 2 passes) and the verdict says so instead of a DEGRADED centreline
+    # 60 m off; the passes that follow bring the sigmas down to 0.6 m but do not converge
+    # (the fifth still turns the attitude by 24 mrad) and leave it 2.6 m off: FAILED too
+    slow = [*cmd, "--strict", "--set", "filter_rate_hz=2.5"]
+    r = subprocess.run([*slow, "--iterations", "2"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 3 and "quality FAILED" in r.stderr, r.stdout + r.stderr
     assert "the filter lost its way" in r.stdout
+    r = subprocess.run(slow, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 3 and "quality FAILED" in r.stderr, r.stdout + r.stderr
+    assert "5 smoothing passes did not converge" in r.stdout

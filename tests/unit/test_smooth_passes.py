@@ -173,3 +173,25 @@ def test_no_room_for_the_imu_file_leaves_it_in_memory(monkeypatch):
     gyro = imu.gyro
     logs.map_imu(imu)
     assert imu.gyro is gyro and logs._mapping(imu.gyro) is None
+
+
+def test_pipe_nav_smooth_runs_the_passes_until_converged():
+    """pipe-nav smooth (and smooth_bag, the smoother node) runs up to MAX_PASSES passes and stops
+    at convergence: on this consumer pipe that is 3, and the 2 it ran before left the
+    centreline 0.6 cm further from the truth in horizontal (4.38 against 3.81 cm)."""
+    from pipe_nav_core.app.cli import build_parser
+    from pipe_nav_core.app.pipeline import smooth_with_imu_model
+    from pipe_nav_core.smooth.methods import MAX_PASSES
+    from pipe_nav_core.smooth.passes import CONVERGED_RAD
+
+    assert build_parser().parse_args(["smooth", "x.mcap", "--out", "o/"]).iterations == MAX_PASSES
+    sc = get_scenario("undulation90")
+    run = simulate(sc, seed=1)
+    cfg = NavConfig.from_dict(sc.estimator_settings())
+    r = smooth_with_imu_model(run.log, cfg)
+    assert r.summary["converged"] and r.summary["passes_run"] == 3
+    assert r.summary["last_step_rad"] < CONVERGED_RAD
+    two = smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert not two.summary["converged"] and two.summary["last_step_rad"] > CONVERGED_RAD
+    s, s2 = (score(x.centreline, run.truth, run.log.markers, datum=x.datum) for x in (r, two))
+    assert s.max_h < s2.max_h - 0.003

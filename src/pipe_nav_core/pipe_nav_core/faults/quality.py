@@ -2,10 +2,11 @@
 
 A centreline is only worth its verdict: FAILED when the solution is physically absurd (an
 odometer scale factor far from 1, position sigmas of kilometres or of a tenth of the run's
-chainage: a filter that has lost its way, nothing finite) or nothing
-tied it to the ground; DEGRADED when something the engineer must know about happened (the IMU
-model did not fit, markers were rejected or left out, the heading is not anchored, messages
-were skipped, the bag was cut short); else OK. ``pipe-nav smooth`` prints it, writes it into
+chainage: a filter that has lost its way, nothing finite), nothing tied it to the ground or
+the smoothing passes were still moving it by much; DEGRADED when something the engineer must
+know about happened (the IMU model did not fit, markers were rejected or left out, the heading
+is not anchored, messages were skipped, the bag was cut short, the passes stopped short of
+converging); else OK. ``pipe-nav smooth`` prints it, writes it into
 the smoothed bag (MCAP metadata ``pipe_nav``) and, with ``--strict``, exits 3 unless OK.
 """
 
@@ -25,6 +26,11 @@ MAX_SIGMA_H_M = 1000.0  # m, a horizontal sigma beyond which the centreline loca
 # a horizontal sigma beyond this share of the run's chainage span: the filter is lost (a
 # diverged run reaches sigmas like the pipe's length; a sound one stays under 0.1 % of it)
 LOST_SHARE, LOST_MIN_SPAN_M = 0.1, 10.0  # (a run shorter than the span is judged as that long)
+# smoothing passes that stopped before converging (smooth.passes) leave the centreline off the
+# optimum by about the next pass's step, second order in the last one: a last attitude step
+# over this and the centreline is not known to its sigmas (a sound run's second pass moves
+# the attitude by 0.03 to 7 mrad, its third by under 0.4; a diverged run's fifth by tens)
+UNCONVERGED_RAD = 0.01
 
 
 @dataclass
@@ -70,6 +76,15 @@ def judge(
                 "filter lost its way (a filter_rate_hz too low for the run's motion, or an "
                 "IMU grade that does not fit)"
             )
+    passes = int(summary.get("passes_run", 1))  # type: ignore[call-overload]
+    if summary.get("converged") is False and passes >= 2:  # one pass: nothing to converge
+        step = float(summary.get("last_step_rad", 0.0))  # type: ignore[arg-type]
+        why = (f"the {passes} smoothing passes did not converge (the last moved the attitude "
+               f"by {1e3 * step:.1f} mrad)")  # fmt: skip
+        if not step <= UNCONVERGED_RAD:
+            failed.append(f"{why}: the centreline is not known to its sigmas")
+        else:
+            degraded.append(f"{why}: more --iterations may help")
     if int(summary.get("markers_used", 0)) == 0:  # type: ignore[call-overload]
         failed.append("no marker was used: nothing ties the run to the ground")
     rejected = int(summary.get("markers_rejected", 0))  # type: ignore[call-overload]

@@ -202,6 +202,12 @@ def _joined(log: SensorLog, config: NavConfig, parts: list[SmoothResult]) -> Smo
         summary[key] = [w for p in parts for w in p.summary.get(key, [])]  # type: ignore[attr-defined]
     for key in ("max_sigma_h_between_markers_m", "max_marker_residual_m"):
         summary[key] = max(float(p.summary.get(key, 0.0)) for p in parts)  # type: ignore[arg-type]
+    # the passes of the segment that converged least (the quality verdict judges them)
+    passes = [p.summary for p in parts if "converged" in p.summary]
+    if passes:
+        least = max(passes, key=lambda x: (not x["converged"], float(x["last_step_rad"])))  # type: ignore[arg-type]
+        for key in ("converged", "passes_run", "last_step_m", "last_step_rad"):
+            summary[key] = least[key]
     rejected: dict[str, int] = {}
     for p in parts:
         for name, n in (p.summary.get("rejected_updates") or {}).items():  # type: ignore[attr-defined]
