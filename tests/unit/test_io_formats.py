@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -29,6 +30,7 @@ from pipe_nav_core.io import (
     write_markers_csv,
 )
 from pipe_nav_core.io.atomic import all_or_none
+from pipe_nav_core.io.gis import to_geojson
 from pipe_nav_core.types import Marker
 from test_io_support import DATUM, make_traj
 
@@ -218,6 +220,10 @@ def test_geojson_linestring_and_points(tmp_path):
     assert alt == pytest.approx(traj.h[17], abs=1e-4)
     pts = [f for f in doc["features"] if f["geometry"]["type"] == "Point"]
     assert [f["properties"]["name"] for f in pts] == ["launch", "agm_01", "receive"]
+    # the text json.dump streams, written at once (json.dumps: its compiled encoder)
+    streamed = io.StringIO()
+    json.dump(to_geojson(traj, MK, name="c"), streamed, separators=(",", ":"), allow_nan=False)
+    assert p.read_text() == streamed.getvalue() + "\n"
     assert pts[1]["geometry"]["coordinates"][:2] == [
         pytest.approx(5.2008, abs=1e-9),
         pytest.approx(52.1003, abs=1e-9),

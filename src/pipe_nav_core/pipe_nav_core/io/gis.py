@@ -188,6 +188,12 @@ def bridge_feature(b: Mapping[str, float]) -> dict[str, object]:
     }  # fmt: skip
 
 
+def json_text(doc: object) -> str:
+    """``doc`` as compact JSON and a newline. json.dumps, not json.dump: dump streams through
+    the pure-Python encoder, five times slower on a centreline's coordinates (the same text)."""
+    return json.dumps(doc, separators=(",", ":"), allow_nan=False) + "\n"
+
+
 def write_geojson(
     path: str | os.PathLike[str],
     traj: Trajectory,
@@ -205,8 +211,7 @@ def write_geojson(
                      bends=bends, strain_features=strain_features, welds=welds,
                      bridges=bridges)  # fmt: skip
     with atomic_write(path, "w") as f:
-        json.dump(doc, f, separators=(",", ":"), allow_nan=False)
-        f.write("\n")
+        f.write(json_text(doc))
 
 
 def weld_properties(w: Weld) -> dict[str, object]:
@@ -251,8 +256,7 @@ def write_points_geojson(
            "name": name or target_stem(path),
            "features": feats}  # fmt: skip
     with atomic_write(path, "w") as f:
-        json.dump(doc, f, separators=(",", ":"), allow_nan=False)
-        f.write("\n")
+        f.write(json_text(doc))
 
 
 def _kml_value(v: object) -> str:

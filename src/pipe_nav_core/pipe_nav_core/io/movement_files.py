@@ -13,7 +13,6 @@ atomically; non-finite values are refused.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from typing import TYPE_CHECKING
@@ -21,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pipe_nav_core.io.atomic import atomic_write, target_stem
+from pipe_nav_core.io.gis import json_text
 
 if TYPE_CHECKING:
     from pipe_nav_core.products.movement import MovementReport, PointMovement
@@ -103,8 +103,7 @@ def write_movement_geojson(
     """Write :func:`to_movement_geojson` (RFC 7946, UTF-8); name: default the file's stem."""
     doc = to_movement_geojson(report, name or target_stem(path))
     with atomic_write(path, "w") as f:
-        json.dump(doc, f, separators=(",", ":"), allow_nan=False)
-        f.write("\n")
+        f.write(json_text(doc))
 
 
 def plot_movement(path: str | os.PathLike[str], report: MovementReport, title: str = "") -> None:
