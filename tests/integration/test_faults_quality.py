@@ -65,6 +65,7 @@ def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tm
     with open(out, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert meta["pipe_nav"]["quality"] == "OK" and meta["pipe_nav"]["markers_used"] == "4"
+    assert meta["pipe_nav"]["passes_converged"] == "true" and int(meta["pipe_nav"]["passes"]) >= 2
     # a consumer IMU smoothed as industrial does not fit: the filter is lost (marker residuals
     # of some 90 m), the verdict FAILED names the grade, and --strict exits 3
     from pipe_nav_core.app.cli import main

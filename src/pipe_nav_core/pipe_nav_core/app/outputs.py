@@ -133,8 +133,9 @@ def write_products(
 
 def run_metadata(summary: dict[str, object]) -> dict[str, str]:
     """What the smoothed bag records of its run (MCAP metadata ``pipe_nav``): the quality
-    verdict and its reasons, the IMU model and why, the markers used and rejected, and for the
-    graph smoother its iterations and whether it converged."""
+    verdict and its reasons, the IMU model and why, the markers used and rejected, the smoothing
+    passes run and whether they converged, and for the graph smoother its iterations and
+    whether it converged."""
     q = summary.get("quality") or {}
     model = summary.get("imu_model") or {}
     return {
@@ -144,6 +145,14 @@ def run_metadata(summary: dict[str, object]) -> dict[str, str]:
         "imu_model_reason": str(model.get("reason", "")),  # type: ignore[union-attr]
         "markers_used": str(summary.get("markers_used", "")),
         "markers_rejected": str(summary.get("markers_rejected", "")),
+        **(
+            {
+                "passes": str(summary["passes_run"]),
+                "passes_converged": str(bool(summary["converged"])).lower(),
+            }
+            if "converged" in summary
+            else {}
+        ),  # fmt: skip
         **(
             {
                 "method": "graph",
