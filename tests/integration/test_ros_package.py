@@ -198,13 +198,9 @@ def test_smoother_node_and_launch_offer_the_methods_of_pipe_nav_smooth():
     spec = next(s for s in SMOOTHER_NODE_SPECS if s.name == "method")
     assert spec.default == DEFAULT_METHOD
     assert set(re.findall(r"[a-z-]+", spec.description.partition(":")[2])) == set(METHODS)
-    launch = ast.parse((PKG / "launch" / "smooth.launch.py").read_text())
-    declared = [
-        n.elts for n in ast.walk(launch)
-        if isinstance(n, ast.Tuple) and n.elts and getattr(n.elts[0], "value", None) == "method"
-    ]  # fmt: skip
-    assert len(declared) == 1 and declared[0][1].value == DEFAULT_METHOD
-    assert set(METHODS) <= set(re.findall(r"[a-z-]+", declared[0][2].value))
+    default, description = _smooth_launch_argument("method")
+    assert default == DEFAULT_METHOD
+    assert set(METHODS) <= set(re.findall(r"[a-z-]+", description))
 
 
 def test_smoother_node_and_launch_run_as_many_passes_as_pipe_nav_smooth():
@@ -212,12 +208,18 @@ def test_smoother_node_and_launch_run_as_many_passes_as_pipe_nav_smooth():
     from pipe_nav_core.smooth.methods import MAX_PASSES
 
     assert next(s for s in SMOOTHER_NODE_SPECS if s.name == "iterations").default == MAX_PASSES
+    assert _smooth_launch_argument("iterations")[0] == str(MAX_PASSES)
+
+
+def _smooth_launch_argument(name: str) -> tuple[str, str]:
+    """(default, description) of smooth.launch.py's argument ``name``, declared once."""
     launch = ast.parse((PKG / "launch" / "smooth.launch.py").read_text())
     declared = [
         n.elts for n in ast.walk(launch)
-        if isinstance(n, ast.Tuple) and n.elts and getattr(n.elts[0], "value", None) == "iterations"
+        if isinstance(n, ast.Tuple) and n.elts and getattr(n.elts[0], "value", None) == name
     ]  # fmt: skip
-    assert len(declared) == 1 and declared[0][1].value == str(MAX_PASSES)
+    assert len(declared) == 1, name
+    return declared[0][1].value, declared[0][2].value
 
 
 def test_nav_parameter_descriptions_and_ranges_come_from_the_settings():

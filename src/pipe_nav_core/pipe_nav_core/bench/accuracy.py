@@ -19,6 +19,7 @@ import platform
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -296,11 +297,7 @@ def against_limit(rows: list[dict[str, object]]) -> dict[str, tuple[float, float
     """Each smoother's (every method but the forward filter) max horizontal and vertical error
     on one scenario's rows as a multiple of the markers-only limit's (worst seed each), by
     method, with the limit itself (m) under LIMIT; None without the limit's rows."""
-    worst = {
-        m: (_agg(rs, "max_h", max), _agg(rs, "max_v", max))
-        for m in (*METHODS, LIMIT)
-        if m != "forward" and (rs := [r for r in rows if r["method"] == m])
-    }
+    worst = _worst(rows, (*METHODS, LIMIT))
     if LIMIT not in worst or len(worst) < 2:
         return None
     lh, lv = worst[LIMIT]
@@ -309,16 +306,22 @@ def against_limit(rows: list[dict[str, object]]) -> dict[str, tuple[float, float
     return out
 
 
+def _worst(rows: list[dict[str, object]], methods: Sequence[str]) -> dict[str, tuple[float, float]]:
+    """Max horizontal and vertical error (m, worst seed) of each of ``methods`` with rows, the
+    forward filter left out (not a smoother)."""
+    return {
+        m: (_agg(rs, "max_h", max), _agg(rs, "max_v", max))
+        for m in methods
+        if m != "forward" and (rs := [r for r in rows if r["method"] == m])
+    }
+
+
 def default_against_best(rows: list[dict[str, object]]) -> dict[str, object] | None:
     """The default method (DEFAULT_METHOD) on one scenario's rows against the best smoother
     (every method but the forward filter), max horizontal and vertical error each (worst
     seed, m): {"h": (default, best, best's method), "v": (...), "within": bool}, whether
     both are within DEFAULT_WITHIN of the best; None without the default's rows."""
-    worst = {
-        m: (_agg(rs, "max_h", max), _agg(rs, "max_v", max))
-        for m in METHODS
-        if m != "forward" and (rs := [r for r in rows if r["method"] == m])
-    }
+    worst = _worst(rows, METHODS)
     if DEFAULT_METHOD not in worst:
         return None
     out: dict[str, object] = {}
