@@ -126,7 +126,7 @@ def smooth_log(
 
     if method == "forward":
         rec = nav.recording
-        e = np.zeros((len(rec), layout.n))
+        e = np.zeros((len(rec), len(rec.pose)))
         result = result_of(nav, smoothed_centreline(rec, e, rec.variances()[:, rec.pose]))
         result.summary.update(passes=1, passes_run=1)
         return result
@@ -162,12 +162,16 @@ def smooth_log(
         rejected = int(nav.diagnostics().get("rejected_marker", 0))
         if best is not None and rejected <= best[0]:
             best = None
-        centre = smoothed_centreline(rec, e, var)
+        step_pos, step_att = step_size(rec, e, layout)
+        e_pose = e[:, rec.pose]
+        if it == n_pass - 1 and method != "graph":  # the last pass: only its centreline is
+            del e  # left to make (no next reference, no slips): what that reads is kept
+            rec.keep_for_centreline()
+        centre = smoothed_centreline(rec, e_pose, var)
         result = result_of(nav, centre)
         result.summary["passes"] = it + 1
         if best is None or rejected <= best[0]:
             best = (rejected, result)
-        step_pos, step_att = step_size(rec, e, layout)
         result.summary["last_step_m"] = step_pos
         # the slips the next pass leaves out (after the last pass only the graph takes them)
         wanted = it < n_pass - 1 or method == "graph"
@@ -222,12 +226,10 @@ def _graph_result(
 
     g = graph_smooth(log, cfg, start, odometer_exclude=exclude, reverse=reverse,
                      say=progress.stage)  # fmt: skip
-    rec = g.nav.recording
+    nav, rec = g.nav, g.nav.recording
     assert rec is not None
-    centre = smoothed_centreline(rec, g.corrections(), g.solution.var[:, rec.pose])
-    rec.close()
-    result = result_of(g.nav, centre)
-    result.summary.update(
+    e, var = g.corrections(), g.solution.var[:, rec.pose]
+    summary = dict(
         method="graph",
         passes=rts_passes,
         passes_run=rts_passes,
@@ -237,6 +239,11 @@ def _graph_result(
         graph_markers_downweighted=list(g.weighing.downweighted),
         graph_factors_gated=dict(g.weighing.gated),
     )
+    del g  # its solution and final states (0.5 GB at 100 km) before the centreline is made
+    centre = smoothed_centreline(rec, e, var)
+    rec.close()
+    result = result_of(nav, centre)
+    result.summary.update(summary)
     return result
 
 
