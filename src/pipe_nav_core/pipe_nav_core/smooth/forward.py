@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator, PassOptions
+from pipe_nav_core.memory import trim_heap
 from pipe_nav_core.model.state import NavState
 from pipe_nav_core.smooth.logs import let_go, slice_log
 from pipe_nav_core.smooth.recording import SAMPLE_SPACING_S
@@ -80,6 +81,7 @@ def run_forward(
         raise ValueError("no navigation solution: the log has no usable IMU data after alignment")
     if nav.recording is not None:
         nav.recording.trim()
+    trim_heap()  # what the pass freed (its batches, the slices of the log) goes back
     return nav
 
 
