@@ -2,14 +2,15 @@
 temporary file and mapped, in memory only while they are read or written (a whole-run working
 array read in a few sweeps, the welds' magnetometer regressors, is let go between the sweeps:
 :func:`let_go`, ``madvise(MADV_DONTNEED)``; read again, its values come back from the file;
-the file's name is removed at once, its space goes with the mapping), and the C heap's free
-memory (:func:`trim_heap`).
+the file's name is removed at once, its space goes with the mapping), and the garbage in
+reference cycles and the C heap's free memory (:func:`trim_heap`).
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import gc
 import mmap
 import tempfile
 
@@ -48,10 +49,13 @@ def let_go(a: Array) -> None:
 
 
 def trim_heap() -> None:
-    """Give the C heap's free memory back to the system (glibc's ``malloc_trim``; nothing
-    elsewhere). The allocator keeps what numpy frees below its mmap threshold (batches of a
-    few MB); after the smoothing of the 100 km run that is some 0.3 GB, which the products
-    stages would otherwise have on top of their own."""
+    """Collect the garbage held in reference cycles (a finished pass's navigator and its
+    recording wait in one until Python's collector happens to run: at 100 km some 0.9 GB
+    after the smoothing), then give the C heap's free memory back to the system (glibc's
+    ``malloc_trim``; nothing elsewhere): the allocator keeps what numpy frees below its mmap
+    threshold (batches of a few MB), some 0.3 GB after the smoothing at 100 km, which the
+    products stages would otherwise have on top of their own."""
+    gc.collect()
     global _libc
     if _libc is None:
         try:

@@ -41,6 +41,7 @@ from pipe_nav_core.graph.solver import (
     whiteners,
 )
 from pipe_nav_core.model.state import Layout, layout_for
+from pipe_nav_core.smooth.forward import feed
 from pipe_nav_core.types import SensorLog, markers_sorted
 
 Array = NDArray[np.float64]
@@ -345,7 +346,7 @@ def graph_smooth(
             reverse=reverse, sink=stream,
         )  # fmt: skip
         try:
-            nav.run(log)
+            feed(nav, log, config, release=True)  # in slices: not the whole log copied at once
         except BaseException:
             stream.close()
             raise
