@@ -52,7 +52,7 @@ def converged():
         nav = run_forward(log, cfg, reference=X, odometer_exclude=ex)
         rec = nav.recording
         e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format, var_cols=rec.pose)
-        ex = find_slips(rec, smoothed_centreline(rec, e, var), cfg,
+        ex = find_slips(rec, smoothed_centreline(rec, e[:, rec.pose], var), cfg,
                         resolution=nav.odometer_resolution)  # fmt: skip
         X = smoothed_states(rec, e, lay)
     return run, log, cfg, lay, X, ex

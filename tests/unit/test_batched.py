@@ -24,3 +24,13 @@ def test_gradient_is_numpys_bit_for_bit(uniform, columns):
             == np.gradient(f[:m], t[:m], axis=0).tobytes()
         )
     assert batched.gradient(f[:1], t[:1]).tolist() == np.zeros((1, *columns)).tolist()
+
+
+def test_row_norms_in_batches_are_numpys():
+    """Row norms a few rows at a time (the IMU fault checks at field scale) are
+    np.linalg.norm's over the whole, bit for bit, across batch edges and for a last short one."""
+    a = np.random.default_rng(4).normal(size=(1000, 3)) * [1e-3, 9.81, 1e4]
+    whole = np.linalg.norm(a, axis=1)
+    for batch in (1, 7, 999, 1000, 4096):
+        assert batched.row_norms(a, batch).tobytes() == whole.tobytes()
+    assert batched.row_norms(np.zeros((0, 3))).shape == (0,)

@@ -173,7 +173,8 @@ def test_a_finished_pass_lets_go_of_its_spare_room():
     np.testing.assert_array_equal(rec.dx, [x[1] for x in epochs])
     assert not rec.x_upd.any() and rec.x_upd.shape == (300, layout.n)  # no copy: a view
     rec.close()
-    assert len(rec.dx) == 300  # the EKF's dx is its end_offset: kept
+    assert len(rec.dx) == 0  # the EKF's dx: its end_offset (pose columns) kept
+    assert rec.x_upd.shape == (300, layout.n) and len(rec.lin) == 300
 
     ref = np.array([x[0] for x in epochs])
     about = Recording(layout, reference=ref)
@@ -183,7 +184,87 @@ def test_a_finished_pass_lets_go_of_its_spare_room():
                         end_offset=dx)  # fmt: skip
     assert len(about._states._a) == 300  # no growing
     about.close()
-    assert len(about.dx) == 0
+    assert len(about.dx) == 0 and len(about.lin) == 300
     pose = np.r_[layout.pos, layout.att]  # of end_offset, only what the centreline needs
     np.testing.assert_array_equal(about.end_offset, [x[1][pose] for x in epochs])
     np.testing.assert_array_equal(rec.end_offset, [x[1][pose] for x in epochs])
+
+
+def _filled(layout: Layout, epochs, **kw) -> Recording:
+    """A recording about a reference of the given epochs, with five IMU samples a block."""
+    ref = np.array([x[0] for x in epochs])
+    ref[:, 0] = np.arange(len(epochs)) * 0.1  # the epochs' times, s
+    rec = Recording(layout, reference=ref, **kw)
+    rng = np.random.default_rng(7)
+    for k, (_, dx, P_upd, P_pred, phi) in enumerate(epochs):
+        rec.add_epoch(ref[k], dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi, x_upd=2.0 * dx,
+                      end_offset=-dx)  # fmt: skip
+        if k:
+            t = (k - 1) * 0.1 + np.arange(1, 6) * 0.02
+            q = rng.normal(size=(5, 4))
+            rec.add_blocks(np.array([4]), t, np.cumsum(rng.random(5)), 0.7 + 1e-7 * rng.random(5),
+                           0.2 + 1e-7 * rng.random(5), 100.0 + rng.random(5),
+                           q / np.linalg.norm(q, axis=1)[:, None])  # fmt: skip
+    return rec
+
+
+def _centreline_before(rec: Recording, e: np.ndarray, var: np.ndarray):
+    """smoothed_centreline as it was before it was made in the recording's own arrays (the
+    columns it returned: lat, lon, h, q, sigma_enu, sigma_att), for comparison."""
+    from pipe_nav_core.geo import attitude as att
+    from pipe_nav_core.geo import earth
+
+    cols = rec.pose
+    d_lin = rec.x_upd[:, cols] + e[:, cols]
+    d_end = d_lin + rec.end_offset
+    t_ep, t, k = rec.t, rec.s_t, rec.s_epoch
+    frac = (t - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
+    w0, w1 = (1.0 - frac)[:, None], frac[:, None]
+    corr = w0 * d_lin[k - 1] + w1 * d_end[k]
+    dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, :3], rec.s_lat, rec.s_h)
+    q = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(corr[:, 3:]), rec.s_q))
+    var_s = w0 * var[k - 1] + w1 * var[k]
+    sig = np.sqrt(np.maximum(var_s, 0.0))
+    return rec.s_lat + dlat, rec.s_lon + dlon, rec.s_h + dh, q, sig[:, :3], sig[:, 3:]
+
+
+def test_the_centreline_is_made_in_the_recordings_nominal():
+    """smoothed_centreline overwrites the recording's per-sample nominal with the centreline
+    (the recording has none after) and gives the bytes it gave when it made new arrays; a
+    recording for the centreline only (the graph's) keeps what it reads, the same bytes, and
+    packs no covariances."""
+    from pipe_nav_core.smooth.centreline import smoothed_centreline
+
+    layout = Layout("ins", gyro_errors=True)
+    epochs = _epochs(layout, 40)
+    whole = _filled(layout, epochs)
+    only = _filled(layout, epochs, centreline_only=True)
+    narrowed = _filled(layout, epochs)  # the last pass's, once smoothed
+    narrowed.keep_for_centreline()
+    assert narrowed.centreline_only and len(narrowed) == 40 and len(narrowed.s_odo) == 0
+    rng = np.random.default_rng(3)
+    e = rng.normal(size=(40, layout.n)) * 1e-3
+    var = rng.random((40, 6)) * 1e-4
+    before = _centreline_before(whole, e, var)
+    assert len(only) == len(whole) == 40 and len(only._packed) == 0
+    for name in ("t", "x_upd_pose", "end_offset", "s_t", "s_epoch", "s_lat", "s_q"):
+        assert getattr(only, name).tobytes() == getattr(whole, name).tobytes(), name
+    for name in ("states", "dx", "x_upd"):
+        with pytest.raises(ValueError, match="centreline only"):
+            getattr(only, name)
+    with pytest.raises(ValueError, match="centreline only"):
+        only.P_upd(0)
+    s_odo = whole.s_odo.copy()
+    for name in ("t", "x_upd_pose", "end_offset", "s_t", "s_epoch", "s_lat", "s_q"):
+        assert getattr(narrowed, name).tobytes() == getattr(whole, name).tobytes(), name
+    got = [smoothed_centreline(r, e[:, r.pose], var) for r in (whole, only, narrowed)]
+    for c in got:
+        cols = (c.lat, c.lon, c.h, c.quat_nb, c.sigma_enu, c.sigma_att)
+        for a, b in zip(cols, before):
+            assert a.tobytes() == b.tobytes()
+    assert len(whole.s_t) == len(whole.s_lat) == len(whole.s_q) == 0  # given up
+    assert whole.s_odo.tobytes() == s_odo.tobytes() and len(whole.s_epoch) == len(s_odo)
+    with pytest.raises(ValueError, match="about a reference"):
+        Recording(layout, centreline_only=True)
+    whole.close()
+    only.close()

@@ -75,6 +75,36 @@ def test_the_magnetometer_placed_on_the_centreline_in_batches_is_the_same(demo, 
     assert len(whole[0]) > 1000
 
 
+def test_the_regressors_kept_in_a_file_give_the_same_welds(demo, monkeypatch):
+    """At field scale the field fit's regressors wait in a file between the fits
+    (pipe_nav_core.memory): the residual, with and without welds left out of the fit, and the
+    welds are the same, bit for bit, and the regressors are in memory only while read."""
+    import mmap
+
+    from pipe_nav_core.products import welds
+
+    from pipe_nav_core import memory
+
+    run, res = demo
+    in_memory = [welds.mag_residual(run.log, res.centreline, exclude=ex, exclude_half=0.8)
+                 for ex in ((), (20.0, 57.5))]  # fmt: skip
+    found = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)
+    monkeypatch.setattr(welds, "MAPPED_X_BYTES", 0)
+    samples = welds._mag_samples(run.log, res.centreline)
+    assert samples is not None and isinstance(samples.x.base.base.obj, mmap.mmap)  # in a file
+    in_file = [welds.mag_residual(run.log, res.centreline, exclude=ex, exclude_half=0.8)
+               for ex in ((), (20.0, 57.5))]  # fmt: skip
+    for a, b in zip(in_memory, in_file):
+        assert all(u.tobytes() == v.tobytes() for u, v in zip(a, b))
+    again = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)
+    assert repr(again) == repr(found) and len(found) > 10
+    before = samples.x.copy()
+    memory.let_go(samples.x)  # the values come back from the file
+    assert samples.x.tobytes() == before.tobytes()
+    assert isinstance(memory.file_array((3, 2), 1 << 20), np.ndarray)  # small: in memory
+    assert not memory.file_array((3, 2), 1 << 20).any()
+
+
 def test_every_weld_found_at_its_chainage_none_false(demo):
     run, res = demo
     welds = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)

@@ -40,6 +40,7 @@ from pipe_nav_core.io import (
 from pipe_nav_core.io.atomic import all_or_none
 from pipe_nav_core.io.centreline import read_centreline_csv
 from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
+from pipe_nav_core.memory import trim_heap
 from pipe_nav_core.model import imu_noise as imu_model
 from pipe_nav_core.model.sensors import GRADES
 from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
@@ -158,6 +159,7 @@ def smooth_bag(
     log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
     require_imu(log, report, bag, topics)
     map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
+    trim_heap()  # what the reading freed (the decoded pieces, the checks' temporaries)
     if not log.markers:
         left = [w for w in report.warnings if w.startswith("marker ")]
         why = f" ({left[0]}{f' and {len(left) - 1} more' if len(left) > 1 else ''})" if left else ""
@@ -176,6 +178,7 @@ def smooth_bag(
         result = _smooth_segments(log, report, config, smooth, say)
     finally:
         drop_spare()  # the recordings' chunk arrays kept for the next pass
+        trim_heap()  # and what the passes freed: the products do not have it on top of theirs
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
     failures = [f"{d}: the centreline does not fit its markers"
@@ -197,6 +200,7 @@ def smooth_bag(
     def find_welds() -> None:
         if len(log.mag.t):
             say("girth welds")
+            trim_heap()  # what the bends and the writing freed
             found = welds.result() if welds is not None else run_welds(log, result, cfg)
             result.welds = found
             result.summary["welds"] = weld_summary(found)

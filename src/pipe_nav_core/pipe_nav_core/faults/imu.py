@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from pipe_nav_core import batched
 from pipe_nav_core.types import SensorLog
 
 MAX_ACCEL = 100.0  # m/s^2 (about 10 g) from gravity: beyond it, a shock
@@ -67,10 +68,12 @@ def find_imu_faults(log: SensorLog) -> tuple[np.ndarray, list[ImuFault]]:
     if n < 10:
         return np.zeros(n, bool), []
     sat = _flat_extremes(imu.gyro) | _flat_extremes(imu.accel)
-    g = np.median(np.linalg.norm(imu.accel, axis=1))
-    shock = (np.abs(np.linalg.norm(imu.accel, axis=1) - g) > MAX_ACCEL) | (
-        np.linalg.norm(imu.gyro, axis=1) > MAX_RATE
+    accel = batched.row_norms(imu.accel)
+    g = np.median(accel)
+    shock = (np.abs(np.subtract(accel, g, out=accel), out=accel) > MAX_ACCEL) | (
+        batched.row_norms(imu.gyro) > MAX_RATE
     )
+    del accel
     bad = sat | shock
     if not bad.any():
         return bad, []

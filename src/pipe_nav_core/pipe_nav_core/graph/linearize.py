@@ -48,9 +48,6 @@ Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 
 KIND_NAMES = np.array(measurements.KINDS, dtype=np.str_)  # the update kinds, by their index
-# bytes of the pass's packed covariances kept in memory when a sink takes the problem (the
-# rest spills to disk: only the per-sample nominal and the mean errors are read)
-SINK_RAM_BUDGET = 32 * 2**20
 
 
 class EpochSink(Protocol):
@@ -72,8 +69,8 @@ class FactorRecorder(Navigator):
     :meth:`problem` after :meth:`Navigator.run`, or, with a ``sink``, hands it over a batch of
     epochs at a time and keeps none of it. Its recording (``recording``) is the pass's, for
     the centreline at the IMU rate (:func:`pipe_nav_core.smooth.centreline.smoothed_centreline`);
-    with a sink its covariances are spilled to disk beyond SINK_RAM_BUDGET (nothing here reads
-    them)."""
+    with a sink it keeps only what the centreline is made of (``Recording`` centreline_only:
+    nothing here reads the pass's covariances, states or steps)."""
 
     def __init__(
         self,
@@ -94,7 +91,7 @@ class FactorRecorder(Navigator):
         self.sink = sink
         if sink is not None:
             self.report.recording = Recording(self.layout, reference=self.reference,
-                                              ram_budget=SINK_RAM_BUDGET)  # fmt: skip
+                                              centreline_only=True)  # fmt: skip
         K, n = (0 if sink is not None else len(reference)), self.layout.n
         # the rows of Phi that can differ from the identity's, and the rows of Qd that can be
         # more than diagonal: those of the attitude, velocity and position errors (the nonzero

@@ -51,11 +51,14 @@ from pipe_nav_core.graph.problem import (
     MeasurementFactor,
     whitener,
 )
-from pipe_nav_core.smooth.chunks import CHUNK_EPOCHS, RAM_BUDGET_BYTES, Chunks
+from pipe_nav_core.smooth.chunks import RAM_BUDGET_BYTES, Chunks
 
 Array = NDArray[np.float64]
 
 PIECE = 512  # epochs whose between-factors are whitened at once (bounds the temporaries)
+# epochs per chunk of the rows kept for back-substitution (a multiple of PIECE): 48 MB with 38
+# error states (4096 took 96 MB a chunk, and the store holds up to seven: 0.3 GB more at 100 km)
+STORE_EPOCHS = 4 * PIECE
 
 
 @dataclass
@@ -165,7 +168,7 @@ class Eliminator:
         self.K = 0  # epochs added
         self.cost0 = 0.0
         self.cost = 0.0
-        self._store = Chunks(2 * n * n + n, RAM_BUDGET_BYTES)  # R_kk, R_k,k+1, z_k
+        self._store = Chunks(2 * n * n + n, RAM_BUDGET_BYTES, STORE_EPOCHS)  # R_kk, R_k,k+1, z_k
         self._out = np.empty((PIECE, 2 * n * n + n))
         self._filled = 0
         self._Rt = np.zeros((n, n))
@@ -265,7 +268,7 @@ class Eliminator:
                 G = Ri @ piece[:, nn : 2 * nn].reshape(B, n, n)
                 d0 = np.einsum("bij,bj->bi", Ri, piece[:, 2 * nn :])
                 RRt = Ri @ np.swapaxes(Ri, 1, 2)
-                k0 = c * CHUNK_EPOCHS + a  # row j holds epoch k0 + j's (from step k0 + j + 1)
+                k0 = c * store.chunk_rows + a  # row j holds epoch k0 + j's (from step k0 + j + 1)
                 back_substitute_k(G, d0, RRt, S, delta, var, full_cov, k0)
         return ChainSolution(delta, var, self.cost0, self.cost, full_cov if full else None)
 

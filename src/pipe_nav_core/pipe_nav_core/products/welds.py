@@ -49,12 +49,17 @@ from numpy.typing import ArrayLike, NDArray
 from pipe_nav_core import batched
 from pipe_nav_core.geo.attitude import dcm_from_quat
 from pipe_nav_core.io.centreline import interpolate_trajectory
+from pipe_nav_core.memory import file_array, let_go
 from pipe_nav_core.products.windows import correlate, running_maximum, running_median
+from pipe_nav_core.smooth import logs
 from pipe_nav_core.types import Datum, SensorLog, Trajectory
 
 FloatArray = NDArray[np.float64]
 
 GRID_STEP_M = 0.05  # m, chainage bins of the magnetometer residual
+# regressors larger than this wait in a file between the fits (0.2 GB at 100 km, whose fits
+# without the welds' samples held them beside their own copy and LAPACK's)
+MAPPED_X_BYTES = 64 << 20
 BASELINE_M = 3.0  # m, running-median window of the slowly varying residual
 WIDTH_D = 1.0  # weld anomaly width (one sigma) in pipe diameters
 THRESHOLD_SNR = 6.0  # a weld on its own
@@ -126,7 +131,8 @@ def _robust_sigma(x: FloatArray) -> float:
 class _MagSamples(NamedTuple):
     """The magnetometer samples within the centreline, as the field fit takes them: field
     ``b`` (M, 3) T imu_link, the fit's regressors ``x`` (M, 10: C_nb at their times, row by
-    row, and 1) and chainage ``d`` (M,) m (non-decreasing)."""
+    row, and 1; over MAPPED_X_BYTES in a file, :mod:`pipe_nav_core.memory`, in memory only
+    while a fit reads them) and chainage ``d`` (M,) m (non-decreasing)."""
 
     b: FloatArray
     x: FloatArray
@@ -141,14 +147,17 @@ def _mag_samples(log: SensorLog, centreline: Trajectory) -> _MagSamples | None:
     keep = (mt >= t_c[0]) & (mt <= t_c[-1]) & np.isfinite(log.mag.field).all(axis=1)
     if keep.sum() < 20:
         return None
-    b = np.asarray(log.mag.field, dtype=np.float64)[keep]
-    mt = mt[keep]
-    x, d = np.ones((len(b), 10)), np.empty(len(b))
+    b = np.asarray(log.mag.field, dtype=np.float64)
+    if not keep.all():  # else the log's own samples (not copied: 0.06 GB at 100 km)
+        b, mt = b[keep], mt[keep]
+    x, d = file_array((len(b), 10), MAPPED_X_BYTES), np.empty(len(b))
     for a in range(0, len(b), batched.BATCH):  # in batches: the centreline's columns at the
         s = slice(a, a + batched.BATCH)  # 2.6 million samples of 100 km took 0.35 GB at once
         at = interpolate_trajectory(centreline, mt[s])
         x[s, :9] = dcm_from_quat(at.quat_nb).reshape(-1, 9)
+        x[s, 9] = 1.0
         d[s] = at.distance
+    let_go(x)
     return _MagSamples(b, x, np.maximum.accumulate(d))
 
 
@@ -184,13 +193,18 @@ def _residual(
         near = np.minimum(np.abs(d - ex[k]), np.abs(d - ex[np.maximum(k - 1, 0)]))
         fit = near > exclude_half
     whole = bool(fit.all())  # then no copies of the regressors (0.2 GB at 100 km)
-    coef, *_ = np.linalg.lstsq(x if whole else x[fit], b if whole else b[fit], rcond=1e-9)
+    x_fit = x if whole else x[fit]
+    if not whole:
+        let_go(x)  # (from its file) while the fit runs on its copy of the rows it takes
+    coef, *_ = np.linalg.lstsq(x_fit, b if whole else b[fit], rcond=1e-9)
+    del x_fit
     res_i = b - x @ coef
     r_bi = np.eye(3) if r_base_imu is None else np.asarray(r_base_imu, dtype=np.float64)
     res_n = np.empty_like(res_i)
     for a in range(0, len(b), batched.BATCH):  # in batches: bounded temporaries
         s = slice(a, a + batched.BATCH)
         res_n[s] = np.einsum("kij,kj->ki", c_nb[s] @ r_bi, res_i[s])
+    let_go(x)
     grid, res = _binned(d, res_n, GRID_STEP_M)
     size = max(3, int(round(BASELINE_M / GRID_STEP_M)) | 1)
     base = running_median(res, size)
@@ -227,17 +241,19 @@ def jolt_chainages(
         return np.empty(0)
     r_bi = np.eye(3) if r_base_imu is None else np.asarray(r_base_imu, dtype=np.float64)
     az = np.asarray(imu.accel, dtype=np.float64) @ r_bi[2]
+    logs.let_go(imu)  # read from a file (smooth.logs.map_imu): 0.33 GB at 100 km, read again
     dt = float(np.median(np.diff(imu.t)))
     size = max(3, int(round(JOLT_BASELINE_S / dt)) | 1)
-    dev = az - running_median(az, size)
-    del az
+    dev = np.subtract(az, running_median(az, size), out=az)  # az - its running median
     d = np.interp(imu.t, t_c, d_c)
     speed = batched.gradient(d, imu.t)  # np.gradient's values, without its temporaries
     moving = (speed > 0.05) & (imu.t > t_c[0]) & (imu.t < t_c[-1])
     del speed
     if moving.sum() < 10:
         return np.empty(0)
-    z = np.abs(dev) / _robust_sigma(dev[moving])
+    sigma = _robust_sigma(dev[moving])
+    z = np.abs(dev, out=dev)  # |dev| / sigma, in dev's memory
+    z /= sigma
     z[~moving] = 0.0
     peaks = _peaks(z, height=threshold, distance=max(1, int(round(0.2 / dt))))
     out: list[float] = []

@@ -85,35 +85,36 @@ class Parked:
         return self.result
 
 
-def smoothed_centreline(rec: Recording, e: Array, var: Array) -> Trajectory:
+def smoothed_centreline(rec: Recording, e_pose: Array, var: Array) -> Trajectory:
     """The smoothed corrections applied to the recorded per-sample nominal trajectory.
 
-    e (K, n): smoothed corrections to the filter's estimates, var (K, 6) the variances of its
-    columns ``rec.pose`` (position m^2, attitude rad^2); the correction relative to the
-    linearization point of epoch k is x_upd[k] + e[k]; a block's nominal starts on lin[k - 1] and
-    ends end_offset[k] short of lin[k]; in between the correction is interpolated in time.
+    e_pose (K, 6): the columns ``rec.pose`` (position m, attitude rad) of the smoothed
+    corrections to the filter's estimates, var (K, 6) their variances (m^2, rad^2); the
+    correction relative to the linearization point of epoch k is x_upd[k] + e[k]; a block's
+    nominal starts on lin[k - 1] and ends end_offset[k] short of lin[k]; in between the
+    correction is interpolated in time. The centreline is made in the recording's own
+    per-sample arrays (:meth:`Recording.take_nominal`): the recording has no nominal after.
     """
-    cols = rec.pose  # the corrections the centreline needs: position, attitude
     P, A = slice(0, 3), slice(3, 6)
-    d_lin = rec.x_upd[:, cols] + e[:, cols]
-    d_end = d_lin + rec.end_offset  # its columns are cols
-    if var.shape[1:] != (len(cols),):
-        raise ValueError(f"smoothed_centreline: var has {var.shape[1]} columns, not rec.pose's")
+    if e_pose.shape[1:] != (len(rec.pose),) or var.shape[1:] != (len(rec.pose),):
+        raise ValueError(f"smoothed_centreline: e_pose {e_pose.shape}, var {var.shape}: "
+                         f"not rec.pose's {len(rec.pose)} columns")  # fmt: skip
+    d_lin = rec.x_upd_pose + e_pose
+    d_end = d_lin + rec.end_offset  # its columns are pose's
     t_ep = rec.t
-    t = rec.s_t.copy()
+    k_of = rec.s_epoch
+    t, lat, lon, h, q = rec.take_nominal()  # the nominal, overwritten with the centreline
     N = len(t)
-    lat, lon, h = np.empty(N), np.empty(N), np.empty(N)
-    q = np.empty((N, 4))
     sig_p, sig_a = np.empty((N, 3)), np.empty((N, 3))
     for b in range(0, N, batched.BATCH):  # bounded temporaries
         s = slice(b, b + batched.BATCH)
-        k = rec.s_epoch[s]
+        k = k_of[s]
         frac = (t[s] - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
         w0, w1 = (1.0 - frac)[:, None], frac[:, None]
         corr = w0 * d_lin[k - 1] + w1 * d_end[k]
-        dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, P], rec.s_lat[s], rec.s_h[s])
-        lat[s], lon[s], h[s] = rec.s_lat[s] + dlat, rec.s_lon[s] + dlon, rec.s_h[s] + dh
-        q[s] = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(corr[:, A]), rec.s_q[s]))
+        dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, P], lat[s], h[s])
+        lat[s], lon[s], h[s] = lat[s] + dlat, lon[s] + dlon, h[s] + dh
+        q[s] = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(corr[:, A]), q[s]))
         var_s = w0 * var[k - 1] + w1 * var[k]
         sig_p[s] = np.sqrt(np.maximum(var_s[:, P], 0.0))
         sig_a[s] = np.sqrt(np.maximum(var_s[:, A], 0.0))

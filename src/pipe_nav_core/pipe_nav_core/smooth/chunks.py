@@ -74,9 +74,9 @@ _SPARE_LOCK = threading.Lock()
 READ_BUFFERS = 3  # chunks read back from disk that a caller may still be reading
 
 
-def _take(width: int) -> Array:
-    """A (CHUNK_EPOCHS, width) array: a spare one if there is one, else a new one."""
-    shape = (CHUNK_EPOCHS, width)
+def _take(rows: int, width: int) -> Array:
+    """A (rows, width) array: a spare one if there is one, else a new one."""
+    shape = (rows, width)
     with _SPARE_LOCK:
         spare = _SPARE.get(shape)
         if spare:
@@ -99,18 +99,20 @@ def drop_spare() -> None:
 
 
 class Chunks:
-    """Fixed-width float64 rows in chunks of CHUNK_EPOCHS rows; beyond budget bytes in
+    """Fixed-width float64 rows in chunks of ``rows`` rows (CHUNK_EPOCHS unless given: a wide
+    row, the graph eliminator's 23 kB, wants fewer); beyond budget bytes in
     memory the oldest full chunks are written to a temporary directory (in a background
     thread: the array stays in use until its file is complete, then serves a later chunk).
     Chunks read back from disk go into READ_BUFFERS buffers in turn: a caller holds at most the
     rows of the last ones it asked for (:func:`~pipe_nav_core.smooth.rts.rts_packed` reads one
     chunk ahead while the gains of the one before take the first row of the one after)."""
 
-    def __init__(self, width: int, budget: int) -> None:
+    def __init__(self, width: int, budget: int, rows: int | None = None) -> None:
         self.width = width
+        self.chunk_rows = CHUNK_EPOCHS if rows is None else rows
         self._chunks: list[Array | str] = []  # in memory, or the path of a spilled chunk
         self._n = 0
-        self._in_ram = max(2, budget // (CHUNK_EPOCHS * width * 8))  # chunks kept
+        self._in_ram = max(2, budget // (self.chunk_rows * width * 8))  # chunks kept
         self._oldest_in_ram = 0
         self._dir: str | None = None
         self._writer: ThreadPoolExecutor | None = None
@@ -126,15 +128,15 @@ class Chunks:
         out = []
         done = 0
         while done < count:
-            i, j = divmod(self._n, CHUNK_EPOCHS)
+            i, j = divmod(self._n, self.chunk_rows)
             if j == 0:
-                self._chunks.append(_take(self.width))
+                self._chunks.append(_take(self.chunk_rows, self.width))
                 if len(self._chunks) - self._oldest_in_ram > self._in_ram:
                     self._spill(self._oldest_in_ram)
                     self._oldest_in_ram += 1
             chunk = self._chunks[i]
             assert not isinstance(chunk, str)
-            take = min(count - done, CHUNK_EPOCHS - j)
+            take = min(count - done, self.chunk_rows - j)
             out.append((done, done + take, chunk[j : j + take]))
             done += take
             self._n += take
@@ -180,22 +182,22 @@ class Chunks:
                 c = hit[0][1]
             else:
                 full = len(self._read) == READ_BUFFERS
-                buf = self._read.pop(0)[1] if full else _take(self.width)
+                buf = self._read.pop(0)[1] if full else _take(self.chunk_rows, self.width)
                 with open(c, "rb") as f:
                     if f.readinto(memoryview(buf).cast("B")) != buf.nbytes:
                         raise OSError(f"{c}: a spilled chunk of the recording is cut short")
                 self._read.append((i, buf))
                 c = buf
-        return c[: min(CHUNK_EPOCHS, self._n - i * CHUNK_EPOCHS)]
+        return c[: min(self.chunk_rows, self._n - i * self.chunk_rows)]
 
     def rows(self, ks: Array) -> Array:
         """The rows of the given indices (B, width), in that order."""
         ks = np.asarray(ks, dtype=np.int64)
         out = np.empty((len(ks), self.width))
-        ci = ks // CHUNK_EPOCHS
+        ci = ks // self.chunk_rows
         for i in np.unique(ci):
             sel = ci == i
-            out[sel] = self.chunk(int(i))[ks[sel] - i * CHUNK_EPOCHS]
+            out[sel] = self.chunk(int(i))[ks[sel] - i * self.chunk_rows]
         return out
 
     @property

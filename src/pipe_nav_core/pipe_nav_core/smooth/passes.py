@@ -134,7 +134,7 @@ def smooth_log(
 
     if method == "forward":
         rec = nav.recording
-        e = np.zeros((len(rec), layout.n))
+        e = np.zeros((len(rec), len(rec.pose)))
         result = result_of(nav, smoothed_centreline(rec, e, rec.variances()[:, rec.pose]))
         result.summary.update(passes=1, passes_run=1)
         return result
@@ -173,7 +173,11 @@ def smooth_log(
         step_pos, step_att = step_size(rec, e, layout)
         converged = reference is not None and step_att < CONVERGED_RAD
         last = converged or it == n_pass - 1
-        centre = smoothed_centreline(rec, e, var)
+        e_pose = e[:, rec.pose]
+        if last and method != "graph":  # only its centreline is left to make (no next
+            del e  # reference, no slips): what that reads is kept
+            rec.keep_for_centreline()
+        centre = smoothed_centreline(rec, e_pose, var)
         result = result_of(nav, centre)
         result.summary["passes"] = it + 1
         if best is None or rejected <= best[0]:
@@ -224,12 +228,10 @@ def _graph_result(
 
     g = graph_smooth(log, cfg, start, odometer_exclude=exclude, reverse=reverse,
                      say=progress.stage)  # fmt: skip
-    rec = g.nav.recording
+    nav, rec = g.nav, g.nav.recording
     assert rec is not None
-    centre = smoothed_centreline(rec, g.corrections(), g.solution.var[:, rec.pose])
-    rec.close()
-    result = result_of(g.nav, centre)
-    result.summary.update(
+    e, var = g.corrections(), g.solution.var[:, rec.pose]
+    summary = dict(
         method="graph",
         passes=rts_passes,
         passes_run=rts_passes,
@@ -239,6 +241,11 @@ def _graph_result(
         graph_markers_downweighted=list(g.weighing.downweighted),
         graph_factors_gated=dict(g.weighing.gated),
     )
+    del g  # its solution and final states (0.5 GB at 100 km) before the centreline is made
+    centre = smoothed_centreline(rec, e, var)
+    rec.close()
+    result = result_of(nav, centre)
+    result.summary.update(summary)
     return result
 
 

@@ -1,0 +1,69 @@
+"""Memory given back to the system between the stages of a run: large arrays kept in a
+temporary file and mapped, in memory only while they are read or written (a whole-run working
+array read in a few sweeps, the welds' magnetometer regressors, is let go between the sweeps:
+:func:`let_go`, ``madvise(MADV_DONTNEED)``; read again, its values come back from the file;
+the file's name is removed at once, its space goes with the mapping), and the garbage in
+reference cycles and the C heap's free memory (:func:`trim_heap`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import gc
+import mmap
+import tempfile
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+def file_array(shape: tuple[int, ...], min_bytes: int) -> Array:
+    """A float64 array of ``shape``, zeros, in an unlinked temporary file mapped read-write when
+    it takes at least ``min_bytes`` bytes (and the temporary folder has room for it), else in
+    memory."""
+    size = int(np.prod(shape)) * 8
+    if size < max(min_bytes, 1):
+        return np.zeros(shape)
+    try:
+        with tempfile.TemporaryFile(prefix="pipe_nav_mapped_") as f:
+            f.truncate(size)
+            m = mmap.mmap(f.fileno(), size)  # shared: what is let go stays in the file
+    except OSError:  # no room for the file (a full or read-only temporary folder)
+        return np.zeros(shape)
+    return np.frombuffer(m, dtype=np.float64).reshape(shape)
+
+
+def let_go(a: Array) -> None:
+    """Give back the memory of an array from :func:`file_array` (its pages leave the process;
+    read again, they come back from the file). Nothing for an array in memory."""
+    m = a.base
+    while isinstance(m, np.ndarray):
+        m = m.base
+    if isinstance(m, memoryview):
+        m = m.obj
+    if isinstance(m, mmap.mmap):
+        m.madvise(mmap.MADV_DONTNEED)
+
+
+def trim_heap() -> None:
+    """Collect the garbage held in reference cycles (a finished pass's navigator and its
+    recording wait in one until Python's collector happens to run: at 100 km some 0.9 GB
+    after the smoothing), then give the C heap's free memory back to the system (glibc's
+    ``malloc_trim``; nothing elsewhere): the allocator keeps what numpy frees below its mmap
+    threshold (batches of a few MB), some 0.3 GB after the smoothing at 100 km, which the
+    products stages would otherwise have on top of their own."""
+    gc.collect()
+    global _libc
+    if _libc is None:
+        try:
+            _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        except OSError:
+            _libc = False
+    if _libc and hasattr(_libc, "malloc_trim"):
+        _libc.malloc_trim(0)
+
+
+_libc: ctypes.CDLL | bool | None = None  # the C library, once loaded (False: none)
