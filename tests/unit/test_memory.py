@@ -28,3 +28,14 @@ def test_trimming_the_heap_keeps_live_arrays():
     memory.trim_heap()
     memory.trim_heap()  # twice: the C library is loaded once
     assert all(np.all(a == k) for k, a in enumerate(keep))
+
+
+def test_limiting_the_arenas_before_threads_start_keeps_allocating():
+    """limit_arenas (glibc M_ARENA_MAX, what the command line sets first) leaves numpy
+    allocating and freeing as before, from threads too."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    memory.limit_arenas(2)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        sums = list(pool.map(lambda k: float(np.full(1 << 16, float(k)).sum()), range(8)))
+    assert sums == [float(k << 16) for k in range(8)]
