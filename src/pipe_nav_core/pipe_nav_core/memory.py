@@ -55,8 +55,7 @@ def limit_arenas(arenas: int = ARENAS) -> None:
     """Let the C allocator use at most ``arenas`` heaps (glibc's ``M_ARENA_MAX``; nothing
     elsewhere), before the process starts its threads: by default each thread that allocates
     while another does gets a heap of its own (up to 8 per core), and what one frees the
-    others do not reuse. The 100 km smooth with 2: 1926836 -> 1769612 kB peak, 285 -> 219 s,
-    the same outputs."""
+    others do not reuse (BENCHMARKS.md: the 100 km run's peak)."""
     global _libc
     if _libc is None:
         try:
