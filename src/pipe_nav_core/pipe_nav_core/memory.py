@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import gc
 import mmap
 import tempfile
@@ -56,14 +57,9 @@ def limit_arenas(arenas: int = ARENAS) -> None:
     elsewhere), before the process starts its threads: by default each thread that allocates
     while another does gets a heap of its own (up to 8 per core), and what one frees the
     others do not reuse (BENCHMARKS.md: the 100 km run's peak)."""
-    global _libc
-    if _libc is None:
-        try:
-            _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        except OSError:
-            _libc = False
-    if _libc and hasattr(_libc, "mallopt"):
-        _libc.mallopt(-8, int(arenas))  # M_ARENA_MAX
+    libc = _c_library()
+    if libc is not None and hasattr(libc, "mallopt"):
+        libc.mallopt(-8, int(arenas))  # M_ARENA_MAX
 
 
 def trim_heap() -> None:
@@ -74,14 +70,15 @@ def trim_heap() -> None:
     threshold (batches of a few MB), some 0.3 GB after the smoothing at 100 km, which the
     products stages would otherwise have on top of their own."""
     gc.collect()
-    global _libc
-    if _libc is None:
-        try:
-            _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        except OSError:
-            _libc = False
-    if _libc and hasattr(_libc, "malloc_trim"):
-        _libc.malloc_trim(0)
+    libc = _c_library()
+    if libc is not None and hasattr(libc, "malloc_trim"):
+        libc.malloc_trim(0)
 
 
-_libc: ctypes.CDLL | bool | None = None  # the C library, once loaded (False: none)
+@functools.cache
+def _c_library() -> ctypes.CDLL | None:
+    """The C library, loaded once (None where there is none to load)."""
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    except OSError:
+        return None
