@@ -81,7 +81,7 @@ def feed(
     recording (if any) reserved for the pass's expected counts up front and trimmed after;
     ``release``: the memory of log samples mapped from a file is let go of slice by slice
     (fed whole, a navigator copies every sample at once: at 100 km 0.6 GB, beside the 0.6 GB
-    of the mapped samples read)."""
+    of the mapped samples read), and the heap trimmed after (:func:`memory.trim_heap`)."""
     if nav.recording is not None and len(log.imu) >= 2:
         nav.recording.reserve(*expected_counts(log, config))
     if len(log.imu) < 2:
@@ -98,7 +98,9 @@ def feed(
                 let_go(log.imu, edges[i + 1])
     if nav.recording is not None:
         nav.recording.trim()
-    trim_heap()  # what the pass freed (its batches, the slices of the log) goes back
+    if release:  # a whole-run pass: what it freed (its batches, the log's slices) goes back
+        trim_heap()  # (not after the short passes of the heading search: the live node runs
+        # them at its re-anchoring, where a collection would stall it)
 
 
 def expected_counts(log: SensorLog, config: NavConfig) -> tuple[int, int]:
