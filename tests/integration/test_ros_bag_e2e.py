@@ -216,18 +216,21 @@ def stand_still(proc: LoggedProcess, delay: float) -> None:
 def wait_until_received(
     ros2: str, env: dict[str, str], sent: dict[str, int], timeout: float = 90.0
 ) -> None:
-    """Until ekf_node's /diagnostics (on wall time) count every sent sample received: a node
-    that stood still works through its backlog after the player has ended, and ~/finish before
-    that would start a new run with the rest (a marker in it: a second datum)."""
+    """Until ekf_node's /diagnostics (on wall time) count every sent sample received, or the
+    counts stop moving (the assertions after judge what is missing): a node that stood still
+    works through its backlog after the player has ended, and ~/finish before that would
+    start a new run with the rest (a marker in it: a second datum)."""
     deadline = time.monotonic() + timeout
-    values: dict[str, str] = {}
+    before: dict[str, str] = {}
     while time.monotonic() < deadline:
         echo = subprocess.run([ros2, "topic", "echo", "--once", "/diagnostics"],
                               capture_output=True, text=True, timeout=60.0, env=env)  # fmt: skip
-        values.update(re.findall(r"key: (engine\.received_\w+)\s+value: '?(\d+)", echo.stdout))
+        values = dict(re.findall(r"key: (engine\.received_\w+)\s+value: '?(\d+)", echo.stdout))
         if all(int(values.get(f"engine.received_{k}", -1)) >= n for k, n in sent.items()):
             return
-    raise AssertionError(f"ekf_node did not receive every sample in {timeout} s: {values}")
+        if values and values == before:
+            return  # drained short of the sent counts: the test's assertions say what is lost
+        before = values
 
 
 def test_bag_play_into_ekf_node_recorded_matches_pipe_nav_replay(tmp_path, procs):
