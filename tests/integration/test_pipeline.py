@@ -121,6 +121,8 @@ def test_the_imu_read_from_a_file_changes_no_output(tmp_path, monkeypatch):
     from pipe_nav_core.app.outputs import Outputs
     from pipe_nav_core.smooth import logs
 
+    from pipe_nav_core import memory
+
     sample = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
     names = ("o.mcap", "o.csv", "o_bends.csv", "o_strain.csv", "o_welds.csv")
 
@@ -140,7 +142,7 @@ def test_the_imu_read_from_a_file_changes_no_output(tmp_path, monkeypatch):
 
     def spy(imu):
         real(imu)
-        read.append(logs._mapping(imu.accel) is not None)
+        read.append(memory.mapping(imu.accel) is not None)
 
     monkeypatch.setattr(pipeline, "map_imu", spy)
     assert run(tmp_path / "mapped") == plain

@@ -132,6 +132,8 @@ def test_the_imu_read_from_a_file_gives_the_same_result(monkeypatch):
     log's samples have the same values, and their memory can be let go of."""
     from pipe_nav_core.smooth import forward, logs
 
+    from pipe_nav_core import memory
+
     run = simulate(get_scenario("demo"), seed=2)
     cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
     imu = run.log.imu
@@ -149,7 +151,7 @@ def test_the_imu_read_from_a_file_gives_the_same_result(monkeypatch):
     monkeypatch.setattr(forward, "SLICE_MIN_S", 10.0)  # several slices a pass
     monkeypatch.setattr(forward, "let_go", spy)
     again = smooth_log(run.log, cfg, method="rts", iterations=2)
-    assert not imu.gyro.flags.writeable and logs._mapping(imu.gyro) is not None
+    assert not imu.gyro.flags.writeable and memory.mapping(imu.gyro) is not None
     assert len(released) > 10  # slice by slice, in every pass
     for name in ("t", "lat", "lon", "h", "vel_n", "quat_nb", "distance", "sigma_enu"):
         assert (
@@ -164,6 +166,8 @@ def test_no_room_for_the_imu_file_leaves_it_in_memory(monkeypatch):
 
     from pipe_nav_core.smooth import logs
 
+    from pipe_nav_core import memory
+
     def full(*_args, **_kwargs):
         raise OSError(28, "No space left on device")
 
@@ -172,7 +176,7 @@ def test_no_room_for_the_imu_file_leaves_it_in_memory(monkeypatch):
     monkeypatch.setattr(tempfile, "TemporaryFile", full)
     gyro = imu.gyro
     logs.map_imu(imu)
-    assert imu.gyro is gyro and logs._mapping(imu.gyro) is None
+    assert imu.gyro is gyro and memory.mapping(imu.gyro) is None
 
 
 def test_pipe_nav_smooth_runs_the_passes_until_converged():

@@ -40,13 +40,25 @@ def file_array(shape: tuple[int, ...], min_bytes: int) -> Array:
 def let_go(a: Array) -> None:
     """Give back the memory of an array from :func:`file_array` (its pages leave the process;
     read again, they come back from the file). Nothing for an array in memory."""
-    m = a.base
-    while isinstance(m, np.ndarray):
-        m = m.base
-    if isinstance(m, memoryview):
-        m = m.obj
-    if isinstance(m, mmap.mmap):
+    m = mapping(a)
+    if m is not None:
         m.madvise(mmap.MADV_DONTNEED)
+
+
+def mapping(a: Array) -> mmap.mmap | None:
+    """The file mapping whose memory ``a`` is, from its start (None for other arrays)."""
+    base = root(a)
+    view = base.base
+    m = view.obj if isinstance(view, memoryview) else view
+    return m if isinstance(m, mmap.mmap) and base.ctypes.data == a.ctypes.data else None
+
+
+def root(a: Array) -> Array:
+    """The array at the end of ``a``'s chain of views (``a`` itself when it has its own memory
+    or views a buffer that is not an array)."""
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a
 
 
 ARENAS = 2  # C heaps (glibc arenas) a command line process allocates from

@@ -190,7 +190,7 @@ def bridge_feature(b: Mapping[str, float]) -> dict[str, object]:
 
 def json_text(doc: object) -> str:
     """``doc`` as compact JSON and a newline. json.dumps, not json.dump: dump streams through
-    the pure-Python encoder, five times slower on a centreline's coordinates (the same text)."""
+    the pure-Python encoder, many times slower on a centreline's coordinates (the same text)."""
     return json.dumps(doc, separators=(",", ":"), allow_nan=False) + "\n"
 
 

@@ -11,6 +11,7 @@ import tempfile
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core.memory import mapping, root
 from pipe_nav_core.types import (
     ImuSamples,
     MagSamples,
@@ -71,7 +72,7 @@ def map_imu(imu: ImuSamples) -> None:
     arrays = (imu.t, imu.gyro, imu.accel)
     if not len(imu) or sum(a.nbytes for a in arrays) < MAP_IMU_BYTES:
         return
-    if any(_mapping(a) is not None for a in arrays) or not all(map(_whole, arrays)):
+    if any(mapping(a) is not None for a in arrays) or not all(map(_whole, arrays)):
         return
     mapped = []
     try:
@@ -90,7 +91,7 @@ def let_go(imu: ImuSamples, before: float = math.inf) -> None:
     """Give back the memory of the mapped samples (:func:`map_imu`) stamped before ``before``
     (s; all by default): read again, they come back from the file."""
     arrays = (imu.t, imu.gyro, imu.accel)
-    maps = [_mapping(a) for a in arrays]
+    maps = [mapping(a) for a in arrays]
     if any(m is None for m in maps):
         return
     rows = len(imu) if before == math.inf else int(np.searchsorted(imu.t, before))
@@ -101,22 +102,6 @@ def let_go(imu: ImuSamples, before: float = math.inf) -> None:
             m.madvise(mmap.MADV_DONTNEED, 0, size)
 
 
-def _mapping(a: NDArray[np.float64]) -> mmap.mmap | None:
-    """The file mapping whose memory a is, from its start (None for other arrays)."""
-    base = _root(a)
-    view = base.base
-    m = view.obj if isinstance(view, memoryview) else view
-    return m if isinstance(m, mmap.mmap) and base.ctypes.data == a.ctypes.data else None
-
-
 def _whole(a: NDArray[np.float64]) -> bool:
     """Whether a is contiguous and all of the memory it views (its own, or a reshape's)."""
-    return a.flags.c_contiguous and _root(a).nbytes == a.nbytes
-
-
-def _root(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The array at the end of a's chain of views (a itself when it has its own memory or
-    views a buffer that is not an array)."""
-    while isinstance(a.base, np.ndarray):
-        a = a.base
-    return a
+    return a.flags.c_contiguous and root(a).nbytes == a.nbytes

@@ -320,7 +320,8 @@ class Recording:
             return
         self.close()
         t, x_pose = self.t.copy(), self.x_upd_pose  # (x_upd_pose: a copy)
-        self._states, self._x_upd, self._dx = Growable(capacity=1), Growable((6,), capacity=1), None
+        self._states, self._dx = Growable(capacity=1), None
+        self._x_upd = Growable((len(self.pose),), capacity=1)
         self._states.extend(t)
         self._x_upd.extend(x_pose)
         self._s["odo"] = Growable(capacity=1)
