@@ -421,6 +421,54 @@ def test_a_topic_arriving_behind_the_others_loses_nothing(run, config):
     np.testing.assert_allclose(positions(odometry), positions(reference), atol=1e-9)
 
 
+def in_turns(messages, stall_s):
+    """The messages as a node stalled from ``stall_s`` on takes them: in stamp order before it,
+    then one per topic in turn from each topic's queue (an executor's round)."""
+    before = [m for m in messages if m[0] < stall_s]
+    queues = {role: [m for m in messages if m[1] == role and m[0] >= stall_s]
+              for role in INPUT_TOPICS}  # fmt: skip
+    after = []
+    while any(queues.values()):
+        for q in queues.values():
+            if q:
+                after.append(q.pop(0))
+    return before + after
+
+
+def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing(run, config):
+    """From 20 s on, the queues taken a message per topic per round (a node that was stalled
+    catching up): the 200 Hz IMU falls tens of seconds of stamp time behind the odometer. It is
+    the IMU's backlog, not a clock that went back: no restart, a single datum, every sample
+    used, and the estimates are those of the run in stamp order (up to 60 s: the next marker,
+    at 62 s, would come in the first round, ahead of the data)."""
+    messages = input_messages(run, t_end=60.0)
+    reference, _ = clean_estimates(run, config, messages)
+    core = EkfCore(config, TYPES)
+    odometry, datums = feed(core, in_turns(messages, 20.0))
+    assert len(datums) == 1 and core.resets == 1  # the finish()
+    assert all(sum(c.faults.values()) == 0 for c in core.counters.values())
+    assert len(odometry) == len(reference)
+    np.testing.assert_allclose(positions(odometry), positions(reference), atol=1e-9)
+
+
+def test_a_backlog_beyond_the_wait_is_dropped_not_a_restart(run, config):
+    """The IMU arriving ever further behind the others, past what the engine waits for
+    (MAX_BACKLOG_S): its late samples are dropped and named, and the estimator never restarts
+    (each sample still comes after its own topic's previous one)."""
+    messages = input_messages(run, t_end=110.0)
+    lag = lambda t, role: min(20.0 * max(t - 12.0, 0.0), 70.0) if role == "imu" else 0.0  # noqa: E731
+    behind = sorted(messages, key=lambda m: m[0] + lag(m[0], m[1]))
+    core = EkfCore(config, TYPES)
+    datums, named = 0, 0
+    for _, role, msg in behind:
+        core.on_message(INPUT_TOPICS[role], msg)
+        datums += core.poll().datum is not None
+        named += "behind the other inputs (a backlog" in core.counters["imu"].last_problem
+    assert core.resets == 0 and datums == 1
+    assert core.counters["imu"].faults["stamp_past"] > 100 and named > 100
+    assert not any(core.counters[r].faults["stamp_past"] for r in ("odometer", "mag"))
+
+
 def test_bursts_are_counted_from_the_sent_times():
     core = EkfCore(NavConfig(), TYPES)
     n = 3000

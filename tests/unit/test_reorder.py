@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from pipe_nav_core.filter.stream import HOLD_S, Released, ReorderBuffer
+from pipe_nav_core.filter.stream import (
+    HOLD_S,
+    MAX_BACKLOG_S,
+    SILENT_PUSHES,
+    Released,
+    ReorderBuffer,
+)
 
 WINDOW = 0.5  # s
 
@@ -58,7 +64,7 @@ def test_a_topic_behind_the_others_is_waited_for():
     out = play(buf, items)
     assert not buf.late
     assert_in_stamp_order(out, items)
-    no_wait = ReorderBuffer(WINDOW, hold=WINDOW)  # the window alone
+    no_wait = ReorderBuffer(WINDOW, hold=WINDOW, backlog=WINDOW)  # the window alone
     play(no_wait, items)
     assert no_wait.late["imu"] > 1000
 
@@ -98,6 +104,54 @@ def test_a_silent_topic_holds_nothing_back():
             assert buf.horizon == mag[-1]
     assert released[-1][0] >= 19.0
     assert not buf.push(10.0, "mag", None) and buf.late["mag"] == 1
+
+
+def round_robin(
+    stamps: dict[str, np.ndarray], stall: tuple[float, float]
+) -> list[tuple[float, str]]:
+    """(stamp, kind) in the order a node stalled over ``stall`` (s of stamp time) takes them:
+    in stamp order before it; from its end on, one message per topic in turn from each topic's
+    queue (an executor's round) until every queue is empty."""
+    before = sorted((t, k) for k, ts in stamps.items() for t in ts if t < stall[0])
+    queues = {k: [t for t in ts if t >= stall[0]] for k, ts in stamps.items()}
+    after = []
+    while any(queues.values()):
+        for k, q in queues.items():
+            if q:
+                after.append((q.pop(0), k))
+    return before + after
+
+
+def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing():
+    """A 30 s stall, then the queues taken a message per topic per round: the 200 Hz IMU falls
+    behind the 50 Hz odometer by over HOLD_S (up to 3/4 of the backlog), and is waited for
+    because it keeps arriving; nothing is late and everything leaves in stamp order."""
+    stamps = {"imu": np.arange(0, 40, 0.005), "odometer": np.arange(0.001, 40, 0.02),
+              "mag": np.arange(0.002, 40, 0.02)}  # fmt: skip
+    items = round_robin(stamps, (10.0, 40.0))
+    newest, worst = -np.inf, 0.0
+    for t, k in items:
+        newest = max(newest, t)
+        worst = max(worst, newest - t if k == "imu" else 0.0)
+    assert HOLD_S < worst < MAX_BACKLOG_S
+    buf = ReorderBuffer(WINDOW)
+    out = play(buf, items)
+    assert not buf.late
+    assert_in_stamp_order(out, items)
+    hold_only = ReorderBuffer(WINDOW, backlog=HOLD_S)  # the stamp hold alone
+    play(hold_only, items)
+    assert hold_only.late["imu"] > 1000 and not hold_only.late["odometer"]
+
+
+def test_a_silent_topic_far_behind_is_not_waited_for():
+    """The magnetometer stops while within MAX_BACKLOG_S: once SILENT_PUSHES samples of the
+    others came after its last, only the stamp hold keeps it (as any silent topic)."""
+    buf = ReorderBuffer(WINDOW)
+    buf.push(0.0, "mag", None)
+    for i in range(SILENT_PUSHES + 1):
+        buf.push(HOLD_S + 1.0 + 0.01 * i, "imu", None)
+        buf.release()
+    assert buf.horizon == HOLD_S + 1.0 + 0.01 * SILENT_PUSHES - WINDOW
 
 
 def test_markers_do_not_hold_the_release():

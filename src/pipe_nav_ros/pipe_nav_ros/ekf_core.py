@@ -23,8 +23,12 @@ input under a stable name (``FAULT_KINDS``; in /diagnostics ``<input>.fault.<kin
   its stamp (a survey published in advance).
 - ``stamp_past``: a stamp not after the previous one of the same sensor, or older than what the
   engine already processed (its reorder horizon): dropped. ``JUMP_CONFIRM`` consecutive samples
-  that agree with one another and lie over ``max_stamp_lead_s`` behind the data are a clock that
-  went back (a bag played again): the estimator restarts on them (counted in ``resets``).
+  that agree with one another and lie over ``max_stamp_lead_s`` behind the data and behind their
+  own input's previous stamp are a clock that went back (a bag played again): the estimator
+  restarts on them (counted in ``resets``). A sample after its input's previous one but behind
+  the data is that input's backlog (a stalled node takes its queues a message per topic in turn,
+  so its fastest input falls behind): the engine waits for it (stream.MAX_BACKLOG_S), and one
+  beyond that is dropped, never taken for a clock that went back.
 - ``covariance``: a covariance array of the wrong size, not finite, or with a negative
   variance (the Imu ``-1`` "not provided" flag excepted). IMU, odometer and magnetometer
   covariances are not used (the noise model comes from ``imu_grade``): the sample is kept; a
@@ -424,6 +428,15 @@ class EkfCore:
         if ref > -math.inf and t > ref + lead:
             return self._off_clock(c, role, t, args, 1)
         if ref > -math.inf and t < ref - lead and t <= horizon:
+            if t > self._last_stamp[role]:  # its own stream goes on: a backlog, not a clock
+                c.faults["stamp_past"] += 1
+                self._problem(
+                    c,
+                    role,
+                    f"stamp_past: stamp {t:.6f} s, {t - ref:+.3f} s behind the other inputs "
+                    "(a backlog longer than the engine waits for): dropped",
+                )
+                return False
             return self._off_clock(c, role, t, args, -1)
         if t <= self._last_stamp[role] or t <= horizon:
             c.faults["stamp_past"] += 1

@@ -8,6 +8,10 @@ a backlog (a node that fell behind, a driver with a longer latency) one topic's 
 reach the buffer over ``window`` after another's of the same stamps. So a sample is also held
 until every stream (``STREAMS``) still sending has passed its stamp: only a stream silent for
 over ``hold`` seconds of stamp time (a dropout, a sensor that is not there) holds nothing back.
+A stream further behind than ``hold`` is still waited for, up to ``MAX_BACKLOG_S``, while its
+samples keep arriving (one among the last ``SILENT_PUSHES`` pushed): a node that was stalled
+takes its queues one message per topic in turn, so the fastest topic falls behind the others by
+most of the stall's worth of stamp time, and still arrives every few messages.
 The released order, and so every result, is the same; what changes is only when samples leave,
 and which ones would otherwise be late.
 """
@@ -20,7 +24,9 @@ from collections import defaultdict
 from typing import Any
 
 STREAMS = ("imu", "odometer", "mag")  # the kinds whose stamps come steadily (not markers)
-HOLD_S = 5.0  # s of stamp time a lagging stream is waited for at most
+HOLD_S = 5.0  # s of stamp time a lagging stream is waited for, arriving or not
+MAX_BACKLOG_S = 60.0  # s of stamp time a lagging stream is waited for while it arrives
+SILENT_PUSHES = 100  # a stream not among this many latest pushes is not arriving
 
 Released = dict[str, tuple[list[float], list[Any]]]  # per kind: stamps (s) and payloads
 
@@ -30,21 +36,24 @@ class ReorderBuffer:
 
     window: s, how far behind the newest stamp a sample may arrive; hold: s, how far a
     lagging stream's newest stamp may be behind the newest of all and still hold the release
-    back (see the module docstring).
+    back; backlog: s, as hold for a stream still arriving (see the module docstring).
 
     Each kind is kept in its own stamp-sorted list (a sample arriving in its kind's order,
     the common case, is appended) and released per kind: every sample of one release is
     stamped at or before every sample of the next.
     """
 
-    def __init__(self, window: float, hold: float = HOLD_S) -> None:
+    def __init__(self, window: float, hold: float = HOLD_S, backlog: float = MAX_BACKLOG_S) -> None:
         self.window = float(window)
         self.hold = max(float(hold), self.window)
+        self.backlog = max(float(backlog), self.hold)
         self._t: defaultdict[str, list[float]] = defaultdict(list)  # s, per kind, sorted
         self._p: defaultdict[str, list[Any]] = defaultdict(list)  # payloads, as _t
         self._held = 0
         self.newest = -math.inf
         self._newest_of = dict.fromkeys(STREAMS, -math.inf)  # s, per stream
+        self._pushes = 0  # samples pushed so far
+        self._arrived = dict.fromkeys(STREAMS, 0)  # per stream, self._pushes at its latest
         self.horizon = -math.inf  # everything stamped at or before it has been released
         self.late: dict[str, int] = defaultdict(int)
 
@@ -62,6 +71,9 @@ class ReorderBuffer:
             ts.append(t)
             self._p[kind].append(payload)
         self._held += 1
+        self._pushes += 1
+        if kind in self._arrived:
+            self._arrived[kind] = self._pushes
         if t > self.newest:
             self.newest = t
         if kind in self._newest_of and t > self._newest_of[kind]:
@@ -88,9 +100,12 @@ class ReorderBuffer:
     def _cutoff(self) -> float:
         """s: the stamp up to which samples may leave (module docstring)."""
         cutoff = self.newest - self.window
-        lagging = self.newest - self.hold
-        for t in self._newest_of.values():
-            if lagging <= t < cutoff:
+        lagging, backlog = self.newest - self.hold, self.newest - self.backlog
+        for kind, t in self._newest_of.items():
+            if t < cutoff and (
+                t >= lagging
+                or (t >= backlog and self._pushes - self._arrived[kind] <= SILENT_PUSHES)
+            ):
                 cutoff = t
         return cutoff
 
