@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from pipe_nav_core.filter.stream import (
     HOLD_S,
     MAX_BACKLOG_S,
-    SILENT_PUSHES,
+    SILENT_S,
     Released,
     ReorderBuffer,
 )
@@ -87,15 +87,30 @@ def test_a_topic_out_of_its_own_order_leaves_sorted():
     assert buf.release(flush=True)["imu"] == ([0.9, 0.9, 1.0, 1.0], ["b", "d", "a", "c"])
 
 
+class LiveClock:
+    """Wall time (s) that runs with the stamps, as it does live: set to each pushed stamp."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
 def test_a_silent_topic_holds_nothing_back():
     """The magnetometer stops at 5 s: from HOLD_S later on samples leave as if it were not
-    there (at most HOLD_S of latency); one arriving after that is late."""
-    buf = ReorderBuffer(WINDOW)
+    there (at most HOLD_S of latency, SILENT_S no longer than it); one arriving after that
+    is late."""
+    assert SILENT_S <= HOLD_S
+    clock = LiveClock()
+    buf = ReorderBuffer(WINDOW, clock=clock)
     mag = np.arange(0, 5, 0.05)
     for t in mag:
+        clock.now = t
         buf.push(t, "mag", None)
     released = []
     for t in np.arange(0, 20, 0.01):
+        clock.now = max(clock.now, t)
         buf.push(t, "imu", None)
         released += taken(buf.release())
         if t > mag[-1] + HOLD_S:
@@ -125,7 +140,8 @@ def round_robin(
 def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing():
     """A 30 s stall, then the queues taken a message per topic per round: the 200 Hz IMU falls
     behind the 50 Hz odometer by over HOLD_S (up to 3/4 of the backlog), and is waited for
-    because it keeps arriving; nothing is late and everything leaves in stamp order."""
+    because it keeps arriving (wall time hardly moves here); nothing is late and everything
+    leaves in stamp order."""
     stamps = {"imu": np.arange(0, 40, 0.005), "odometer": np.arange(0.001, 40, 0.02),
               "mag": np.arange(0.002, 40, 0.02)}  # fmt: skip
     items = round_robin(stamps, (10.0, 40.0))
@@ -143,15 +159,25 @@ def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing():
     assert hold_only.late["imu"] > 1000 and not hold_only.late["odometer"]
 
 
-def test_a_silent_topic_far_behind_is_not_waited_for():
-    """The magnetometer stops while within MAX_BACKLOG_S: once SILENT_PUSHES samples of the
-    others came after its last, only the stamp hold keeps it (as any silent topic)."""
-    buf = ReorderBuffer(WINDOW)
-    buf.push(0.0, "mag", None)
-    for i in range(SILENT_PUSHES + 1):
-        buf.push(HOLD_S + 1.0 + 0.01 * i, "imu", None)
+def test_a_topic_far_behind_is_waited_for_while_it_arrives():
+    """The IMU 20 s of stamp time behind the odometer (past HOLD_S): waited for while its
+    samples keep coming, and no longer once it has been silent for SILENT_S of wall time."""
+    clock = LiveClock()
+    buf = ReorderBuffer(WINDOW, clock=clock)
+    buf.push(0.0, "imu", None)
+    for t in np.arange(0.0, 20.0, 0.02):
+        buf.push(t, "odometer", None)
         buf.release()
-    assert buf.horizon == HOLD_S + 1.0 + 0.01 * SILENT_PUSHES - WINDOW
+    assert buf.horizon == 0.0  # the IMU arrived at wall time 0: still arriving
+    clock.now = SILENT_S + 0.1
+    buf.push(20.0, "odometer", None)
+    buf.release()
+    assert buf.horizon == 20.0 - WINDOW
+    far = ReorderBuffer(WINDOW, clock=clock)  # past MAX_BACKLOG_S, arriving or not
+    far.push(0.0, "imu", None)
+    far.push(MAX_BACKLOG_S + 1.0, "odometer", None)
+    far.release()
+    assert far.horizon == MAX_BACKLOG_S + 1.0 - WINDOW
 
 
 def test_markers_do_not_hold_the_release():

@@ -26,9 +26,10 @@ input under a stable name (``FAULT_KINDS``; in /diagnostics ``<input>.fault.<kin
   that agree with one another and lie over ``max_stamp_lead_s`` behind the data and behind their
   own input's previous stamp are a clock that went back (a bag played again): the estimator
   restarts on them (counted in ``resets``). A sample after its input's previous one but behind
-  the data is that input's backlog (a stalled node takes its queues a message per topic in turn,
-  so its fastest input falls behind): the engine waits for it (stream.MAX_BACKLOG_S), and one
-  beyond that is dropped, never taken for a clock that went back.
+  the data is that input's backlog (behind a stalled node each topic's backlog comes back at
+  its own pace, the fastest one last): the engine waits for it while it arrives
+  (filter.stream.MAX_BACKLOG_S), and one beyond that is dropped, never taken for a clock that
+  went back.
 - ``covariance``: a covariance array of the wrong size, not finite, or with a negative
   variance (the Imu ``-1`` "not provided" flag excepted). IMU, odometer and magnetometer
   covariances are not used (the noise model comes from ``imu_grade``): the sample is kept; a

@@ -9,9 +9,11 @@ reach the buffer over ``window`` after another's of the same stamps. So a sample
 until every stream (``STREAMS``) still sending has passed its stamp: only a stream silent for
 over ``hold`` seconds of stamp time (a dropout, a sensor that is not there) holds nothing back.
 A stream further behind than ``hold`` is still waited for, up to ``MAX_BACKLOG_S``, while its
-samples keep arriving (one among the last ``SILENT_PUSHES`` pushed): a node that was stalled
-takes its queues one message per topic in turn, so the fastest topic falls behind the others by
-most of the stall's worth of stamp time, and still arrives every few messages.
+samples keep arriving (within ``SILENT_S`` of wall time): behind a node that was stalled, the
+topics' backlogs come back at their own pace (a reliable writer resends what the reader missed,
+each topic on its own; an executor serves the queues a message each in turn), so the fastest
+topic falls behind the others by most of the stall's worth of stamp time (tens of seconds
+under a replay at 10x), and comes in bursts.
 The released order, and so every result, is the same; what changes is only when samples leave,
 and which ones would otherwise be late.
 """
@@ -20,13 +22,15 @@ from __future__ import annotations
 
 import bisect
 import math
+import time
 from collections import defaultdict
+from collections.abc import Callable
 from typing import Any
 
 STREAMS = ("imu", "odometer", "mag")  # the kinds whose stamps come steadily (not markers)
 HOLD_S = 5.0  # s of stamp time a lagging stream is waited for, arriving or not
 MAX_BACKLOG_S = 60.0  # s of stamp time a lagging stream is waited for while it arrives
-SILENT_PUSHES = 100  # a stream not among this many latest pushes is not arriving
+SILENT_S = 5.0  # s of wall time (``clock``) without a sample: a stream is not arriving
 
 Released = dict[str, tuple[list[float], list[Any]]]  # per kind: stamps (s) and payloads
 
@@ -36,14 +40,21 @@ class ReorderBuffer:
 
     window: s, how far behind the newest stamp a sample may arrive; hold: s, how far a
     lagging stream's newest stamp may be behind the newest of all and still hold the release
-    back; backlog: s, as hold for a stream still arriving (see the module docstring).
+    back; backlog: s, as hold for a stream still arriving (see the module docstring);
+    clock: wall time (s) that says whether a stream is still arriving.
 
     Each kind is kept in its own stamp-sorted list (a sample arriving in its kind's order,
     the common case, is appended) and released per kind: every sample of one release is
     stamped at or before every sample of the next.
     """
 
-    def __init__(self, window: float, hold: float = HOLD_S, backlog: float = MAX_BACKLOG_S) -> None:
+    def __init__(
+        self,
+        window: float,
+        hold: float = HOLD_S,
+        backlog: float = MAX_BACKLOG_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.window = float(window)
         self.hold = max(float(hold), self.window)
         self.backlog = max(float(backlog), self.hold)
@@ -52,8 +63,8 @@ class ReorderBuffer:
         self._held = 0
         self.newest = -math.inf
         self._newest_of = dict.fromkeys(STREAMS, -math.inf)  # s, per stream
-        self._pushes = 0  # samples pushed so far
-        self._arrived = dict.fromkeys(STREAMS, 0)  # per stream, self._pushes at its latest
+        self._clock = clock
+        self._arrived = dict.fromkeys(STREAMS, -math.inf)  # per stream, clock at its latest
         self.horizon = -math.inf  # everything stamped at or before it has been released
         self.late: dict[str, int] = defaultdict(int)
 
@@ -71,9 +82,8 @@ class ReorderBuffer:
             ts.append(t)
             self._p[kind].append(payload)
         self._held += 1
-        self._pushes += 1
         if kind in self._arrived:
-            self._arrived[kind] = self._pushes
+            self._arrived[kind] = self._clock()
         if t > self.newest:
             self.newest = t
         if kind in self._newest_of and t > self._newest_of[kind]:
@@ -102,9 +112,8 @@ class ReorderBuffer:
         cutoff = self.newest - self.window
         lagging, backlog = self.newest - self.hold, self.newest - self.backlog
         for kind, t in self._newest_of.items():
-            if t < cutoff and (
-                t >= lagging
-                or (t >= backlog and self._pushes - self._arrived[kind] <= SILENT_PUSHES)
+            if backlog <= t < cutoff and (
+                t >= lagging or self._clock() - self._arrived[kind] <= SILENT_S
             ):
                 cutoff = t
         return cutoff
