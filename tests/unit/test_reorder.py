@@ -161,7 +161,8 @@ def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing():
 
 def test_a_topic_far_behind_is_waited_for_while_it_arrives():
     """The IMU 20 s of stamp time behind the odometer (past HOLD_S): waited for while its
-    samples keep coming, and no longer once it has been silent for SILENT_S of wall time."""
+    samples keep coming, and no longer once it has been silent for SILENT_S of wall time while
+    the others came; a pause of every input is no silence."""
     clock = LiveClock()
     buf = ReorderBuffer(WINDOW, clock=clock)
     buf.push(0.0, "imu", None)
@@ -169,10 +170,18 @@ def test_a_topic_far_behind_is_waited_for_while_it_arrives():
         buf.push(t, "odometer", None)
         buf.release()
     assert buf.horizon == 0.0  # the IMU arrived at wall time 0: still arriving
-    clock.now = SILENT_S + 0.1
-    buf.push(20.0, "odometer", None)
-    buf.release()
-    assert buf.horizon == 20.0 - WINDOW
+    for t in np.arange(20.0, 20.0 + SILENT_S + 0.1, 0.02):  # the odometer comes, the IMU not
+        clock.now += 0.02
+        buf.push(t, "odometer", None)
+        buf.release()
+    assert buf.horizon == t - WINDOW
+    paused = ReorderBuffer(WINDOW, clock=clock)  # every input paused (the process stood still)
+    paused.push(0.0, "imu", None)
+    paused.push(20.0, "odometer", None)
+    clock.now += 2 * SILENT_S
+    paused.push(20.02, "odometer", None)
+    paused.release()
+    assert paused.horizon == 0.0  # not a silence of the IMU: still waited for
     far = ReorderBuffer(WINDOW, clock=clock)  # past MAX_BACKLOG_S, arriving or not
     far.push(0.0, "imu", None)
     far.push(MAX_BACKLOG_S + 1.0, "odometer", None)

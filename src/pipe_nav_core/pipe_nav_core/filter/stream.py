@@ -9,7 +9,8 @@ reach the buffer over ``window`` after another's of the same stamps. So a sample
 until every stream (``STREAMS``) still sending has passed its stamp: only a stream silent for
 over ``hold`` seconds of stamp time (a dropout, a sensor that is not there) holds nothing back.
 A stream further behind than ``hold`` is still waited for, up to ``MAX_BACKLOG_S``, while its
-samples keep arriving (within ``SILENT_S`` of wall time): behind a node that was stalled, the
+samples keep arriving (one within ``SILENT_S`` of wall time in which others came; a pause of
+every input, ``PAUSE_S`` or more, is not a silence): behind a node that was stalled, the
 topics' backlogs come back at their own pace (a reliable writer resends what the reader missed,
 each topic on its own; an executor serves the queues a message each in turn), so the fastest
 topic falls behind the others by most of the stall's worth of stamp time (tens of seconds
@@ -31,6 +32,7 @@ STREAMS = ("imu", "odometer", "mag")  # the kinds whose stamps come steadily (no
 HOLD_S = 5.0  # s of stamp time a lagging stream is waited for, arriving or not
 MAX_BACKLOG_S = 60.0  # s of stamp time a lagging stream is waited for while it arrives
 SILENT_S = 5.0  # s of wall time (``clock``) without a sample: a stream is not arriving
+PAUSE_S = 1.0  # s of wall time without any sample pushed: not counted as any stream's silence
 
 Released = dict[str, tuple[list[float], list[Any]]]  # per kind: stamps (s) and payloads
 
@@ -65,6 +67,7 @@ class ReorderBuffer:
         self._newest_of = dict.fromkeys(STREAMS, -math.inf)  # s, per stream
         self._clock = clock
         self._arrived = dict.fromkeys(STREAMS, -math.inf)  # per stream, clock at its latest
+        self._pushed = -math.inf  # clock at the latest push
         self.horizon = -math.inf  # everything stamped at or before it has been released
         self.late: dict[str, int] = defaultdict(int)
 
@@ -82,8 +85,14 @@ class ReorderBuffer:
             ts.append(t)
             self._p[kind].append(payload)
         self._held += 1
+        now = self._clock()
+        pause = now - self._pushed
+        if PAUSE_S <= pause < math.inf:  # every input stood still: no stream's silence
+            for k in self._arrived:
+                self._arrived[k] += pause
+        self._pushed = now
         if kind in self._arrived:
-            self._arrived[kind] = self._clock()
+            self._arrived[kind] = now
         if t > self.newest:
             self.newest = t
         if kind in self._newest_of and t > self._newest_of[kind]:
