@@ -20,7 +20,9 @@ input under a stable name (``FAULT_KINDS``; in /diagnostics ``<input>.fault.<kin
   buffer ahead and make every later sample late; but ``JUMP_CONFIRM`` consecutive such samples
   that agree with one another are a real jump of the data's clock (a gap, a restarted source):
   they are then used, from the first. A marker ahead of the data is held until the data reach
-  its stamp (a survey published in advance).
+  its stamp (a survey published in advance); it is no fault when it was sent over
+  ``BACKLOG_SENT_S`` after the newest data sample taken (``sent``, the sender's timestamps):
+  then the data are behind in their delivery (a backlog after a stall), not the marker ahead.
 - ``stamp_past``: a stamp not after the previous one of the same sensor, or older than what the
   engine already processed (its reorder horizon): dropped. ``JUMP_CONFIRM`` consecutive samples
   that agree with one another and lie over ``max_stamp_lead_s`` behind the data and behind their
@@ -90,6 +92,7 @@ MAX_RATE_HZ = {
 BURST_FACTOR = 4.0  # messages sent faster than this times MAX_RATE_HZ ...
 BURST_ALLOWANCE_S = 0.25  # ... beyond this many seconds' worth of them are a burst
 JUMP_CONFIRM = 20  # consecutive agreeing samples off the data's clock that make a real jump
+BACKLOG_SENT_S = 0.5  # s: a marker sent this long after the newest data sample taken: a backlog
 DEFAULT_MAX_STAMP_LEAD_S = 1.0
 MAX_HELD_MARKERS = 1000
 
@@ -289,6 +292,7 @@ class EkfCore:
         self._jump: list[tuple[str, float, tuple]] = []
         self._jump_sign = 0
         self._held_markers: list[Marker] = []  # ahead of the data, pushed when it reaches them
+        self._data_sent = -math.inf  # s: the newest sent time of the data samples taken
 
     # ------------------------------------------------------------------ input
     def on_imu(self, msg: Any, sent: float | None = None) -> bool:
@@ -418,8 +422,11 @@ class EkfCore:
             self._problem(c, role, "nan: NaN or infinite value: dropped")
             return self._push(c, role, push, item.args)
         if role == "markers":
-            return self._admit_marker(c, item.args[0])
-        return self._admit_sample(c, role, item.t, push, item.args)
+            return self._admit_marker(c, item.args[0], sent)
+        ok = self._admit_sample(c, role, item.t, push, item.args)
+        if ok and sent is not None and sent > self._data_sent:
+            self._data_sent = sent
+        return ok
 
     def _admit_sample(
         self, c: TopicCounters, role: str, t: float, push: Callable, args: tuple
@@ -495,11 +502,17 @@ class EkfCore:
                 ok = self._accept(self.counters[r], r, tr, pushes[r], a)
         return ok
 
-    def _admit_marker(self, c: TopicCounters, marker: Marker) -> bool:
+    def _admit_marker(self, c: TopicCounters, marker: Marker, sent: float | None = None) -> bool:
         """A marker ahead of the data's clock is held until the data reach it (a fault when it
-        is over max_stamp_lead_s ahead); one older than what the engine processed is dropped."""
+        is over max_stamp_lead_s ahead and the data are not behind in their delivery: module
+        docstring); one older than what the engine processed is dropped."""
         if self.clock_s == -math.inf or marker.t > self.clock_s:
-            if marker.t > self.clock_s + self.max_stamp_lead_s > -math.inf:
+            backlog = (
+                sent is not None
+                and self._data_sent > -math.inf
+                and sent - self._data_sent > BACKLOG_SENT_S
+            )
+            if marker.t > self.clock_s + self.max_stamp_lead_s > -math.inf and not backlog:
                 c.faults["stamp_future"] += 1
                 self._problem(
                     c, "markers", f"stamp_future: marker {marker.name} at {marker.t:.3f} s is "
