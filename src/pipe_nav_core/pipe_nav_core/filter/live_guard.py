@@ -265,12 +265,15 @@ class GuardedNavigator(Navigator):
     def _rerun(self, out: list[NavEstimate]) -> list[NavEstimate]:
         """Once anchored: the filter run again from the start with the initial heading found
         by smooth.heading.anchored_config (see the module), when the re-anchoring turned it; the
-        estimates up to the anchoring (out) are returned as they are."""
+        estimates up to the anchoring's epoch (of out) are returned as they are, the later ones
+        come from the new run (out can reach past the anchoring when a backlog released many
+        epochs at once: which estimates come from which run does not depend on that)."""
         from pipe_nav_core.smooth.heading import anchored_config
 
         kept, self._kept = self._kept or [], None
         if self.reanchor_rad == 0.0 or len(self.inbox.markers_seen) < 2:
             return out
+        second = sorted(m.t for m in self.inbox.markers_seen)[1]  # s, before reset() clears it
         # the wheel's faults so far, found as offline (odometer_faults) and left out of both
         log = _log_of(kept)
         log, faults = without_faults(log, find_odometer_faults(log))
@@ -294,6 +297,8 @@ class GuardedNavigator(Navigator):
         for k, v in counts.items():  # the guard's counts and the first run's re-anchoring
             self._counts.setdefault(k, v)
         self._counts["heading_rerun"] += 1
+        at = next((i for i, e in enumerate(out) if e.t >= second), len(out) - 1)
+        out = out[: at + 1]  # up to the anchoring's epoch: the rest comes from the new run
         last = out[-1].t if out else self._published
         return out + [e for e in Navigator.poll(self) if e.t > last]
 
