@@ -268,6 +268,30 @@ def test_bench_makes_its_output_folders_and_fails_at_once_on_a_bad_path(
     assert json.loads(js.read_text())["speed"] == {"x_real_time": 1.0}
 
 
+def test_a_bad_path_fails_before_the_kernels_are_compiled(tmp_path, capsys, monkeypatch):
+    """A first run compiles the kernels for minutes: a bag that is not there, or an output
+    folder that cannot be made, is said before that, not after."""
+    from pipe_nav_core.app import commands, integrity_commands
+
+    def compile_first() -> None:
+        raise AssertionError("the kernels were warmed before the path was checked")
+
+    monkeypatch.setattr(commands, "warm_kernels", compile_first)
+    monkeypatch.setattr(integrity_commands, "warm_kernels", compile_first)
+    missing = tmp_path / "nope.mcap"
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for argv in (
+        ["smooth", str(missing), "--out", f"{tmp_path}/out/"],
+        ["replay", str(missing), "--out", str(tmp_path / "r.mcap")],
+        ["bench", "--speed-only", "--out", str(blocker / "sub" / "B.md"), "--json", ""],
+    ):
+        assert main(argv) != 0
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1, err
+        assert str(missing) in err or str(blocker) in err, err
+
+
 @pytest.mark.parametrize("raw", ["0,0,-0.05", "[0,0,-0.05]", "0 0 -0.05", "0, 0, -0.05"])
 def test_set_accepts_every_triple_syntax(raw: str):
     args = argparse.Namespace(config=None, set=[f"odometer_lever_arm={raw}"], mode=None,

@@ -173,6 +173,7 @@ def _out_is_dir(out: str) -> bool:
 def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
     from pipe_nav_core.app.outputs import Outputs
     from pipe_nav_core.app.pipeline import smooth_bag
+    from pipe_nav_core.io.bagfiles import bag_files
 
     cfg = load_config(args)
     out = Path(args.out)
@@ -191,6 +192,7 @@ def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
             bag=str(out), csv=args.csv, geojson=args.geojson, kml=args.kml, plot=args.plot
         )
     outputs = outputs.with_products()
+    bag_files(args.input)  # a bad bag path fails at once, not after a first compile
     warm_kernels()
     bar = _progress(args.quiet)
     try:
@@ -274,8 +276,10 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from pipe_nav_core.app.replay import replay_bag
+    from pipe_nav_core.io.bagfiles import bag_files
 
     cfg = load_config(args)
+    bag_files(args.input)  # a bad bag path fails at once, not after a first compile
     warm_kernels()
     result, report = replay_bag(
         args.input, args.out, config=cfg, markers_csv=args.markers, topics=_topics(args)

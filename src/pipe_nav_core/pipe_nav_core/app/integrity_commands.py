@@ -199,5 +199,4 @@ def cmd_fuse(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from pipe_nav_core.bench.accuracy import main as bench_main
 
-    warm_kernels()
-    return bench_main(args)
+    return bench_main(args, before_runs=warm_kernels)

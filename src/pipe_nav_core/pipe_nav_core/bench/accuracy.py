@@ -19,7 +19,7 @@ import platform
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -504,8 +504,9 @@ def _limit_lines(results: dict[str, list[dict[str, object]]]) -> list[str]:
 TABLES = {"products": "products", "welds": "welds", "runs": "runs"}
 
 
-def main(args: argparse.Namespace) -> int:
-    """Entry of ``pipe-nav bench``."""
+def main(args: argparse.Namespace, before_runs: Callable[[], None] = lambda: None) -> int:
+    """Entry of ``pipe-nav bench``; ``before_runs`` is called once the arguments and the
+    output paths are checked (the command line compiles the kernels there, if it must)."""
     command = ("pipe-nav bench " + " ".join(sys.argv[2:])).strip()
     extras = [n for n in TABLES if getattr(args, n, False) or getattr(args, f"{n}_only", False)]
     if any(getattr(args, f"{n}_only", False) for n in (*TABLES, "speed")):
@@ -518,6 +519,7 @@ def main(args: argparse.Namespace) -> int:
     for target in (args.out, args.json):  # before the runs: a bad path fails at once
         if target:
             Path(target).parent.mkdir(parents=True, exist_ok=True)
+    before_runs()
     max_seeds = 1 if args.quick else 3
     methods = list(METHODS)
     results: dict[str, list[dict[str, object]]] = {}
