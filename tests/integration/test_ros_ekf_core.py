@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from arrivals import in_turns
 from pipe_nav_ros.ekf_core import (
     BURST_ALLOWANCE_S,
     BURST_FACTOR,
@@ -42,7 +43,9 @@ def input_messages(run, t_end=CROP_S):
     return rosmsg.log_to_messages(TYPES, run.log, t_end)
 
 
-def feed(core, messages):
+def feed(core, messages, sent=False):
+    """Every message into core (each accepted), with its stamp as the sender's timestamp when
+    sent; the estimates and datums that come out, finish() included."""
     handlers = {
         "imu": core.on_imu,
         "odometer": core.on_odometer,
@@ -50,8 +53,8 @@ def feed(core, messages):
         "markers": core.on_marker,
     }
     odometry, datums = [], []
-    for _, role, msg in messages:
-        assert handlers[role](msg)
+    for t, role, msg in messages:
+        assert handlers[role](msg, sent=float(t) if sent else None)
         out = core.poll()
         odometry += out.odometry
         if out.datum is not None:
@@ -428,20 +431,6 @@ def test_a_topic_arriving_behind_the_others_loses_nothing(run, config):
     np.testing.assert_allclose(positions(odometry), positions(reference), atol=1e-9)
 
 
-def in_turns(messages, stall_s):
-    """The messages as a node stalled from ``stall_s`` on takes them: in stamp order before it,
-    then one per topic in turn from each topic's queue (an executor's round)."""
-    before = [m for m in messages if m[0] < stall_s]
-    queues = {role: [m for m in messages if m[1] == role and m[0] >= stall_s]
-              for role in INPUT_TOPICS}  # fmt: skip
-    after = []
-    while any(queues.values()):
-        for q in queues.values():
-            if q:
-                after.append(q.pop(0))
-    return before + after
-
-
 def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing(run, config):
     """From 20 s on, the queues taken a message per topic per round (a node that was stalled
     catching up), each message with its sender's timestamp (a player at 1x): the 200 Hz IMU
@@ -454,15 +443,7 @@ def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing(run, config):
     messages = input_messages(run, t_end=CROP_S)
     reference, _ = clean_estimates(run, config, messages)
     core = EkfCore(config, TYPES)
-    handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
-                "markers": core.on_marker}  # fmt: skip
-    odometry, datums = [], []
-    for t, role, msg in in_turns(messages, 20.0):
-        assert handlers[role](msg, sent=float(t))
-        out = core.poll()
-        odometry += out.odometry
-        datums += [out.datum] if out.datum is not None else []
-    odometry += core.finish().odometry
+    odometry, datums = feed(core, in_turns(messages, 20.0), sent=True)
     assert len(datums) == 1 and core.resets == 1  # the finish()
     assert all(sum(c.faults.values()) == 0 for c in core.counters.values())
     assert len(odometry) == len(reference)
@@ -471,9 +452,7 @@ def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing(run, config):
     core = EkfCore(config, TYPES)
     odometry = []
     for _, role, msg in in_turns(messages, 20.0):
-        handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
-                    "markers": core.on_marker}  # fmt: skip
-        handlers[role](msg)
+        core.on_message(INPUT_TOPICS[role], msg)
         odometry += core.poll().odometry
     odometry += core.finish().odometry
     assert core.counters["markers"].faults["stamp_future"] == 1

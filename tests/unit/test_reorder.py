@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+from arrivals import in_turns
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pipe_nav_core.filter.stream import (
@@ -121,22 +122,6 @@ def test_a_silent_topic_holds_nothing_back():
     assert not buf.push(10.0, "mag", None) and buf.late["mag"] == 1
 
 
-def round_robin(
-    stamps: dict[str, np.ndarray], stall: tuple[float, float]
-) -> list[tuple[float, str]]:
-    """(stamp, kind) in the order a node stalled over ``stall`` (s of stamp time) takes them:
-    in stamp order before it; from its end on, one message per topic in turn from each topic's
-    queue (an executor's round) until every queue is empty."""
-    before = sorted((t, k) for k, ts in stamps.items() for t in ts if t < stall[0])
-    queues = {k: [t for t in ts if t >= stall[0]] for k, ts in stamps.items()}
-    after = []
-    while any(queues.values()):
-        for k, q in queues.items():
-            if q:
-                after.append((q.pop(0), k))
-    return before + after
-
-
 def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing():
     """A 30 s stall, then the queues taken a message per topic per round: the 200 Hz IMU falls
     behind the 50 Hz odometer by over HOLD_S (up to 3/4 of the backlog), and is waited for
@@ -144,7 +129,7 @@ def test_a_stalled_node_taking_its_queues_in_turn_loses_nothing():
     leaves in stamp order."""
     stamps = {"imu": np.arange(0, 40, 0.005), "odometer": np.arange(0.001, 40, 0.02),
               "mag": np.arange(0.002, 40, 0.02)}  # fmt: skip
-    items = round_robin(stamps, (10.0, 40.0))
+    items = in_turns(sorted((t, k) for k, ts in stamps.items() for t in ts), 10.0)
     newest, worst = -np.inf, 0.0
     for t, k in items:
         newest = max(newest, t)
