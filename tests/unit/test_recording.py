@@ -52,6 +52,7 @@ def test_recording_reads_back_what_was_stored(monkeypatch, budget):
         np.testing.assert_array_equal(rec.P_pred(k), np.triu(P_pred) + np.triu(P_pred, 1).T)
         np.testing.assert_array_equal(rec.phi(k), phi)
     np.testing.assert_array_equal(rec.variances(), [np.diag(x[2]) for x in epochs])
+    assert rec.pose_variances().tobytes() == rec.variances()[:, rec.pose].tobytes()
     e, var = rts_packed(rec.rts_chunks(), rec.dx, rec.format)
     P_upd, P_pred, phi = ([x[i] for x in epochs] for i in (2, 3, 4))
     e_ref, P_ref = rts(P_upd, P_pred, phi, rec.dx)
@@ -62,6 +63,30 @@ def test_recording_reads_back_what_was_stored(monkeypatch, budget):
     rec.close()
     if spill_dir is not None:
         assert not os.path.exists(spill_dir)
+
+
+def test_chunks_read_ahead_leave_the_ones_the_smoother_holds(monkeypatch):
+    """rts_chunks reads the chunk before in a second thread while the caller works on this
+    one: every chunk comes in order with its rows, and the one the caller still holds from
+    before (the RTS smoother's next_row and last piece) is not overwritten by the read."""
+    monkeypatch.setattr(chunks, "CHUNK_EPOCHS", 4)
+    monkeypatch.setattr(recording, "CHUNK_EPOCHS", 4)
+    layout = Layout("dr")
+    epochs = _epochs(layout, 30)
+    rec = Recording(layout, ram_budget=0)
+    for state, dx, P_upd, P_pred, phi in epochs:
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+    expected = np.concatenate([rec._rows.chunk(i).copy() for i in range(rec._rows.n_chunks)])
+    assert rec._rows._dir is not None  # spilled: read back from files
+    firsts, held = [], None
+    for k0, rows in rec.rts_chunks():
+        firsts.append(k0)
+        if held is not None:
+            np.testing.assert_array_equal(held[1], expected[held[0] : held[0] + len(held[1])])
+        np.testing.assert_array_equal(rows, expected[k0 : k0 + len(rows)])
+        held = (k0, rows)
+    assert firsts == list(range(28, -1, -4))
+    rec.close()
 
 
 def test_spilled_chunks_go_with_the_recording(monkeypatch):

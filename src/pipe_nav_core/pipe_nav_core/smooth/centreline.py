@@ -159,8 +159,7 @@ def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
 def forward_trajectory(rec: Recording) -> Trajectory:
     """The forward filter's estimates, one per epoch (copies: the recording may go)."""
     st = rec.states
-    var = rec.variances()
-    lay = rec.layout
+    var = rec.pose_variances()  # position, attitude
     return Trajectory(
         t=st[:, SV_T].copy(),
         lat=st[:, SV_LAT].copy(),
@@ -169,8 +168,8 @@ def forward_trajectory(rec: Recording) -> Trajectory:
         vel_n=st[:, SV_VEL].copy(),
         quat_nb=st[:, SV_Q].copy(),
         distance=st[:, SV_DIST].copy(),
-        sigma_enu=np.sqrt(var[:, lay.pos]),
-        sigma_att=np.sqrt(var[:, lay.att]),
+        sigma_enu=np.sqrt(var[:, :3]),
+        sigma_att=np.sqrt(var[:, 3:]),
     )
 
 

@@ -135,7 +135,7 @@ def smooth_log(
     if method == "forward":
         rec = nav.recording
         e = np.zeros((len(rec), len(rec.pose)))
-        result = result_of(nav, smoothed_centreline(rec, e, rec.variances()[:, rec.pose]))
+        result = result_of(nav, smoothed_centreline(rec, e, rec.pose_variances()))
         result.summary.update(passes=1, passes_run=1)
         return result
     exclude: Array | None = None

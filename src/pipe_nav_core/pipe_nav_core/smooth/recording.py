@@ -93,6 +93,7 @@ class Recording:
         whole = not centreline_only
         self._states = Growable((SV_SIZE,) if whole else (), capacity=rows)  # else t only
         self._dx = Growable((n,), capacity=rows) if whole else None
+        self._pose_var = Growable((len(self.pose),), capacity=rows) if whole else None
         x_cols = n if whole else len(self.pose)
         self._x_upd = Growable((x_cols,), capacity=rows) if linearized else None
         self._end_offset = Growable((len(self.pose),), capacity=rows) if linearized else None
@@ -151,6 +152,7 @@ class Recording:
         self._packing = self._packer.submit(pack)
         self._states.extend(states)
         self._dx.extend(dx)  # type: ignore[union-attr]
+        self._pose_var.extend(P_upd[:, self.pose, self.pose])  # type: ignore[union-attr]
         if self.linearized:
             assert self._x_upd is not None and self._end_offset is not None
             self._x_upd.extend(x_upd)
@@ -267,6 +269,14 @@ class Recording:
         """P_upd ("upd") or P_pred ("pred") of the epochs ks (B, n, n)."""
         return self.format.covariances(self._rows.rows(ks), which)
 
+    def pose_variances(self) -> Array:
+        """(K, 6) the variances of the ``pose`` columns (position m^2, attitude rad^2) of
+        P_upd, kept as the epochs come: the forward trajectory's sigmas without reading back
+        the packed rows (at 10 km 0.8 GB from the spill files)."""
+        self._whole("pose variances")
+        assert self._pose_var is not None
+        return self._pose_var.data
+
     def variances(self) -> Array:
         """The diagonals of P_upd (K, n)."""
         out = np.empty((len(self), self.layout.n))
@@ -277,9 +287,20 @@ class Recording:
 
     def rts_chunks(self) -> Iterator[tuple[int, Array]]:
         """(first epoch, packed rows (C, format.width)) from the last chunk to the first, as
-        :func:`pipe_nav_core.smooth.rts.rts_packed` reads them."""
-        for i in range(self._rows.n_chunks - 1, -1, -1):
-            yield i * CHUNK_EPOCHS, self._rows.chunk(i)
+        :func:`pipe_nav_core.smooth.rts.rts_packed` reads them. The chunk before is read
+        (back from its spill file) in a second thread while the caller works on this one:
+        the caller holds this chunk and the one after it, the read takes the third of the
+        READ_BUFFERS."""
+        rows = self._rows
+        if not rows.n_chunks:
+            return
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="pipe-nav-read") as pool:
+            ahead = pool.submit(rows.chunk, rows.n_chunks - 1)
+            for i in range(rows.n_chunks - 1, -1, -1):
+                chunk = ahead.result()
+                if i:
+                    ahead = pool.submit(rows.chunk, i - 1)
+                yield i * CHUNK_EPOCHS, chunk
 
     # ------------------------------------------------------------------ per sample
     @property
@@ -320,7 +341,7 @@ class Recording:
             return
         self.close()
         t, x_pose = self.t.copy(), self.x_upd_pose  # (x_upd_pose: a copy)
-        self._states, self._dx = Growable(capacity=1), None
+        self._states, self._dx, self._pose_var = Growable(capacity=1), None, None
         self._x_upd = Growable((len(self.pose),), capacity=1)
         self._states.extend(t)
         self._x_upd.extend(x_pose)
@@ -343,7 +364,7 @@ class Recording:
         """Room for this many epochs and kept samples, the pass's expected counts (a pass that
         has more still records them all): the arrays are not grown by doubling, which holds
         the old array beside one twice its size (at 100 km 0.5 GB for a moment)."""
-        for g in (self._states, self._dx, self._x_upd, self._end_offset):
+        for g in (self._states, self._dx, self._pose_var, self._x_upd, self._end_offset):
             if g is not None:
                 g.reserve(epochs)
         for g in (*self._s.values(), self._s_q, self._s_epoch):
@@ -352,16 +373,17 @@ class Recording:
     def trim(self) -> None:
         """End of the pass: the per-epoch and per-sample arrays let go of the room they had
         reserved to grow (up to half of each; at 100 km some 0.3 GB)."""
-        for g in (self._states, self._dx, self._x_upd, self._end_offset, *self._s.values(),
-                  self._s_q, self._s_epoch):  # fmt: skip
+        for g in (self._states, self._dx, self._pose_var, self._x_upd, self._end_offset,
+                  *self._s.values(), self._s_q, self._s_epoch):  # fmt: skip
             if g is not None:
                 g.trim()
 
     def close(self) -> None:
         """Free the packed rows (the covariances and transitions) and remove their temporary
-        files (also done when the recording is garbage collected), and ``dx`` (only the RTS
-        smoother reads it; of the ordinary EKF's, end_offset, its pose columns, are kept: at
-        100 km 0.13 GB less); the other per-epoch and the per-sample arrays stay."""
+        files (also done when the recording is garbage collected), the pose variances, and
+        ``dx`` (only the RTS smoother reads it; of the ordinary EKF's, end_offset, its pose
+        columns, are kept: at 100 km 0.13 GB less); the other per-epoch and the per-sample
+        arrays stay."""
         if self._packing is not None:  # the last pack ends first
             job, self._packing = self._packing, None
             job.result()
@@ -371,6 +393,8 @@ class Recording:
                 self._end_offset = Growable((len(self.pose),), capacity=len(self._dx.data))
                 self._end_offset.extend(self._dx.data[:, self.pose])
             self._dx = Growable((self.layout.n,), capacity=1)
+        if self._pose_var is not None:
+            self._pose_var = Growable((len(self.pose),), capacity=1)
         if self._packer is not None:
             self._packer.shutdown(wait=True)
             self._packer = None
