@@ -7,6 +7,7 @@ import csv
 import hashlib
 import json
 import math
+import re
 import shutil
 import subprocess
 import sys
@@ -504,6 +505,18 @@ def test_bends_recomputes_from_the_smoothed_bag_with_other_settings(smoothed: Pa
     assert len(text) == 1 + 5
     features = (smoothed / "again_strain_features.csv").read_text().splitlines()
     assert all(line.split(",")[1] == "0.500" for line in features[1:]) and len(features) >= 2
+
+
+def test_bends_into_a_folder_names_the_products_like_the_input(smoothed: Path, capsys):
+    """--out DIR/ as for smooth: the folder is made and the products are named like the input
+    (they were hidden files DIR/.csv_bends.csv); the summary names the bend the largest strain
+    is in and the largest strain outside bends."""
+    folder = smoothed / "products"
+    assert main(["bends", str(smoothed / "sample_smoothed.mcap"), "--out", f"{folder}/"]) == 0
+    out = capsys.readouterr().out
+    names = sorted(p.name for p in folder.iterdir())
+    assert names == ["sample_bends.csv", "sample_strain.csv", "sample_strain_features.csv"]
+    assert re.search(r"max strain [0-9.]+ % \(in bend 1\), [0-9.]+ % outside bends", out)
 
 
 def test_bends_refuses_what_is_not_a_smoothed_run(tmp_path: Path, capsys):

@@ -116,6 +116,22 @@ def test_a_combined_bend_is_named_by_both_planes():
     assert 90.0 < math.degrees(b.plane) < 180.0
 
 
+def test_the_summary_tells_the_strain_of_a_bend_from_the_strain_outside_bends():
+    """A 3 D induction bend (shorter than the 1 m window: 45 deg over it, 11.8 % in a 0.3 m
+    pipe) and, below bend_min_angle and so not a listed bend, a 0.8 deg arc of 200 m radius
+    (0.075 %): the largest strain is the bend's, named; the largest outside bends is the arc's."""
+    elbow, small = arc(50.0, 45 * DEG, 0.9), arc(150.0, 0.8 * DEG, 200.0)
+    rep = integrity_report(pipe(lambda s: elbow(s) + small(s), lambda s: 0 * s, 250.0), CFG)
+    (b,) = rep.bends
+    s = rep.summary()
+    assert s["max_strain_bend"] == b.number == 1
+    assert s["max_strain_pct"] == rep.strain_pct.max() and abs(s["max_strain_pct"] - 11.78) < 0.1
+    assert abs(s["max_strain_outside_bends_pct"] - 0.15 / 200.0 * 100.0) < 1e-3
+    straight = integrity_report(pipe(lambda s: 0 * s, lambda s: 0 * s, 50.0), CFG).summary()
+    assert straight["max_strain_bend"] == 0
+    assert straight["max_strain_outside_bends_pct"] == straight["max_strain_pct"] < 1e-6
+
+
 def test_strain_features_and_the_as_built_reference(tmp_path: Path):
     # a 200 m radius stretch in a 0.3 m pipe: strain 0.075 %; a 60 m one: 0.25 %
     a, b = arc(50.0, 6 * DEG, 200.0), arc(150.0, 10 * DEG, 60.0)

@@ -155,8 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bends", help="bends and strain of a smoothed run, with other settings")
     p.add_argument("input", help="a smoothed .mcap (pipe-nav smooth --out) or a centreline CSV")
     p.add_argument("--out", metavar="RUN",
-                   help="write RUN_strain.csv, RUN_bends.csv, RUN_strain_features.csv "
-                   "(default: beside the input, named like it)")  # fmt: skip
+                   help="write RUN_strain.csv, RUN_bends.csv, RUN_strain_features.csv, or into "
+                   "a folder (ending in /) named like the input (default: beside the input, "
+                   "named like it)")  # fmt: skip
     p.add_argument("--window", type=float, help="curvature window, m of chainage")
     p.add_argument("--thresholds", type=float, nargs="+", metavar="PCT",
                    help="strain feature thresholds, percent")  # fmt: skip

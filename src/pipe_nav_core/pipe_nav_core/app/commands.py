@@ -160,12 +160,12 @@ def cmd_smooth(args: argparse.Namespace) -> int:
     from pipe_nav_core.app.plot_process import PlotProcess
 
     # forked first, before the numeric imports: it loads matplotlib while this one smooths
-    wants_plot = bool(args.plot) or _out_is_dir(args.out)
+    wants_plot = bool(args.plot) or out_is_dir(args.out)
     with PlotProcess.start() if wants_plot else PlotProcess(None, None) as plotter:
         return _smooth(args, plotter)
 
 
-def _out_is_dir(out: str) -> bool:
+def out_is_dir(out: str) -> bool:
     """--out names a directory (the products are written into it, named like the bag)."""
     return out.endswith(("/", "\\")) or Path(out).is_dir()
 
@@ -178,7 +178,7 @@ def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
     cfg = load_config(args)
     out = Path(args.out)
     stem = Path(str(args.input).rstrip("/")).stem
-    if _out_is_dir(args.out):
+    if out_is_dir(args.out):
         out.mkdir(parents=True, exist_ok=True)
         outputs = Outputs(
             bag=str(out / f"{stem}_smoothed.mcap"),
@@ -225,6 +225,14 @@ def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
     return EXIT_NOT_OK if args.strict and status != "OK" else 0
 
 
+def format_max_strain(s: dict[str, Any]) -> str:
+    """The largest strain of an IntegrityReport.summary() for people: ``13.5487 % (in bend
+    54), 0.3532 % outside bends``."""
+    where = f" (in bend {s['max_strain_bend']})" if s.get("max_strain_bend") else ""
+    return (f"{s['max_strain_pct']:.4f} %{where}, "
+            f"{s['max_strain_outside_bends_pct']:.4f} % outside bends")  # fmt: skip
+
+
 def _print_summary(s: dict[str, Any], method: str) -> None:
     print(f"smoothed with {method}:")
     print(f"  distance            {s['distance_m']:.2f} m in {s['duration_s']:.1f} s")
@@ -250,8 +258,7 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
         print(
             f"  bends               {products['bends']} (window "
             f"{products['curvature_window_m']:.2f} m), strain features "
-            f"{products['strain_features']}, max strain "
-            f"{products['max_strain_pct']:.4f} %"
+            f"{products['strain_features']}, max strain {format_max_strain(products)}"
             + "".join(f"; {n}" for n in products.get("notes", []))
         )
     if "graph_iterations" in s:

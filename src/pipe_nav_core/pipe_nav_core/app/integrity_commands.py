@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from pipe_nav_core.products import IntegrityReport
-from pipe_nav_core.app.commands import load_config, warm_kernels
+from pipe_nav_core.app.commands import format_max_strain, load_config, out_is_dir, warm_kernels
 from pipe_nav_core.errors import CliError
 
 
@@ -34,7 +34,11 @@ def cmd_bends(args: argparse.Namespace) -> int:
             args.set = (args.set or []) + [f"{name}={json.dumps(value)}"]
     cfg = load_config(args)
     src = str(args.input).rstrip("/")
-    outputs = Outputs(csv=args.out + ".csv" if args.out else src).with_products()
+    run = args.out
+    if run and out_is_dir(run):  # a folder, as for smooth: the products named like the input
+        Path(run).mkdir(parents=True, exist_ok=True)
+        run = str(Path(run) / Path(src).stem)
+    outputs = Outputs(csv=run + ".csv" if run else src).with_products()
     outputs = Outputs(strain=outputs.strain, bends=outputs.bends,
                       strain_features=outputs.strain_features)  # fmt: skip
     report, notes = products_of_file(src, outputs, config=cfg, spacing=args.spacing,
@@ -54,7 +58,7 @@ def format_bends(report: IntegrityReport) -> str:
     s = report.summary()
     lines = [
         f"curvature window {report.window:.2f} m, outer diameter {report.outer_diameter:.3f} m; "
-        f"max strain {s['max_strain_pct']:.4f} %",
+        f"max strain {format_max_strain(s)}",
         f"{'bend':>4} {'apex_m':>10} {'angle_deg':>10} {'radius_m':>10} {'radius_D':>9} "
         f"{'direction':>10} class",
     ]

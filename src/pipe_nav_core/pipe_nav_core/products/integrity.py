@@ -32,12 +32,30 @@ class IntegrityReport:
     notes: list[str] = field(default_factory=list)
 
     def summary(self) -> dict[str, object]:
-        """Figures for people: counts, the largest bend and strain."""
-        peak = float(self.strain_pct.max()) if len(self.profile) else 0.0
+        """Figures for people: counts, the largest strain (percent) and the listed bend it lies
+        in (0: none), and the largest strain outside every bend (a bend made as one, an
+        induction bend of 5 D, is 10 % of "strain" by its shape alone; what the pipe body
+        carries is the rest). A row lies in a bend within half a curvature window of its
+        ends, the stretch the window spreads the bend's curvature over."""
+        strain, d = self.strain_pct, self.profile.distance
+        peak, in_bend, outside = 0.0, 0, 0.0
+        if len(self.profile):
+            i = int(np.argmax(strain))
+            peak = float(strain[i])
+            half = 0.5 * self.window
+            free = np.ones(len(d), dtype=bool)
+            for b in self.bends:
+                inside = (d >= b.start_m - half) & (d <= b.end_m + half)
+                free &= ~inside
+                if inside[i] and not in_bend:
+                    in_bend = b.number
+            outside = float(strain[free].max()) if free.any() else 0.0
         return {
             "bends": len(self.bends),
             "strain_features": len(self.features),
             "max_strain_pct": peak,
+            "max_strain_bend": in_bend,
+            "max_strain_outside_bends_pct": outside,
             "curvature_window_m": self.window,
             "outer_diameter_m": self.outer_diameter,
             "strain_thresholds_pct": list(self.thresholds_pct),
