@@ -235,6 +235,9 @@ def _rts_backward(
 
 
 PIECE_EPOCHS = 512  # epochs per call of the RTS kernels
+# threads making the gains: the two halves of a piece at once, beside the recursion of the
+# piece after it (the gains are two thirds of the work: one thread left them the critical path)
+GAIN_THREADS = 2
 
 
 def rts_packed(
@@ -252,7 +255,7 @@ def rts_packed(
     back chunk by chunk); epoch k's row holds P_upd[k] and (for k >= 1) P_pred[k] and Phi
     from k-1 to k; dx (K, n): dx[k] = x_upd[k] (-) x_pred[k]. The gain
     G = P_upd[k] Phi^T P_pred[k+1]^-1 is solved through a Cholesky factor of P_pred; the gains
-    of the next piece of epochs are computed in a second thread while the recursion runs.
+    of the next piece of epochs are computed in GAIN_THREADS threads while the recursion runs.
     Returns e (K, n): the smoothed correction to x_upd[k], and the smoothed variances (K, n)
     (in the error state's units; with var_cols, (K, len(var_cols)) of those error states
     only), or with full=True the smoothed covariances (K, n, n).
@@ -271,16 +274,20 @@ def rts_packed(
         for a in range(((len(rows) - 1) // PIECE_EPOCHS) * PIECE_EPOCHS, -1, -PIECE_EPOCHS)
     )
     end, next_row = K, np.zeros(0)
-    pending: tuple[int, Array, Future[None], Array] | None = None
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    pending: tuple[int, Array, list[Future[None]], Array] | None = None
+    with ThreadPoolExecutor(max_workers=GAIN_THREADS) as pool:
         for b, (k0, rows) in enumerate(pieces):
             if k0 + len(rows) != end or not len(rows):
                 raise ValueError("rts_packed: chunks must run from the last epoch back")
             G = gains[b % 2]
-            job = pool.submit(_rts_gains, rows, next_row, fmt.phi_rows, G)
+            h = len(rows) // 2  # each half's gains in a thread (those of its last row need
+            jobs = [  # the first row of the rows after it)
+                pool.submit(_rts_gains, rows[:h], rows[h], fmt.phi_rows, G[:h]),
+                pool.submit(_rts_gains, rows[h:], next_row, fmt.phi_rows, G[h:]),
+            ] if h else [pool.submit(_rts_gains, rows, next_row, fmt.phi_rows, G)]  # fmt: skip
             if pending is not None:  # the piece after this one, while its gains are made
                 _recursion(pending, dx, e, var, cols, P_full, Ps, Pp)
-            pending = (k0, rows, job, G)
+            pending = (k0, rows, jobs, G)
             end, next_row = k0, rows[0]
         if pending is not None:
             _recursion(pending, dx, e, var, cols, P_full, Ps, Pp)
@@ -289,9 +296,10 @@ def rts_packed(
     return e, (P_full if full else var)
 
 
-def _recursion(piece: tuple[int, Array, Future[None], Array], *arrays: Array) -> None:
-    k0, rows, job, G = piece
-    job.result()
+def _recursion(piece: tuple[int, Array, list[Future[None]], Array], *arrays: Array) -> None:
+    k0, rows, jobs, G = piece
+    for job in jobs:
+        job.result()
     _rts_backward(rows, k0, G, *arrays)
 
 
