@@ -9,7 +9,8 @@ split only by noise dipping under the threshold for less than a window are one b
   quarter of the threshold (or reverses, or half-way to the next bend), so that the ramps of
   an elastic bend are not lost; its sigma from the IMU noise model over that stretch.
 - apex: the middle of the stretch where the curvature is over half its peak (the middle of a
-  circular arc, ramps and all).
+  circular arc, ramps and all). start and end: the first and last rows of the stretch, widened
+  to the apex where a bend shorter than the rows' spacing has its apex beyond them.
 - radius: 1 / the peak curvature on a profile whose window is a quarter of that stretch (at
   least four track steps), narrowed while the stretch shrinks with it, so that a bend shorter
   than the profile's window is not reported wider than it is, and a long elastic bend is
@@ -241,11 +242,15 @@ def _measure(
     azimuth = math.atan2(float(apex_axis[0]), float(apex_axis[1]))
     quat = quat_from_euler(0.0, pitch, azimuth).reshape(4)
     radius_d = radius / outer_diameter
+    # a bend shorter than the rows' spacing is over the threshold at one row or two, and its
+    # apex, found on the finer grid, may lie beyond them: its curvature is over the threshold
+    # there too, so the bend reaches it (start <= apex <= end)
+    apex_m = float(track.distance_at(np.array([apex_arc]))[0])
     return PipeBend(
         number=0,
-        start_m=float(profile.distance[a]),
-        apex_m=float(track.distance_at(np.array([apex_arc]))[0]),
-        end_m=float(profile.distance[b]),
+        start_m=min(float(profile.distance[a]), apex_m),
+        apex_m=apex_m,
+        end_m=max(float(profile.distance[b]), apex_m),
         lat=lat,
         lon=lon,
         alt=alt,
