@@ -109,16 +109,21 @@ def test_an_s_bend_is_two_bends_and_small_ones_are_not_listed():
 
 
 @pytest.mark.parametrize("offset", [0.0, 0.15, 0.35, 0.45])
-def test_a_bend_shorter_than_the_row_spacing_reaches_its_apex(offset: float):
+def test_a_bend_shorter_than_the_row_spacing_reaches_its_apex_and_peak(offset: float):
     """Bends of 0.05 to 0.5 m of arc (field line induction bends of 1 to 7 deg) on 0.5 m rows
     with a 0.6 m window: over the threshold at one row, their apex, found on a finer grid, lay
-    up to 0.17 m beyond it (start_m = end_m = 50.5, apex_m 50.41): start_m <= apex_m <= end_m,
-    wherever the bend falls between the rows."""
+    up to 0.17 m beyond it (start_m = end_m = 50.5, apex_m 50.41), and the strain features'
+    peaks likewise: start_m <= apex_m (peak_m) <= end_m, wherever the bend falls between the
+    rows."""
     cfg = NavConfig(imu_grade="tactical", pipe_outer_diameter=0.219, curvature_window=0.6)
     for angle_deg, radius in ((3.0, 1.5), (1.3, 3.5), (6.9, 1.0), (45.0, 0.7)):
         turn = arc(50.0 + offset, angle_deg * DEG, radius)
-        (b,) = integrity_report(pipe(turn, lambda s: 0 * s, 100.0), cfg).bends
+        rep = integrity_report(pipe(turn, lambda s: 0 * s, 100.0), cfg)
+        (b,) = rep.bends
         assert b.start_m <= b.apex_m <= b.end_m, (angle_deg, b.start_m, b.apex_m, b.end_m)
+        assert rep.features and all(f.bend == 1 for f in rep.features)
+        for f in rep.features:  # the strain stretches likewise reach their peaks
+            assert f.start_m <= f.peak_m <= f.end_m, (angle_deg, f.start_m, f.peak_m, f.end_m)
         centre = 50.0 + offset + 0.5 * radius * angle_deg * DEG
         assert abs(b.apex_m - centre) < 0.1
 

@@ -92,7 +92,8 @@ def strain_features(
 ) -> list[StrainFeature]:
     """Every stretch over each threshold (percent), in chainage order then threshold; stretches
     apart by less than a window are one. With the profile's ``track`` and ``spec`` each peak
-    is taken on a grid of an eighth of the window (the rows may straddle a short peak)."""
+    is taken on a grid of an eighth of the window (the rows may straddle a short peak), and the
+    stretch reaches it (start_m <= peak_m <= end_m)."""
     strain, sigma = strain_pct(profile, outer_diameter)
     found: list[StrainFeature] = []
     d = profile.distance
@@ -110,6 +111,8 @@ def strain_features(
             i = a + int(np.argmax(strain[a : b + 1]))
             start, end = float(d[a]), float(d[b])
             peak = _peak(profile, outer_diameter, track, spec, i) if track and spec else None
+            if peak is not None:  # over the threshold there too: a stretch of one row or two
+                start, end = min(start, peak[0]), max(end, peak[0])  # reaches its peak
             bend = next((x.number for x in bends if x.start_m <= end and start <= x.end_m), 0)
             construction = (
                 None
