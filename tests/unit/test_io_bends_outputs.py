@@ -223,6 +223,43 @@ def test_geojson_bend_and_strain_feature_points(tmp_path):
     }  # fmt: skip
 
 
+def test_a_plane_just_under_a_full_turn_is_written_in_0_to_360(tmp_path):
+    """A plane of 359.97 deg (a crest curving a hair to the left) was written 360.0 in the bends
+    and features CSVs and the GeoJSON, outside the documented [0, 360); the strain CSV at 2
+    decimals likewise. Each writes 0.0 at its own rounding, and keeps 359.9 / 359.94."""
+    from dataclasses import replace
+
+    from pipe_nav_core.io.products_csv import (
+        plane_deg,
+        write_bends_csv,
+        write_strain_features_csv,
+    )
+
+    near, kept = math.radians(359.97), math.radians(359.94)
+    assert float(plane_deg(near, 1)) == 0.0 and float(plane_deg(near, 2)) == 359.97
+    assert float(plane_deg(math.radians(359.996), 2)) == 0.0
+    assert float(plane_deg(kept, 1)) == 359.9
+    np.testing.assert_array_equal(plane_deg(np.radians([0.0, 90.0, 359.999]), 2), [0, 90, 0])
+    traj = make_traj(n=101, seconds=10.0)
+    bends = [
+        replace(b, plane=p, sigma_radius=0.5)
+        for b, p in zip(_bends(traj, [20, 70]), (near, kept), strict=True)
+    ]
+    feats = [replace(f, plane=near) for f in _features(bends)]
+    write_bends_csv(tmp_path / "b.csv", bends)
+    write_strain_features_csv(tmp_path / "f.csv", feats)
+
+    def planes_in(name: str) -> list[float]:  # plane_deg: column 11 of both files
+        return [float(r.split(",")[11]) for r in (tmp_path / name).read_text().splitlines()[1:]]
+
+    assert planes_in("b.csv") == [0.0, 359.9] and planes_in("f.csv") == [0.0, 0.0]
+    write_geojson(tmp_path / "c.geojson", traj, MK, bends=bends, strain_features=feats)
+    doc = json.loads((tmp_path / "c.geojson").read_text())
+    planes = [f["properties"]["plane_deg"] for f in doc["features"] if "plane_deg" in
+              f["properties"]]  # fmt: skip
+    assert planes == [359.97, 359.94, 359.97, 359.97]
+
+
 def test_kml_bend_and_strain_feature_placemarks(tmp_path):
     traj = make_traj(n=51, seconds=5.0)
     bends = _bends(traj, [5, 30])
