@@ -223,23 +223,23 @@ def test_geojson_bend_and_strain_feature_points(tmp_path):
     }  # fmt: skip
 
 
-def test_a_plane_just_under_a_full_turn_is_written_in_0_to_360(tmp_path):
+def test_an_angle_just_under_a_full_turn_is_written_in_0_to_360(tmp_path):
     """A plane of 359.97 deg (a crest curving a hair to the left) was written 360.0 in the bends
-    and features CSVs and the GeoJSON, outside the documented [0, 360); the strain CSV at 2
-    decimals likewise. Each writes 0.0 at its own rounding, and keeps 359.9 / 359.94."""
+    and features CSVs and 360.00 in the strain CSV and the GeoJSON, outside the documented
+    [0, 360), and an azimuth within 5e-7 deg of north 360.000000 in the centreline CSV (a pipe
+    heading north crosses it often). Each writes 0 at its own rounding and keeps 359.9 /
+    359.94."""
     from dataclasses import replace
 
-    from pipe_nav_core.io.products_csv import (
-        plane_deg,
-        write_bends_csv,
-        write_strain_features_csv,
-    )
+    from pipe_nav_core.geo.attitude import quat_from_euler, turn_deg
+    from pipe_nav_core.io.centreline import centreline_columns
+    from pipe_nav_core.io.products_csv import write_bends_csv, write_strain_features_csv
 
     near, kept = math.radians(359.97), math.radians(359.94)
-    assert float(plane_deg(near, 1)) == 0.0 and float(plane_deg(near, 2)) == 359.97
-    assert float(plane_deg(math.radians(359.996), 2)) == 0.0
-    assert float(plane_deg(kept, 1)) == 359.9
-    np.testing.assert_array_equal(plane_deg(np.radians([0.0, 90.0, 359.999]), 2), [0, 90, 0])
+    assert float(turn_deg(near, 1)) == 0.0 and float(turn_deg(near, 2)) == 359.97
+    assert float(turn_deg(math.radians(359.996), 2)) == 0.0
+    assert float(turn_deg(kept, 1)) == 359.9 and float(turn_deg(-0.5 * math.pi, 1)) == 270.0
+    np.testing.assert_array_equal(turn_deg(np.radians([0.0, 90.0, 359.999]), 2), [0, 90, 0])
     traj = make_traj(n=101, seconds=10.0)
     bends = [
         replace(b, plane=p, sigma_radius=0.5)
@@ -258,6 +258,10 @@ def test_a_plane_just_under_a_full_turn_is_written_in_0_to_360(tmp_path):
     planes = [f["properties"]["plane_deg"] for f in doc["features"] if "plane_deg" in
               f["properties"]]  # fmt: skip
     assert planes == [359.97, 359.94, 359.97, 359.97]
+    north = replace(traj, quat_nb=quat_from_euler(0.0 * traj.t, 0.0 * traj.t,
+                                                  0.0 * traj.t + 2.0 * math.pi - 1e-9))  # fmt: skip
+    az = centreline_columns(north, DATUM)["azimuth_deg"]
+    assert np.all(az == 0.0)
 
 
 def test_kml_bend_and_strain_feature_placemarks(tmp_path):

@@ -210,6 +210,14 @@ def euler_from_dcm(c_nb: ArrayLike) -> tuple[Array, Array, Array]:
     return roll, pitch, azimuth
 
 
+def turn_deg(angle: ArrayLike, decimals: int) -> Array:
+    """Angles (rad) in degrees in [0, 360) as written with ``decimals`` decimals (azimuths,
+    curvature planes): rounded first, then wrapped, so that one a hair under a full turn is
+    written 0, not 360 (outside the range the files document)."""
+    d = np.round(np.mod(np.degrees(angle), 360.0), decimals)
+    return np.where(d >= 360.0, 0.0, d)
+
+
 def dcm_from_euler(roll: ArrayLike, pitch: ArrayLike, azimuth: ArrayLike) -> Array:
     """C_nb (FLU -> ENU) from roll, pitch (nose up) and azimuth (clockwise from north), rad.
 

@@ -32,6 +32,7 @@ from pipe_nav_core.geo.attitude import (
     quat_mul,
     quat_normalize,
     rotvec_from_quat,
+    turn_deg,
 )
 from pipe_nav_core.geo.earth import ecef_to_geodetic, geodetic_to_ecef, geodetic_to_enu
 from pipe_nav_core.io.atomic import atomic_write
@@ -234,7 +235,7 @@ def centreline_columns(traj: Trajectory, datum: Datum) -> dict[str, NDArray[np.f
         "up_m": enu[:, 2],
         "roll_deg": np.degrees(roll),
         "pitch_deg": np.degrees(pitch),
-        "azimuth_deg": np.degrees(az),
+        "azimuth_deg": turn_deg(az, 6),  # as written: in [0, 360)
         "sigma_east_m": sig[:, 0],
         "sigma_north_m": sig[:, 1],
         "sigma_up_m": sig[:, 2],

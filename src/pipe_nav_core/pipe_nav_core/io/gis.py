@@ -22,9 +22,9 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from pipe_nav_core.geo.attitude import turn_deg
 from pipe_nav_core.io.atomic import atomic_write, target_stem
 from pipe_nav_core.io.centreline import require_finite
-from pipe_nav_core.io.products_csv import plane_deg
 from pipe_nav_core.types import Marker, Trajectory
 
 if TYPE_CHECKING:
@@ -67,7 +67,7 @@ def bend_properties(b: PipeBend) -> dict[str, object]:
         "radius_m": _num(b.radius, 3),
         "sigma_radius_m": _num(b.sigma_radius, 3),
         "radius_d": _num(b.radius_d, 2),
-        "plane_deg": _num(float(plane_deg(b.plane, 2)), 2),
+        "plane_deg": _num(float(turn_deg(b.plane, 2)), 2),
         "start_m": _num(b.start_m, 3),
         "apex_m": _num(b.apex_m, 3),
         "end_m": _num(b.end_m, 3),
@@ -84,7 +84,7 @@ def strain_feature_properties(f: StrainFeature) -> dict[str, object]:
         "threshold_pct": _num(f.threshold_pct, 6),
         "peak_pct": _num(f.peak_pct, 6),
         "sigma_peak_pct": _num(f.sigma_peak_pct, 6),
-        "plane_deg": _num(float(plane_deg(f.plane, 2)), 2),
+        "plane_deg": _num(float(turn_deg(f.plane, 2)), 2),
         "start_m": _num(f.start_m, 3),
         "peak_m": _num(f.peak_m, 3),
         "end_m": _num(f.end_m, 3),

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pipe_nav_core.geo.attitude import turn_deg
 from pipe_nav_core.io.atomic import atomic_write
 
 if TYPE_CHECKING:  # (products imports io: gis, which writes the products, imports this)
@@ -84,13 +85,6 @@ def _finite(values: Sequence[float], what: str) -> None:
         raise ValueError(f"{what}: {len(bad)} value(s) are not finite: refusing to write them")
 
 
-def plane_deg(plane: np.ndarray | float, decimals: int) -> np.ndarray:
-    """Planes (rad, [0, 2 pi)) in degrees rounded to ``decimals`` as written, in [0, 360): a
-    plane a hair under 2 pi was written 360.0, outside the documented range."""
-    d = np.round(np.degrees(plane) % 360.0, decimals)
-    return np.where(d >= 360.0, 0.0, d)
-
-
 def write_strain_csv(
     path: str | os.PathLike[str],
     profile: CurvatureProfile,
@@ -99,7 +93,7 @@ def write_strain_csv(
 ) -> None:
     """The strain CSV: one row per profile row (chainage step)."""
     cols = [profile.distance, np.degrees(profile.lat), np.degrees(profile.lon), profile.alt,
-            profile.vertical, profile.horizontal, profile.total, plane_deg(profile.plane, 2),
+            profile.vertical, profile.horizontal, profile.total, turn_deg(profile.plane, 2),
             strain_pct, sigma_strain_pct, profile.sigma, profile.t, 1e4 * strain_pct,
             1e4 * sigma_strain_pct]  # fmt: skip
     data = np.column_stack([np.asarray(c, dtype=np.float64) for c in cols]).reshape(-1, len(cols))
@@ -118,7 +112,7 @@ def bend_row(b: PipeBend) -> list[object]:
     """A bend as the values of BEND_COLUMNS (degrees for people)."""
     return [b.number, b.start_m, b.apex_m, b.end_m, math.degrees(b.lat), math.degrees(b.lon),
             b.alt, math.degrees(b.angle), math.degrees(b.sigma_angle), b.radius, b.radius_d,
-            float(plane_deg(b.plane, 1)), b.direction, b.kind, b.sigma_radius, b.apex_t,
+            float(turn_deg(b.plane, 1)), b.direction, b.kind, b.sigma_radius, b.apex_t,
             int(b.radius_resolved), b.sigma_h, b.sigma_v]  # fmt: skip
 
 
@@ -141,7 +135,7 @@ def feature_row(x: StrainFeature) -> list[object]:
     construction = "" if x.construction is None else int(x.construction)
     return [x.number, x.threshold_pct, x.start_m, x.peak_m, x.end_m, x.length_m,
             math.degrees(x.lat), math.degrees(x.lon), x.alt, x.peak_pct, x.sigma_peak_pct,
-            float(plane_deg(x.plane, 1)), x.bend, construction]  # fmt: skip
+            float(turn_deg(x.plane, 1)), x.bend, construction]  # fmt: skip
 
 
 def write_strain_features_csv(
