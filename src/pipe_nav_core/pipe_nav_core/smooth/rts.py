@@ -235,8 +235,8 @@ def _rts_backward(
 
 
 PIECE_EPOCHS = 512  # epochs per call of the RTS kernels
-# threads making the gains: the two halves of a piece at once, beside the recursion of the
-# piece after it (the gains are two thirds of the work: one thread left them the critical path)
+# threads making the gains: a part of a piece each, beside the recursion of the piece after it
+# (the gains are two thirds of the work: one thread left them the critical path)
 GAIN_THREADS = 2
 
 
@@ -280,11 +280,12 @@ def rts_packed(
             if k0 + len(rows) != end or not len(rows):
                 raise ValueError("rts_packed: chunks must run from the last epoch back")
             G = gains[b % 2]
-            h = len(rows) // 2  # each half's gains in a thread (those of its last row need
-            jobs = [  # the first row of the rows after it)
-                pool.submit(_rts_gains, rows[:h], rows[h], fmt.phi_rows, G[:h]),
-                pool.submit(_rts_gains, rows[h:], next_row, fmt.phi_rows, G[h:]),
-            ] if h else [pool.submit(_rts_gains, rows, next_row, fmt.phi_rows, G)]  # fmt: skip
+            # a part of the rows per thread (the gain of a part's last row needs the first
+            # row after it)
+            cuts = sorted({len(rows) * j // GAIN_THREADS for j in range(GAIN_THREADS + 1)})
+            jobs = [pool.submit(_rts_gains, rows[i:j], rows[j] if j < len(rows) else next_row,
+                                fmt.phi_rows, G[i:j])
+                    for i, j in zip(cuts[:-1], cuts[1:], strict=True)]  # fmt: skip
             if pending is not None:  # the piece after this one, while its gains are made
                 _recursion(pending, dx, e, var, cols, P_full, Ps, Pp)
             pending = (k0, rows, jobs, G)
