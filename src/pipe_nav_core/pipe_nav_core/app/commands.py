@@ -170,26 +170,35 @@ def out_is_dir(out: str) -> bool:
     return out.endswith(("/", "\\")) or Path(out).is_dir()
 
 
+def run_in_folder(folder: str, input_path: str) -> str:
+    """--out DIR/: the folder made, and the path in it named like the input without its
+    suffix, which the outputs' names extend (``DIR/run`` -> ``DIR/run_bends.csv``)."""
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return str(Path(folder) / Path(str(input_path).rstrip("/")).stem)
+
+
 def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:
     from pipe_nav_core.app.outputs import Outputs
     from pipe_nav_core.app.pipeline import smooth_bag
     from pipe_nav_core.io.bagfiles import bag_files
 
     cfg = load_config(args)
-    out = Path(args.out)
-    stem = Path(str(args.input).rstrip("/")).stem
     if out_is_dir(args.out):
-        out.mkdir(parents=True, exist_ok=True)
+        run = run_in_folder(args.out, args.input)
         outputs = Outputs(
-            bag=str(out / f"{stem}_smoothed.mcap"),
-            csv=args.csv or str(out / f"{stem}_centerline.csv"),
-            geojson=args.geojson or str(out / f"{stem}_centerline.geojson"),
-            kml=args.kml or str(out / f"{stem}_centerline.kml"),
-            plot=args.plot or str(out / f"{stem}_report.png"),
+            bag=f"{run}_smoothed.mcap",
+            csv=args.csv or f"{run}_centerline.csv",
+            geojson=args.geojson or f"{run}_centerline.geojson",
+            kml=args.kml or f"{run}_centerline.kml",
+            plot=args.plot or f"{run}_report.png",
         )
     else:
         outputs = Outputs(
-            bag=str(out), csv=args.csv, geojson=args.geojson, kml=args.kml, plot=args.plot
+            bag=str(Path(args.out)),
+            csv=args.csv,
+            geojson=args.geojson,
+            kml=args.kml,
+            plot=args.plot,
         )
     outputs = outputs.with_products()
     bag_files(args.input)  # a bad bag path fails at once, not after a first compile

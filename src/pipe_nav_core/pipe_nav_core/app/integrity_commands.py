@@ -16,7 +16,13 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from pipe_nav_core.products import IntegrityReport
-from pipe_nav_core.app.commands import format_max_strain, load_config, out_is_dir, warm_kernels
+from pipe_nav_core.app.commands import (
+    format_max_strain,
+    load_config,
+    out_is_dir,
+    run_in_folder,
+    warm_kernels,
+)
 from pipe_nav_core.errors import CliError
 
 
@@ -36,8 +42,7 @@ def cmd_bends(args: argparse.Namespace) -> int:
     src = str(args.input).rstrip("/")
     run = args.out
     if run and out_is_dir(run):  # a folder, as for smooth: the products named like the input
-        Path(run).mkdir(parents=True, exist_ok=True)
-        run = str(Path(run) / Path(src).stem)
+        run = run_in_folder(run, src)
     outputs = Outputs(csv=run + ".csv" if run else src).with_products()
     outputs = Outputs(strain=outputs.strain, bends=outputs.bends,
                       strain_features=outputs.strain_features)  # fmt: skip
