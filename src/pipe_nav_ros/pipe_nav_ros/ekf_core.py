@@ -437,25 +437,20 @@ class EkfCore:
             return self._off_clock(c, role, t, args, 1)
         if ref > -math.inf and t < ref - lead and t <= horizon:
             if t > self._last_stamp[role]:  # its own stream goes on: a backlog, not a clock
-                c.faults["stamp_past"] += 1
-                self._problem(
-                    c,
-                    role,
-                    f"stamp_past: stamp {t:.6f} s, {t - ref:+.3f} s behind the other inputs "
-                    "(a backlog longer than the engine waits for): dropped",
-                )
-                return False
+                why = "a backlog longer than the engine waits for"
+                return self._late(c, role, f"stamp {t:.6f} s, {t - ref:+.3f} s behind the other "
+                                  f"inputs ({why})")  # fmt: skip
             return self._off_clock(c, role, t, args, -1)
         if t <= self._last_stamp[role] or t <= horizon:
-            c.faults["stamp_past"] += 1
-            self._problem(
-                c,
-                role,
-                f"stamp_past: stamp {t:.6f} s already passed (data at {ref:.6f} s): dropped",
-            )
-            return False
+            return self._late(c, role, f"stamp {t:.6f} s already passed (data at {ref:.6f} s)")
         self._jump.clear()
         return self._accept(c, role, t, push, args)
+
+    def _late(self, c: TopicCounters, role: str, what: str) -> bool:
+        """A sample too late to be used (what: its stamp and why): counted, named, dropped."""
+        c.faults["stamp_past"] += 1
+        self._problem(c, role, f"stamp_past: {what}: dropped")
+        return False
 
     def _accept(self, c: TopicCounters, role: str, t: float, push: Callable, args: tuple) -> bool:
         self._last_stamp[role] = t
