@@ -31,3 +31,18 @@ def test_the_cases_remove_only_their_sources():
     assert markers.marker_time_sigma == sc.marker_time_sigma > 0.0
     with pytest.raises(ValueError, match="unknown case"):
         variant(sc, "no gravity")
+
+
+def test_another_imu_grade_runs_the_same_pipe_with_it():
+    """The undulating pipe's consumer IMU leaves several cm that its own sigma covers; with an
+    industrial IMU on the same pipe and seed the smoother is under 2 cm (issue 17's target),
+    and says so in its sigma: the target is a limit of the IMU, not of the estimator."""
+    consumer = error_budget("undulation90", seed=1, cases=("as simulated",))[0]
+    industrial = error_budget("undulation90", seed=1, cases=("as simulated",),
+                              imu_grade="industrial")[0]  # fmt: skip
+    assert float(consumer["max_h"]) > 0.02 and float(consumer["sigma_h"]) > 0.05
+    assert float(industrial["max_h"]) < 0.02 and float(industrial["max_v"]) < 0.02
+    assert float(industrial["sigma_h"]) < 0.5 * float(consumer["sigma_h"])
+    assert float(industrial["max_h"]) < 3.0 * float(industrial["sigma_h"])
+    with pytest.raises(ValueError, match="unknown IMU grade"):
+        error_budget("undulation90", cases=("as simulated",), imu_grade="navigation")

@@ -382,7 +382,7 @@ def test_sigterm_while_writing_leaves_nothing_behind(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 128 + signal.SIGTERM and "terminated" in err
+    assert proc.returncode == 128 + signal.SIGTERM and "terminated" in err, err
     assert list(out.iterdir()) == []
 
 

@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 from pipe_nav_core.model.state import SV_SIZE, Layout
 from pipe_nav_core.smooth import chunks, recording
-from pipe_nav_core.smooth.recording import Recording, phi_rows
+from pipe_nav_core.smooth.recording import Recording, constant_states, phi_rows
 from pipe_nav_core.smooth.rts import rts, rts_packed
 
 
-def _epochs(layout: Layout, K: int, seed: int = 0):
-    """K random epochs of consistent (positive-definite) covariances and transitions."""
+def _epochs(layout: Layout, K: int, seed: int = 0, inflate: dict[int, float] | None = None):
+    """K random epochs of consistent (positive-definite) covariances and transitions, the
+    random constants (recording.constant_states) without process noise; inflate: epoch ->
+    factor of its predicted covariance (a marker epoch's inflation)."""
     rng = np.random.default_rng(seed)
     n = layout.n
     rows = phi_rows(layout)
@@ -24,7 +26,10 @@ def _epochs(layout: Layout, K: int, seed: int = 0):
         phi = np.eye(n)
         phi[rows] += rng.normal(size=(len(rows), n)) * 0.05
         a = rng.normal(size=(n, n)) * 0.05
-        P_pred = phi @ P @ phi.T + a @ a.T + 1e-3 * np.eye(n)
+        Q = a @ a.T + 1e-3 * np.eye(n)
+        Q[constant_states(layout)] = 0.0
+        Q[:, constant_states(layout)] = 0.0
+        P_pred = (phi @ P @ phi.T + Q) * (inflate or {}).get(len(out), 1.0)
         P = 0.9 * P_pred  # a stand-in for an update
         out.append((rng.normal(size=SV_SIZE), rng.normal(size=n), P.copy(), P_pred, phi))
     return out
@@ -57,12 +62,33 @@ def test_recording_reads_back_what_was_stored(monkeypatch, budget):
     P_upd, P_pred, phi = ([x[i] for x in epochs] for i in (2, 3, 4))
     e_ref, P_ref = rts(P_upd, P_pred, phi, rec.dx)
     np.testing.assert_allclose(e, e_ref, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(var, np.diagonal(P_ref, axis1=1, axis2=2), rtol=1e-12)
+    # the packed RTS takes the random constants' gain columns as exact unit vectors: the
+    # same smoother, to round-off
+    np.testing.assert_allclose(var, np.diagonal(P_ref, axis1=1, axis2=2), rtol=1e-10)
     e_some, var_some = rts_packed(rec.rts_chunks(), rec.dx, rec.format, var_cols=[5, 0, 2])
     assert e_some.tobytes() == e.tobytes() and var_some.tobytes() == var[:, [5, 0, 2]].tobytes()
     rec.close()
     if spill_dir is not None:
         assert not os.path.exists(spill_dir)
+
+
+@pytest.mark.parametrize("inflate", [{}, {10: 3.0, 25: 1.0 + 1e-4, 39: 2.0}])
+def test_the_rts_takes_the_constants_gain_columns_as_unit_where_they_are(inflate):
+    """The packed RTS takes the random constants' gain columns as unit vectors (their
+    predicted covariance is their updated one) and solves the whole gain of an epoch whose
+    predicted covariance the filter inflated: the same smoother as over the full matrices,
+    to round-off, either way."""
+    layout = Layout("ins", gyro_errors=True, accel_errors=True)
+    assert len(constant_states(layout)) == 20  # the boresight and the IMU error matrices
+    epochs = _epochs(layout, 40, seed=3, inflate=inflate)
+    rec = Recording(layout)
+    for state, dx, P_upd, P_pred, phi in epochs:
+        rec.add_epoch(state, dx=dx, P_upd=P_upd, P_pred=P_pred, phi=phi)
+    e, P = rts_packed(rec.rts_chunks(), rec.dx, rec.format, full=True)
+    e_ref, P_ref = rts(*([x[i] for x in epochs] for i in (2, 3, 4)), rec.dx)
+    np.testing.assert_allclose(e, e_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(P, P_ref, rtol=0, atol=1e-12)
+    rec.close()
 
 
 def test_chunks_read_ahead_leave_the_ones_the_smoother_holds(monkeypatch):

@@ -42,6 +42,16 @@ def phi_rows(layout: Layout) -> Array:
     return rows
 
 
+def constant_states(layout: Layout) -> Array:
+    """The error states that are random constants: the odometer boresight and the IMU error
+    matrices, whose transition rows are the identity's and whose process noise
+    (process.process_noise_k: 1e-8 rad/sqrt(s), 1e-9 /sqrt(s)) only keeps them from being
+    exactly known, some 1e-7 of their least sigma over a 100 km run. The RTS takes their
+    gain columns as unit vectors (smooth.rts.EpochRows)."""
+    blocks = (layout.bore, layout.gm, layout.am)
+    return np.concatenate([np.arange(b.start, b.stop) for b in blocks if b is not None])
+
+
 class Recording:
     """What the smoothers need from a forward pass (see the module docstring).
 
@@ -82,7 +92,7 @@ class Recording:
         if centreline_only and not linearized:
             raise ValueError("a recording for the centreline only is of a pass about a reference")
         self.centreline_only = centreline_only
-        self.format = EpochRows(layout.n, phi_rows(layout))
+        self.format = EpochRows(layout.n, phi_rows(layout), constant_states(layout))
         self._packed = Chunks(self.format.width, ram_budget)
         self._packer: ThreadPoolExecutor | None = None
         self._packing: Future[None] | None = None

@@ -26,11 +26,22 @@ class EpochRows:
     ``width`` values, [upper triangle of P_upd | upper triangle of P_pred | Phi[phi_rows]],
     triangles row-major (the order of np.triu_indices), Phi rows row-major. The rows of Phi
     not in phi_rows are the identity's (n: error-state size; phi_rows: sorted row indices).
+
+    constants: error states outside phi_rows whose process noise is zero, or a regularizer
+    far below their variance (random constants). Column s of Phi P_upd is then column s of
+    P_pred, so the transposed gain P_pred^-1 Phi P_upd has the unit vector e_s as column s:
+    the smoother solves and multiplies out only the other columns (``dynamic``), in every
+    epoch where the stored covariances show it (a marker epoch whose covariance the filter
+    inflated or turned does not: its gain is solved whole).
     """
 
-    def __init__(self, n: int, phi_rows: Sequence[int]) -> None:
+    def __init__(self, n: int, phi_rows: Sequence[int], constants: Sequence[int] = ()) -> None:
         self.n = n
         self.phi_rows = np.asarray(phi_rows, dtype=np.int64)
+        if set(constants) & set(self.phi_rows.tolist()):
+            raise ValueError("a random-constant error state cannot have a row of Phi stored")
+        self.constants = np.unique(np.asarray(constants, dtype=np.int64))
+        self.dynamic = np.setdiff1d(np.arange(n), self.constants)
         self.m = n * (n + 1) // 2
         self.width = 2 * self.m + len(self.phi_rows) * n
         self.iu = np.triu_indices(n)
@@ -106,21 +117,28 @@ def cholesky_k(A: Array, L: Array) -> bool:
 
     Written out with :func:`_cho_solve` because, at the error-state sizes here (21 to 42),
     they take half the time of numba's np.linalg.solve (its LAPACK call copies and pivots);
-    with it the whole smoother was 12 % slower."""
+    with it the whole smoother was 12 % slower. Right-looking: each column, once made,
+    is taken off the rest of the triangle along contiguous rows, which the compiler
+    vectorizes (the sums of the column-by-column form cannot be reordered); every entry
+    sees the same subtractions in the same order, so the factor is the same to the bit."""
     n = A.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            L[i, j] = A[i, j]
+    col = np.empty(n)
     for j in range(n):
-        s = A[j, j]
-        for p in range(j):
-            s -= L[j, p] * L[j, p]
+        s = L[j, j]
         if not s > 0.0:
             return False
         d = np.sqrt(s)
         L[j, j] = d
         for i in range(j + 1, n):
-            s = A[i, j]
-            for p in range(j):
-                s -= L[i, p] * L[j, p]
-            L[i, j] = s / d
+            L[i, j] = L[i, j] / d
+            col[i] = L[i, j]
+        for i in range(j + 1, n):
+            f = L[i, j]
+            for k in range(j + 1, i + 1):
+                L[i, k] -= f * col[k]
     return True
 
 
@@ -146,16 +164,105 @@ def _cho_solve(L: Array, B: Array) -> None:
             B[i, c] *= inv
 
 
+# how closely P_pred must agree with Phi P_upd Phi^T in the columns of the random constants
+# for their gain columns to be taken as unit vectors: their own variance may have grown by their
+# regularizing process noise (on the 10 km line under 3e-8 of it in 99.9 % of the epochs), the
+# rest agree to round-off. A marker's covariance inflation or heading rotation fails it by far
+# (4 epochs of 53612 there); the smoothed centrelines of the test pipes move by 1-2 nm.
+CONSTANT_GROWTH = 1e-6
+CONSTANT_COUPLING = 1e-9
+
+
+@kernel
+def _constants_hold(
+    Pu: Array,
+    Pp: Array,
+    phi_r: Array,
+    stored: NDArray[np.int64],
+    constants: NDArray[np.int64],
+    Pc: Array,
+) -> bool:
+    """Whether column s of P_pred is column s of Phi P_upd for every random constant s (within
+    CONSTANT_GROWTH of its variance on the diagonal, CONSTANT_COUPLING of the correlation
+    scale elsewhere): then their gain columns are unit vectors (EpochRows). stored: the row of
+    phi_r of each error state (-1: its row of Phi is the identity's); Pc (n, constants) room."""
+    n, c = Pc.shape
+    for j in range(n):
+        for q in range(c):
+            Pc[j, q] = Pu[j, constants[q]]
+    Bc = np.dot(phi_r, Pc)
+    for q in range(c):
+        s = constants[q]
+        for j in range(n):
+            a = stored[j]
+            diff = Pp[j, s] - (Pc[j, q] if a < 0 else Bc[a, q])
+            if j == s:
+                if not abs(diff) <= CONSTANT_GROWTH * Pp[s, s]:
+                    return False
+            elif not diff * diff <= CONSTANT_COUPLING**2 * (Pp[j, j] * Pp[s, s]):
+                return False
+    return True
+
+
+@kernel
+def _gain_columns(
+    Pu: Array,
+    Pp: Array,
+    phi_r: Array,
+    phi_rows: NDArray[np.int64],
+    cols: NDArray[np.int64],
+    L: Array,
+    X: Array,
+) -> None:
+    """X (n, len(cols)) <- the columns cols of P_pred^-1 Phi P_upd (L: (n, n) room for the
+    Cholesky factor)."""
+    n, d = X.shape
+    for j in range(n):
+        for c in range(d):
+            X[j, c] = Pu[j, cols[c]]
+    Bp = np.dot(phi_r, X)  # the rows of Phi outside phi_rows are the identity's
+    for a in range(phi_rows.shape[0]):
+        X[phi_rows[a], :] = Bp[a]
+    if cholesky_k(Pp, L):
+        _cho_solve(L, X)
+    elif np.all(np.isfinite(Pp)):  # singular or indefinite: least squares
+        X[:, :] = np.linalg.lstsq(Pp, X)[0]
+    else:  # a diverged filter: its smoothing is undefined too
+        X[:, :] = np.nan
+
+
+@kernel
+def _reduced(G: Array, d: int) -> Array:
+    """The (n, d) gain columns kept at the start of the room G (n, n) of one epoch."""
+    n = G.shape[0]
+    return G.reshape(n * n)[: n * d].reshape((n, d))
+
+
 @kernel(nogil=True)
-def _rts_gains(rows: Array, next_row: Array, phi_rows: NDArray[np.int64], G: Array) -> None:
-    """G[i] <- the transposed RTS gain of the epoch of rows[i] (EpochRows form),
-    P_pred[k+1]^-1 Phi[k+1] P_upd[k], for every row that has a next epoch (rows[i + 1], or
-    next_row for the last; next_row empty: the last row is the last epoch, G[-1] untouched)."""
+def _rts_gains(
+    rows: Array,
+    next_row: Array,
+    phi_rows: NDArray[np.int64],
+    dynamic: NDArray[np.int64],
+    constants: NDArray[np.int64],
+    G: Array,
+    whole: NDArray[np.bool_],
+) -> None:
+    """The transposed RTS gain P_pred[k+1]^-1 Phi[k+1] P_upd[k] of the epoch of rows[i]
+    (EpochRows form), for every row that has a next epoch (rows[i + 1], or next_row for the
+    last; next_row empty: the last row is the last epoch, G[-1] untouched): where the random
+    constants' gain columns are unit vectors (:func:`_constants_hold`), only its ``dynamic``
+    columns (n, d) at the start of G[i] and whole[i] False; else the whole gain in G[i]
+    (n, n) and whole[i] True."""
     n = G.shape[1]
     m = n * (n + 1) // 2
     r = phi_rows.shape[0]
+    every = np.arange(n)
     Pu, Pp, L = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    phi_r, Bp = np.empty((r, n)), np.empty((r, n))
+    phi_r, Pc = np.empty((r, n)), np.empty((n, constants.shape[0]))
+    stored = np.full(n, -1, dtype=np.int64)
+    for a in range(r):
+        stored[phi_rows[a]] = a
     for i in range(rows.shape[0]):
         nxt = rows[i + 1] if i + 1 < rows.shape[0] else next_row
         if nxt.shape[0] == 0:
@@ -165,18 +272,12 @@ def _rts_gains(rows: Array, next_row: Array, phi_rows: NDArray[np.int64], G: Arr
         for a in range(r):
             for j in range(n):
                 phi_r[a, j] = nxt[2 * m + a * n + j]
-        # B = Phi[k+1] P_upd[k] (the rows of Phi outside phi_rows are the identity's)
-        B = G[i]
-        B[:, :] = Pu
-        np.dot(phi_r, Pu, Bp)
-        for a in range(r):
-            B[phi_rows[a], :] = Bp[a]
-        if cholesky_k(Pp, L):
-            _cho_solve(L, B)
-        elif np.all(np.isfinite(Pp)):  # singular or indefinite: least squares
-            B[:, :] = np.linalg.lstsq(Pp, B)[0]
-        else:  # a diverged filter: its smoothing is undefined too
-            B[:, :] = np.nan
+        reduced = constants.shape[0] > 0 and _constants_hold(Pu, Pp, phi_r, stored, constants, Pc)
+        whole[i] = not reduced
+        if reduced:
+            _gain_columns(Pu, Pp, phi_r, phi_rows, dynamic, L, _reduced(G[i], dynamic.shape[0]))
+        else:
+            _gain_columns(Pu, Pp, phi_r, phi_rows, every, L, G[i])
 
 
 @kernel(nogil=True)
@@ -184,6 +285,7 @@ def _rts_backward(
     rows: Array,
     k0: int,
     G: Array,
+    whole: NDArray[np.bool_],
     dx: Array,
     e: Array,
     var: Array,
@@ -191,17 +293,18 @@ def _rts_backward(
     P_full: Array,
     Ps: Array,
     Pp: Array,
+    dynamic: NDArray[np.int64],
 ) -> None:
     """The RTS recursion over the epochs k0 .. k0 + len(rows) - 1 (rows in the EpochRows form,
-    G from :func:`_rts_gains`), from the last to the first. Carried between calls (in place):
-    Ps and Pp, the smoothed and the predicted covariance of the epoch after the rows. Writes
-    e[k], var[k] (the variances of the error states var_cols) and, if P_full has rows,
-    P_full[k]."""
+    G and whole from :func:`_rts_gains`), from the last to the first. Carried between calls
+    (in place): Ps and Pp, the smoothed and the predicted covariance of the epoch after the
+    rows. Writes e[k], var[k] (the variances of the error states var_cols) and, if P_full has
+    rows, P_full[k]."""
     n = Ps.shape[0]
     m = n * (n + 1) // 2
     K = e.shape[0]
+    every = np.arange(n)
     Pu, D = np.empty((n, n)), np.empty((n, n))
-    GD, GDG = np.empty((n, n)), np.empty((n, n))
     for i in range(rows.shape[0] - 1, -1, -1):
         k = k0 + i
         row = rows[i]
@@ -210,21 +313,40 @@ def _rts_backward(
             Ps[:, :] = Pu
             e[k, :] = 0.0
         else:
-            Gt = G[i]  # G^T
-            e[k, :] = 0.0
+            cols = every if whole[i] else dynamic
+            d = cols.shape[0]
+            X = G[i] if whole[i] else _reduced(G[i], d)  # the columns cols of G^T
+            # e[k] = G (e[k+1] + dx[k+1]), G's rows outside cols the identity's
             for p in range(n):
-                v = e[k + 1, p] + dx[k + 1, p]
-                for j in range(n):
-                    e[k, j] += Gt[p, j] * v
-            # Ps[k] = P_upd[k] + G (Ps[k+1] - P_pred[k+1]) G^T, symmetrized
+                e[k, p] = e[k + 1, p] + dx[k + 1, p]
+            for c in range(d):
+                acc = 0.0
+                for p in range(n):
+                    acc += X[p, c] * (e[k + 1, p] + dx[k + 1, p])
+                e[k, cols[c]] = acc
+            # Ps[k] = P_upd[k] + G (Ps[k+1] - P_pred[k+1]) G^T, symmetrized: D where both
+            # states are outside cols, (X^T D)[c, b] where one is, X^T D X where both are
             for a in range(n):
                 for b in range(n):
                     D[a, b] = Ps[a, b] - Pp[a, b]
-            np.dot(Gt.T, D, GD)
-            np.dot(GD, Gt, GDG)
+            GD = np.dot(X.T, D)
+            GDG = np.dot(GD, X)
             for a in range(n):
                 for b in range(a, n):
-                    x = 0.5 * ((Pu[a, b] + GDG[a, b]) + (Pu[b, a] + GDG[b, a]))
+                    x = 0.5 * ((Pu[a, b] + D[a, b]) + (Pu[b, a] + D[b, a]))
+                    Ps[a, b] = x
+                    Ps[b, a] = x
+            for c in range(d):
+                a = cols[c]
+                for b in range(n):
+                    x = Pu[a, b] + GD[c, b]
+                    Ps[a, b] = x
+                    Ps[b, a] = x
+            for c in range(d):
+                a = cols[c]
+                for c2 in range(c, d):
+                    b = cols[c2]
+                    x = 0.5 * ((Pu[a, b] + GDG[c, c2]) + (Pu[b, a] + GDG[c2, c]))
                     Ps[a, b] = x
                     Ps[b, a] = x
         for c in range(var_cols.shape[0]):
@@ -268,40 +390,43 @@ def rts_packed(
     P_full = np.zeros((K if full else 0, n, n))
     Ps, Pp = np.zeros((n, n)), np.zeros((n, n))
     gains = [np.empty((PIECE_EPOCHS, n, n)) for _ in range(2)]
+    wholes = [np.zeros(PIECE_EPOCHS, dtype=np.bool_) for _ in range(2)]
     pieces = (
         (k0 + a, np.ascontiguousarray(rows[a : a + PIECE_EPOCHS], dtype=np.float64))
         for k0, rows in chunks
         for a in range(((len(rows) - 1) // PIECE_EPOCHS) * PIECE_EPOCHS, -1, -PIECE_EPOCHS)
     )
     end, next_row = K, np.zeros(0)
-    pending: tuple[int, Array, list[Future[None]], Array] | None = None
+    pending: tuple[int, Array, list[Future[None]], Array, NDArray[np.bool_]] | None = None
     with ThreadPoolExecutor(max_workers=GAIN_THREADS) as pool:
         for b, (k0, rows) in enumerate(pieces):
             if k0 + len(rows) != end or not len(rows):
                 raise ValueError("rts_packed: chunks must run from the last epoch back")
-            G = gains[b % 2]
+            G, W = gains[b % 2], wholes[b % 2]
             # a part of the rows per thread (the gain of a part's last row needs the first
             # row after it)
             cuts = sorted({len(rows) * j // GAIN_THREADS for j in range(GAIN_THREADS + 1)})
             jobs = [pool.submit(_rts_gains, rows[i:j], rows[j] if j < len(rows) else next_row,
-                                fmt.phi_rows, G[i:j])
+                                fmt.phi_rows, fmt.dynamic, fmt.constants, G[i:j], W[i:j])
                     for i, j in zip(cuts[:-1], cuts[1:], strict=True)]  # fmt: skip
             if pending is not None:  # the piece after this one, while its gains are made
-                _recursion(pending, dx, e, var, cols, P_full, Ps, Pp)
-            pending = (k0, rows, jobs, G)
+                _recursion(pending, dx, e, var, cols, P_full, Ps, Pp, fmt.dynamic)
+            pending = (k0, rows, jobs, G, W)
             end, next_row = k0, rows[0]
         if pending is not None:
-            _recursion(pending, dx, e, var, cols, P_full, Ps, Pp)
+            _recursion(pending, dx, e, var, cols, P_full, Ps, Pp, fmt.dynamic)
     if end != 0:
         raise ValueError("rts_packed: the chunks do not reach epoch 0")
     return e, (P_full if full else var)
 
 
-def _recursion(piece: tuple[int, Array, list[Future[None]], Array], *arrays: Array) -> None:
-    k0, rows, jobs, G = piece
+def _recursion(
+    piece: tuple[int, Array, list[Future[None]], Array, NDArray[np.bool_]], *arrays: Array
+) -> None:
+    k0, rows, jobs, G, W = piece
     for job in jobs:
         job.result()
-    _rts_backward(rows, k0, G, *arrays)
+    _rts_backward(rows, k0, G, W, *arrays)
 
 
 def rts(
