@@ -174,28 +174,30 @@ CONSTANT_COUPLING = 1e-9
 
 
 @kernel
-def _constants_hold(
-    Pu: Array,
-    Pp: Array,
-    phi_r: Array,
-    stored: NDArray[np.int64],
-    constants: NDArray[np.int64],
-    Pc: Array,
-) -> bool:
-    """Whether column s of P_pred is column s of Phi P_upd for every random constant s (within
-    CONSTANT_GROWTH of its variance on the diagonal, CONSTANT_COUPLING of the correlation
-    scale elsewhere): then their gain columns are unit vectors (EpochRows). stored: the row of
-    phi_r of each error state (-1: its row of Phi is the identity's); Pc (n, constants) room."""
-    n, c = Pc.shape
+def _phi_p_columns(
+    Pu: Array, phi_r: Array, phi_rows: NDArray[np.int64], cols: NDArray[np.int64], X: Array
+) -> None:
+    """X (n, len(cols)) <- the columns cols of Phi P_upd (the rows of Phi outside phi_rows,
+    whose rows phi_r holds, are the identity's)."""
+    n, d = X.shape
     for j in range(n):
-        for q in range(c):
-            Pc[j, q] = Pu[j, constants[q]]
-    Bc = np.dot(phi_r, Pc)
-    for q in range(c):
+        for c in range(d):
+            X[j, c] = Pu[j, cols[c]]
+    Bp = np.dot(phi_r, X)
+    for a in range(phi_rows.shape[0]):
+        X[phi_rows[a], :] = Bp[a]
+
+
+@kernel
+def _constants_hold(Pp: Array, Bc: Array, constants: NDArray[np.int64]) -> bool:
+    """Whether the columns of the random constants of P_pred are those of Phi P_upd, Bc
+    (n, constants) (within CONSTANT_GROWTH of their variance on the diagonal,
+    CONSTANT_COUPLING of the correlation scale elsewhere): then their gain columns are unit
+    vectors (EpochRows)."""
+    for q in range(constants.shape[0]):
         s = constants[q]
-        for j in range(n):
-            a = stored[j]
-            diff = Pp[j, s] - (Pc[j, q] if a < 0 else Bc[a, q])
+        for j in range(Pp.shape[0]):
+            diff = Pp[j, s] - Bc[j, q]
             if j == s:
                 if not abs(diff) <= CONSTANT_GROWTH * Pp[s, s]:
                     return False
@@ -216,13 +218,7 @@ def _gain_columns(
 ) -> None:
     """X (n, len(cols)) <- the columns cols of P_pred^-1 Phi P_upd (L: (n, n) room for the
     Cholesky factor)."""
-    n, d = X.shape
-    for j in range(n):
-        for c in range(d):
-            X[j, c] = Pu[j, cols[c]]
-    Bp = np.dot(phi_r, X)  # the rows of Phi outside phi_rows are the identity's
-    for a in range(phi_rows.shape[0]):
-        X[phi_rows[a], :] = Bp[a]
+    _phi_p_columns(Pu, phi_r, phi_rows, cols, X)
     if cholesky_k(Pp, L):
         _cho_solve(L, X)
     elif np.all(np.isfinite(Pp)):  # singular or indefinite: least squares
@@ -259,10 +255,7 @@ def _rts_gains(
     r = phi_rows.shape[0]
     every = np.arange(n)
     Pu, Pp, L = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    phi_r, Pc = np.empty((r, n)), np.empty((n, constants.shape[0]))
-    stored = np.full(n, -1, dtype=np.int64)
-    for a in range(r):
-        stored[phi_rows[a]] = a
+    phi_r, Bc = np.empty((r, n)), np.empty((n, constants.shape[0]))
     for i in range(rows.shape[0]):
         nxt = rows[i + 1] if i + 1 < rows.shape[0] else next_row
         if nxt.shape[0] == 0:
@@ -272,7 +265,8 @@ def _rts_gains(
         for a in range(r):
             for j in range(n):
                 phi_r[a, j] = nxt[2 * m + a * n + j]
-        reduced = constants.shape[0] > 0 and _constants_hold(Pu, Pp, phi_r, stored, constants, Pc)
+        _phi_p_columns(Pu, phi_r, phi_rows, constants, Bc)
+        reduced = constants.shape[0] > 0 and _constants_hold(Pp, Bc, constants)
         whole[i] = not reduced
         if reduced:
             _gain_columns(Pu, Pp, phi_r, phi_rows, dynamic, L, _reduced(G[i], dynamic.shape[0]))
