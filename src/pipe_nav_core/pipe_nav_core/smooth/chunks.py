@@ -66,9 +66,14 @@ class Growable:
 # Chunk arrays no recording uses any more (spilled, or of a closed recording), by shape, for
 # the next chunks: memory the process has written before costs nothing to write again, while
 # fresh memory costs a page fault per 4 kB (on a virtual machine up to 10 us each, ten times
-# the packing itself). At most RAM_BUDGET_BYTES are kept; drop_spare() frees them.
+# the packing itself). At most RAM_BUDGET_BYTES are kept, or READ_BUFFERS chunks if more: the
+# RTS after a forward pass reads the spilled chunks back into READ_BUFFERS arrays, which
+# a recording's chunks (read_back) write beforehand in their writer thread as they first
+# spill: fresh ones cost the 10 km line's RTS 0.15-0.2 s of page faults. drop_spare() frees
+# them.
 _SPARE: dict[tuple[int, ...], list[Array]] = {}
 _SPARE_LOCK = threading.Lock()
+_READ_BACK: set[tuple[int, ...]] = set()  # the chunk shapes of Chunks(read_back=True)
 
 
 READ_BUFFERS = 3  # chunks read back from disk that a caller may still be reading
@@ -88,8 +93,20 @@ def _give(chunk: Array) -> None:
     """Keep a chunk array no recording uses any more for the next (within the budget)."""
     with _SPARE_LOCK:
         spare = _SPARE.setdefault(chunk.shape, [])
-        if (len(spare) + 1) * chunk.nbytes <= RAM_BUDGET_BYTES:
+        read = READ_BUFFERS * chunk.nbytes if chunk.shape in _READ_BACK else 0
+        if (len(spare) + 1) * chunk.nbytes <= max(RAM_BUDGET_BYTES, read):
             spare.append(chunk)
+
+
+def _prepare_spare(shape: tuple[int, int], count: int) -> None:
+    """Arrays of shape, written (their pages faulted in), into the spare pool until it holds
+    count of them."""
+    with _SPARE_LOCK:
+        missing = count - len(_SPARE.get(shape, []))
+    for _ in range(missing):
+        a = np.empty(shape)
+        a.fill(0.0)
+        _give(a)
 
 
 def drop_spare() -> None:
@@ -105,11 +122,19 @@ class Chunks:
     thread: the array stays in use until its file is complete, then serves a later chunk).
     Chunks read back from disk go into READ_BUFFERS buffers in turn: a caller holds at most the
     rows of the last ones it asked for (:func:`~pipe_nav_core.smooth.rts.rts_packed` reads one
-    chunk ahead while the gains of the one before take the first row of the one after)."""
+    chunk ahead while the gains of the one before take the first row of the one after).
+    read_back: every chunk will be read back (a Recording's, by the RTS): the READ_BUFFERS
+    arrays for that are written as the chunks first spill, and kept as spares."""
 
-    def __init__(self, width: int, budget: int, rows: int | None = None) -> None:
+    def __init__(
+        self, width: int, budget: int, rows: int | None = None, *, read_back: bool = False
+    ) -> None:
         self.width = width
+        self._read_back = read_back
         self.chunk_rows = CHUNK_EPOCHS if rows is None else rows
+        if read_back:
+            with _SPARE_LOCK:
+                _READ_BACK.add((self.chunk_rows, width))
         self._chunks: list[Array | str] = []  # in memory, or the path of a spilled chunk
         self._n = 0
         self._in_ram = max(2, budget // (self.chunk_rows * width * 8))  # chunks kept
@@ -147,6 +172,11 @@ class Chunks:
             self._dir = tempfile.mkdtemp(prefix="pipe_nav_recording_")
             self._writer = ThreadPoolExecutor(max_workers=1)
             self._finalizer = weakref.finalize(self, _remove, self._dir, self._writer)
+            if self._read_back:
+                # the arrays the chunks will be read back into, written while the writer
+                # waits for chunks to spill (not by the reader, beside the smoother's threads)
+                shape = (self.chunk_rows, self.width)
+                self._writer.submit(_prepare_spare, shape, READ_BUFFERS)
         for job in [w for w in self._writes if w.done()]:
             self._writes.remove(job)
             job.result()  # a failed write (disk full) raises here

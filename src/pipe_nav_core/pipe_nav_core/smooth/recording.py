@@ -93,7 +93,7 @@ class Recording:
             raise ValueError("a recording for the centreline only is of a pass about a reference")
         self.centreline_only = centreline_only
         self.format = EpochRows(layout.n, phi_rows(layout), constant_states(layout))
-        self._packed = Chunks(self.format.width, ram_budget)
+        self._packed = Chunks(self.format.width, ram_budget, read_back=True)  # by the RTS
         self._packer: ThreadPoolExecutor | None = None
         self._packing: Future[None] | None = None
         n = layout.n
