@@ -46,8 +46,8 @@ def constant_states(layout: Layout) -> Array:
     """The error states that are random constants: the odometer boresight and the IMU error
     matrices, whose transition rows are the identity's and whose process noise
     (process.process_noise_k: 1e-8 rad/sqrt(s), 1e-9 /sqrt(s)) only keeps them from being
-    exactly known, some 1e-7 of their least sigma over a 100 km run. The RTS takes their
-    gain columns as unit vectors (smooth.rts.EpochRows)."""
+    exactly known. The RTS takes their gain columns as unit vectors wherever the stored
+    covariances bear it out (smooth.rts.EpochRows, rts.CONSTANT_GROWTH)."""
     blocks = (layout.bore, layout.gm, layout.am)
     return np.concatenate([np.arange(b.start, b.stop) for b in blocks if b is not None])
 

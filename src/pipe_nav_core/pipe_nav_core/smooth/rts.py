@@ -298,7 +298,7 @@ def _rts_backward(
     m = n * (n + 1) // 2
     K = e.shape[0]
     every = np.arange(n)
-    Pu, D = np.empty((n, n)), np.empty((n, n))
+    Pu, D, v = np.empty((n, n)), np.empty((n, n)), np.empty(n)
     for i in range(rows.shape[0] - 1, -1, -1):
         k = k0 + i
         row = rows[i]
@@ -310,13 +310,14 @@ def _rts_backward(
             cols = every if whole[i] else dynamic
             d = cols.shape[0]
             X = G[i] if whole[i] else _reduced(G[i], d)  # the columns cols of G^T
-            # e[k] = G (e[k+1] + dx[k+1]), G's rows outside cols the identity's
+            # e[k] = G v, v = e[k+1] + dx[k+1], G's rows outside cols the identity's
             for p in range(n):
-                e[k, p] = e[k + 1, p] + dx[k + 1, p]
+                v[p] = e[k + 1, p] + dx[k + 1, p]
+                e[k, p] = v[p]
             for c in range(d):
                 acc = 0.0
                 for p in range(n):
-                    acc += X[p, c] * (e[k + 1, p] + dx[k + 1, p])
+                    acc += X[p, c] * v[p]
                 e[k, cols[c]] = acc
             # Ps[k] = P_upd[k] + G (Ps[k+1] - P_pred[k+1]) G^T, symmetrized: D where both
             # states are outside cols, (X^T D)[c, b] where one is, X^T D X where both are
