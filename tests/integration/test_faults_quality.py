@@ -61,7 +61,8 @@ def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tm
     cmd = [sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(SAMPLE), "--out", str(out)]
     r = subprocess.run([*cmd, "--strict"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and "quality             OK" in r.stdout, r.stderr
-    assert re.search(r"passes +\d \(converged; last attitude step 0\.\d+ mrad\)", r.stdout)
+    assert re.search(r"passes +\d \(converged; last attitude step 0\.\d+ mrad; epochs at 10 Hz\)",
+                     r.stdout)  # fmt: skip
     with open(out, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert meta["pipe_nav"]["quality"] == "OK" and meta["pipe_nav"]["markers_used"] == "4"

@@ -121,3 +121,21 @@ def test_config_from_dict_degrees_and_errors():
         NavConfig.from_dict({"bogus": 1})
     with pytest.raises(ConfigError, match="zupt_sigma"):
         NavConfig.from_dict({"zupt_sigma": -1})
+
+
+@pytest.mark.parametrize(
+    "settings, rate",
+    [
+        ({"imu_grade": "tactical"}, 2.5),  # the long epochs, where they lose nothing
+        ({"imu_grade": "tactical", "filter_rate_hz": 2.0}, 2.0),  # never longer than asked
+        ({"imu_grade": "tactical", "mode": "dr"}, 10.0),  # measured in ins mode only
+        ({"imu_grade": "tactical", "smoother_rate_hz": 20.0}, 20.0),  # given: taken
+        ({"imu_grade": "industrial"}, 10.0),
+        ({"imu_grade": "consumer", "filter_rate_hz": 4.0}, 4.0),
+        ({"imu_grade": "auto"}, 10.0),  # the industrial figures until measured
+        # a tactical IMU whose gyro scale factor is an industrial one's
+        ({"imu_grade": "tactical", "imu_overrides": {"gyro_scale_factor": 1e-3}}, 10.0),
+    ],
+)
+def test_the_smoothing_epochs_are_long_only_with_a_steady_imu(settings, rate):
+    assert NavConfig.from_dict(settings).smoothing_rate_hz() == rate

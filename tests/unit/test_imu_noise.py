@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pipe_nav_core.app.pipeline import smooth_with_imu_model
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
@@ -134,3 +137,40 @@ def test_the_declared_noise_is_read_from_the_bag_and_used(tmp_path):
     ))  # fmt: skip
     assert imu_model.choose(moving, NavConfig(), declared).grade == "consumer"
     assert declared_imu_noise(bag, "/no/such/topic") == {}
+
+
+def _spans_one_reading_at_a_time(log, min_s):
+    """static_spans as defined: every reading a step of the loop (the reference)."""
+    d, t, imu_t = log.odometer.distance, log.odometer.t, log.imu.t
+    spans, start = [], 0
+    for i in range(1, len(t) + 1):
+        if i == len(t) or abs(d[i] - d[start]) > imu_model.STILL_M:
+            t0 = min(t[start], imu_t[0]) if start == 0 else t[start]
+            a, b = max(t0, imu_t[0]), min(t[i - 1], imu_t[-1])
+            if b - a >= min_s:
+                spans.append((float(a), float(b)))
+            start = i
+    return spans
+
+
+@given(
+    steps=st.lists(
+        st.sampled_from([0.0, 5e-4, 1.5e-3, -1e-3, 3e-3, 0.04, -0.04, math.nan]),
+        min_size=2,
+        max_size=300,
+    ),  # fmt: skip
+    dt=st.floats(0.01, 0.3),
+    imu_span=st.tuples(st.floats(-2.0, 1.0), st.floats(-1.0, 2.0)),
+    min_s=st.sampled_from([0.0, 0.5, 2.0]),
+)
+@settings(max_examples=300, deadline=None)
+def test_static_spans_skip_the_moving_readings_to_the_same_spans(steps, dt, imu_span, min_s):
+    """static_spans jumps over the readings that move (each a span of no time): the spans
+    are those of the loop over every reading, still ones, creeping ones, gaps (NaN) and all."""
+    from types import SimpleNamespace
+
+    t = dt * np.arange(len(steps))
+    d = np.cumsum(steps)
+    imu_t = np.array([imu_span[0], t[-1] + imu_span[1]])
+    log = SimpleNamespace(imu=SimpleNamespace(t=imu_t), odometer=SimpleNamespace(t=t, distance=d))
+    assert imu_model.static_spans(log, min_s) == _spans_one_reading_at_a_time(log, min_s)

@@ -35,7 +35,7 @@ def _epochs(layout: Layout, K: int, seed: int = 0, inflate: dict[int, float] | N
     return out
 
 
-@pytest.mark.parametrize("budget", [chunks.RAM_BUDGET_BYTES, 0])
+@pytest.mark.parametrize("budget", [recording.RECORDING_BUDGET_BYTES, 0])
 def test_recording_reads_back_what_was_stored(monkeypatch, budget):
     """With a budget of 0 all but the two newest chunks go to disk; the values are the same,
     and the temporary directory goes when the recording is closed."""

@@ -199,3 +199,26 @@ def test_pipe_nav_smooth_runs_the_passes_until_converged():
     assert not two.summary["converged"] and two.summary["last_step_rad"] > CONVERGED_RAD
     s, s2 = (score(x.centreline, run.truth, run.log.markers, datum=x.datum) for x in (r, two))
     assert s.max_h < s2.max_h - 0.003
+
+
+def test_a_tactical_imu_is_smoothed_in_long_epochs_at_no_loss():
+    """With a tactical IMU the smoothing passes take epochs at LONG_EPOCH_HZ (the live filter's
+    forward method keeps filter_rate_hz): a quarter of the epochs, and the centreline as close
+    to the truth as with the live filter's 10 Hz epochs."""
+    from pipe_nav_core.config import LONG_EPOCH_HZ
+
+    sc = get_scenario("strain_span")
+    run = simulate(sc, seed=1)
+    cfg = NavConfig.from_dict(sc.estimator_settings())
+    long = smooth_log(run.log, cfg, method="rts")
+    short = smooth_log(run.log, dataclasses.replace(cfg, smoother_rate_hz=cfg.filter_rate_hz),
+                       method="rts")  # fmt: skip
+    live = smooth_log(run.log, cfg, method="forward")
+    assert long.summary["epoch_rate_hz"] == LONG_EPOCH_HZ
+    assert short.summary["epoch_rate_hz"] == live.summary["epoch_rate_hz"] == cfg.filter_rate_hz
+    span = run.log.imu.t[-1] - run.log.imu.t[0]
+    assert len(long.forward) < 1.1 * span * LONG_EPOCH_HZ + len(run.log.markers) + 2
+    assert len(short.forward) > 0.9 * span * cfg.filter_rate_hz
+    s_long, s_short = (score(x.centreline, run.truth, run.log.markers, datum=x.datum)
+                       for x in (long, short))  # fmt: skip
+    assert s_long.max_h < s_short.max_h + 0.002 and s_long.max_v < s_short.max_v + 0.002

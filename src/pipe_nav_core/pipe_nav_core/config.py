@@ -23,6 +23,11 @@ from typing import Any
 from pipe_nav_core.errors import ConfigError
 from pipe_nav_core.model.sensors import GRADES, ImuSpec, imu_grade
 
+# Hz: the smoothing passes' epoch rate with a tactical IMU (NavConfig.smoothing_rate_hz). The
+# 10 km line's figures are those of 10 Hz epochs (1:10640 against 1:10649, graph 1:10692 against
+# 1:10662) at 2.5 times the speed; an industrial IMU loses 2 mm on the sag pipe with exact
+# surveys at this rate, and a consumer one diverges on the test pipes (BENCHMARKS.md).
+LONG_EPOCH_HZ = 2.5
 NOISE_EPOCH_S = 0.1  # s, averaging time of odometer_speed_sigma and nhc_sigma
 AUTO_GRADE = "auto"  # imu_grade: the noise model measured from the run (imu_model)
 
@@ -223,6 +228,12 @@ class NavConfig:
     filter_rate_hz: float = _field(
         10.0, Positive(at_most=1000), "covariance propagation and update rate, Hz"
     )
+    smoother_rate_hz: float = _field(
+        0.0,
+        NON_NEGATIVE,
+        "epoch rate of the rts and graph smoothing passes, Hz; 0 = auto: 2.5 in ins mode with "
+        "an IMU of tactical grade or better, else filter_rate_hz",
+    )
     reorder_window_s: float = _field(
         0.5, NON_NEGATIVE, "samples wait this long to be put in stamp order; later ones dropped, s"
     )
@@ -379,6 +390,26 @@ class NavConfig:
         odometer and the NHC carry per second does not depend on the epoch length (epochs cut
         short at marker passages, other filter rates)."""
         return sigma * math.sqrt(NOISE_EPOCH_S / max(epoch_s, 1e-3))
+
+    def smoothing_rate_hz(self) -> float:
+        """The epoch rate of the rts and graph smoothing passes (smooth.passes), Hz:
+        smoother_rate_hz, or when 0 (auto) LONG_EPOCH_HZ in INS mode where the IMU
+        (:meth:`imu_spec`) is at least as stable as a tactical one (gyro turn-on bias and
+        scale factor, accelerometer turn-on bias), else filter_rate_hz. An epoch's odometer and
+        NHC updates constrain its mean body velocity through the attitude at its end, and its
+        covariance is propagated to first order: over a long epoch that linearization holds
+        only while the IMU's errors grow slowly."""
+        if self.smoother_rate_hz:
+            return self.smoother_rate_hz
+        imu, steady = self.imu_spec(), imu_grade("tactical")
+        if (
+            self.mode == "ins"
+            and imu.gyro_turn_on_bias <= steady.gyro_turn_on_bias
+            and imu.gyro_scale_factor <= steady.gyro_scale_factor
+            and imu.accel_turn_on_bias <= steady.accel_turn_on_bias
+        ):
+            return min(self.filter_rate_hz, LONG_EPOCH_HZ)
+        return self.filter_rate_hz
 
     def imu_spec(self) -> ImuSpec:
         """The process-noise IMU model: the named grade with overrides applied."""

@@ -260,7 +260,8 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
         print(
             f"  passes              {s['passes_run']} "
             + ("(converged" if s["converged"] else "(NOT converged: more --iterations may help")
-            + f"; last attitude step {1e3 * float(s['last_step_rad']):.3f} mrad)"
+            + f"; last attitude step {1e3 * float(s['last_step_rad']):.3f} mrad; epochs at "
+            + f"{float(s.get('epoch_rate_hz', 0.0)):g} Hz)"
         )
     products = s.get("integrity") or {}
     if products:

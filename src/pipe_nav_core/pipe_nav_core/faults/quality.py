@@ -73,8 +73,8 @@ def judge(
         elif worst > LOST_SHARE * max(span, LOST_MIN_SPAN_M):
             failed.append(
                 f"horizontal sigma up to {worst:.1f} m over {span:.1f} m of chainage: the "
-                "filter lost its way (a filter_rate_hz too low for the run's motion, or an "
-                "IMU grade that does not fit)"
+                "filter lost its way (epochs too long for the run's motion: filter_rate_hz, "
+                "smoother_rate_hz; or an IMU grade that does not fit)"
             )
     passes = int(summary.get("passes_run", 1))  # type: ignore[call-overload]
     if summary.get("converged") is False and passes >= 2:  # one pass: nothing to converge

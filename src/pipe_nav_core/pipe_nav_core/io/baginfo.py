@@ -175,7 +175,7 @@ def bag_info(path: str | os.PathLike[str]) -> BagInfo:
         except McapFormatError as exc:
             raise BagError(f"{f}: {exc}") from None
         for b in sc.batches():
-            for cid in np.unique(b.channel).tolist():
+            for cid in np.flatnonzero(np.bincount(b.channel)).tolist():
                 ch = sc.channels.get(cid)
                 if ch is None:
                     continue

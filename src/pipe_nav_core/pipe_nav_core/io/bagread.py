@@ -178,8 +178,8 @@ class _BagReader:
     def _ingest_batch(self, batch: MessageBatch, roles: dict[int, str]) -> None:
         if len(batch) == 0:
             return
-        chans = np.unique(batch.channel)
-        for cid in chans.tolist():
+        # the channels present: ids are small counts (a sort, np.unique, took 0.3 s at 10 km)
+        for cid in np.flatnonzero(np.bincount(batch.channel)).tolist():
             role = roles.get(cid)
             if role is None:
                 continue

@@ -6,10 +6,10 @@ of covariances and transition for the RTS smoother (:class:`pipe_nav_core.smooth
 Per IMU sample: the nominal trajectory the corrections are applied to.
 
 The packed rows are the bulk (some 15 kB per epoch with 38 error states): they are kept in
-chunks of CHUNK_EPOCHS epochs, and beyond RAM_BUDGET_BYTES the oldest chunks go to a temporary
-directory, removed when the recording is closed or garbage collected. The smoother reads them
-back from the last to the first (:meth:`Recording.rts_chunks`). The chunked storage itself is
-:mod:`pipe_nav_core.smooth.chunks`.
+chunks of CHUNK_EPOCHS epochs, and beyond RECORDING_BUDGET_BYTES the oldest chunks go to a
+temporary directory, removed when the recording is closed or garbage collected. The smoother
+reads them back from the last to the first (:meth:`Recording.rts_chunks`). The chunked storage
+itself is :mod:`pipe_nav_core.smooth.chunks`.
 """
 
 from __future__ import annotations
@@ -22,11 +22,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.model.state import SV_SIZE, Layout
-from pipe_nav_core.smooth.chunks import CHUNK_EPOCHS, RAM_BUDGET_BYTES, Chunks, Growable
+from pipe_nav_core.smooth.chunks import CHUNK_EPOCHS, Chunks, Growable
 from pipe_nav_core.smooth.rts import EpochRows
 
 Array = NDArray[np.float64]
 
+# bytes of packed rows a recording keeps in memory before its oldest chunks spill: the 10 km
+# line's (four chunks, 240 MB, at a tactical IMU's 2.5 Hz smoothing epochs) stay whole, so its
+# RTS reads nothing back and no read buffers are written (0.3-0.5 s, and a lower peak)
+RECORDING_BUDGET_BYTES = 256 * 2**20
 # the per-sample nominal is thinned to about one sample per this many seconds, never sparser
 # (0: every IMU sample): the centreline is resampled every 0.5 m of chainage for the products
 SAMPLE_SPACING_S = 0.02
@@ -83,7 +87,7 @@ class Recording:
         layout: Layout,
         *,
         reference: Array | None = None,
-        ram_budget: int = RAM_BUDGET_BYTES,
+        ram_budget: int = RECORDING_BUDGET_BYTES,
         centreline_only: bool = False,
     ) -> None:
         self.layout = layout
