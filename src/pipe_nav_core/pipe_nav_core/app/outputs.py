@@ -179,6 +179,11 @@ def _write_staged(
     if outputs.plot:  # first: a child process draws it while the others are written
         say("plotting")
         _submit_plot(result, rows, staged[outputs.plot], Path(outputs.plot).stem, plotter)
+    # what does not show the welds, while they are found (in the caller's other thread)
+    if outputs.csv:
+        write_centreline_csv(staged[outputs.csv], rows, result.datum)
+    if result.products is not None:
+        write_products_csv(result.products, outputs, staged)
     if meanwhile is not None:
         meanwhile()
     features = products.features if products else []
@@ -189,8 +194,6 @@ def _write_staged(
                          run_metadata=run_metadata(result.summary), bends=bends,
                          attachments=smoothed_attachments(rows, result.datum,
                                                           result.welds))  # fmt: skip
-    if outputs.csv:
-        write_centreline_csv(staged[outputs.csv], rows, result.datum)
     welds = result.welds or []
     bridges = result.summary.get("bridges") or []  # across data gaps (segments.Bridge)
     if outputs.geojson:
@@ -199,8 +202,6 @@ def _write_staged(
     if outputs.kml:
         write_kml(staged[outputs.kml], rows, result.markers, bends=bends,
                   strain_features=features, welds=welds, bridges=bridges)  # fmt: skip
-    if result.products is not None:
-        write_products_csv(result.products, outputs, staged)
     if outputs.welds and result.welds is not None:
         write_welds_csv(staged[outputs.welds], result.welds)
     if plotter is not None:

@@ -7,8 +7,10 @@ no longer fits. So the test has two steps:
 
 1. screening, free: each marker's smoothed residual (position minus survey, ENU m) against its
    residual covariance R - P (R: the survey sigmas plus the passage-time sigma times the
-   odometer speed along the axis; P: the smoothed position covariance there). A clean run
-   ends here.
+   odometer speed along the axis; P: the smoothed position covariance there), and whether the
+   filter had to inflate its covariance at the marker's passage (it disagreed beyond the
+   gate: the smoother may then fit it, a small residual on a wrong run). A clean run ends
+   here.
 2. when a marker fails it, leave-one-out: the run is smoothed without each suspect in turn (the
    failing markers and their neighbours, :func:`suspects`) and that marker's position
    predicted by the others is tested against R + P; of those over the
@@ -146,14 +148,20 @@ def smooth_without_outliers(
     outliers: list[MarkerOutlier] = []
     while len(log.markers) >= MIN_MARKERS:
         screen = screening(result, log, config)
-        if not screen or max(screen.values()) <= bound:
-            break
         failing = sum(v > bound for v in screen.values())
+        # a marker the filter had to inflate its covariance for disagreed with the run: the
+        # smoother, given that freedom, can fit it (a passage stamped 3 s late on the 3 km
+        # line, 2 cm off its survey, the run 6.5 m off), so it is a suspect whatever its residual
+        named = result.summary.get("markers_inflated") or ()
+        inflated = set(named) & screen.keys()  # type: ignore[call-overload]
+        if not failing and not inflated:
+            break
         best: tuple[float, MarkerOutlier, SmoothResult, SensorLog] | None = None
         if failing <= MAX_FAILING:
             progress.stage("a marker disagrees with the others: testing each against the rest")
         # the marker whose removal leaves the others most consistent, if it fails against them
-        for m in suspects(log.markers, screen, bound) if failing <= MAX_FAILING else ():
+        flagged = {k: math.inf if k in inflated else v for k, v in screen.items()}
+        for m in suspects(log.markers, flagged, bound) if failing <= MAX_FAILING else ():
             if m.name not in screen:
                 continue
             rest = replace(log, markers=[x for x in log.markers if x.name != m.name])
@@ -173,6 +181,8 @@ def smooth_without_outliers(
                 sigma = math.sqrt(float(along @ cov @ along))
                 best = (misfit, MarkerOutlier(m.name, r, sigma, value), without, rest)
         if best is None:
+            if not failing:  # inflated only: its sigmas widened there, no marker to blame
+                break
             disagree = sorted(k for k, v in screen.items() if v > bound)
             why = ("leaving out any one does not make the others agree" if failing <= MAX_FAILING
                    else "too many for one wrong marker")  # fmt: skip

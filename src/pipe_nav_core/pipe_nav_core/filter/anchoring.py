@@ -146,7 +146,8 @@ class HeadingAnchor:
     """What a marker passage does to the filter before the epoch's updates (the re-anchoring,
     the free heading's return, the covariance inflation), and the heading's state: anchored
     (the heading no longer comes from the alignment alone), reanchor_rad (rad, the rotation
-    applied at the anchoring), free_heading (the prior kept outside the filter, or None).
+    applied at the anchoring), free_heading (the prior kept outside the filter, or None),
+    inflated (the names of the markers whose passage inflated the covariance, in order).
 
     counts: the navigator's counters, incremented here."""
 
@@ -157,6 +158,7 @@ class HeadingAnchor:
         self.anchored = anchored
         self.reanchor_rad = 0.0
         self.free_heading: FreeHeading | None = None
+        self.inflated: list[str] = []  # the markers whose passage inflated the covariance
         self._counts = counts
 
     def late(self, m: Marker, s: NavState) -> bool:
@@ -206,4 +208,5 @@ class HeadingAnchor:
         if grow is not None:
             kf.P = kf.P * grow
             self._counts["marker_covariance_inflations"] += 1
+            self.inflated.append(m.name)
         return s, rz

@@ -186,6 +186,12 @@ class Navigator:
         return self.anchor.reanchor_rad
 
     @property
+    def inflated_markers(self) -> list[str]:
+        """The markers whose passage inflated the covariance, in order: each disagreed with
+        the filter beyond its gate (HeadingAnchor.before_marker)."""
+        return list(self.anchor.inflated)
+
+    @property
     def odometer_resolution(self) -> float:
         """Encoder resolution (m per count) in use: configured or learnt so far (0 = none)."""
         return self.resolution.value

@@ -205,7 +205,8 @@ def marker_residuals(traj: Trajectory, markers: list[Marker]) -> dict[str, Array
 
 
 def summarize(result: SmoothResult, nav: Navigator) -> dict[str, object]:
-    """Figures for people: distance, duration, markers, rejected updates, calibration."""
+    """Figures for people: distance, duration, markers, rejected updates, calibration; and
+    the markers whose passage inflated the filter's covariance (faults.markers tests them)."""
     c = result.centreline
     diag = nav.diagnostics()
     s = nav.state
@@ -234,5 +235,6 @@ def summarize(result: SmoothResult, nav: Navigator) -> dict[str, object]:
             max((np.linalg.norm(v) for v in result.marker_residuals.values()), default=0.0)
         ),
         "warnings": nav.model_warnings(),
+        "markers_inflated": nav.inflated_markers,
     }
     return out
