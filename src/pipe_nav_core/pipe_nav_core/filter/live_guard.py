@@ -12,7 +12,10 @@ segments). Live, each IMU sample is checked as it comes, in its own stamp order:
   samples either side before the next one goes in (the filter cannot integrate across it),
   when those agree (``QUIET_TURN``, ``QUIET_PUSH``); in a turn or a surge it is a data gap;
 - a **hole at rest** (longer, but the odometer stood still across it and the samples either
-  side agree: gaps.fill_holes_at_rest) is filled the same way (``imu_fault_filled_at_rest``);
+  side agree: gaps.fill_holes_at_rest) is filled with the mean of the gaps.REST_WINDOW_S of
+  samples before it (``imu_fault_filled_at_rest``): standing still, the IMU reads the same
+  across it, and one sample's noise held for seconds tilts the filter (a 5 s shock on the
+  3 km tactical line: 0.04 deg, the ZUPTs then rejected and the pig 7 m off at rest);
 - any other **data gap** (the IMU silent for longer: a lost stretch, or a clock step) leaves the
   filter's attitude unknown: from then on the solution is **lost**: the engine gets no more
   input, its estimates after the loss are withheld, and the diagnostics say since when and
@@ -45,11 +48,18 @@ forces m/s^2.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
 
-from pipe_nav_core.faults.gaps import MIN_GAP_S, REST_MOVED_M, REST_SPEED, same_at_rest
+from pipe_nav_core.faults.gaps import (
+    MIN_GAP_S,
+    REST_MOVED_M,
+    REST_SPEED,
+    REST_WINDOW_S,
+    same_at_rest,
+)
 from pipe_nav_core.faults.imu import MARGIN_S, MAX_ACCEL, MAX_RATE, MIN_FLAT
 from pipe_nav_core.faults.odometer import find_odometer_faults, without_faults
 from pipe_nav_core.filter.estimates import NavEstimate
@@ -64,6 +74,7 @@ GRAVITY = 9.81  # m/s^2, the reference of the shock test
 QUIET_TURN = 1e-3  # rad: a hole is filled only if the rates either side differ by less ...
 QUIET_PUSH = 0.05  # m/s: ... and the forces too (else the solution is lost)
 MARKER_BOUND = chi2_threshold(1.0 - 1e-6, 3)  # a marker this far off the estimate is dropped
+RECENT_SAMPLES = 2048  # IMU samples kept for a fill at rest (REST_WINDOW_S up to 4 kHz)
 MAX_ODO_SPEED = 10.0  # m/s: an odometer reading implying more since the last is a spike ...
 ODO_SPIKE_M = 0.5  # m: ... when it jumps by more than this
 
@@ -74,6 +85,9 @@ class GuardedNavigator(Navigator):
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
         self._last: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None
+        self._recent: deque[tuple[float, tuple[float, ...], tuple[float, ...]]] = deque(
+            maxlen=RECENT_SAMPLES
+        )  # the last samples taken, for a fill at rest
         self._period: float | None = None
         self._repeat = [0] * 6  # per axis (gyro, accel): the same high reading repeated
         self.lost_since: float | None = None
@@ -122,7 +136,8 @@ class GuardedNavigator(Navigator):
             period = self._period or dt
             if dt > max(MIN_GAP_S, 50.0 * period):
                 if self._stood_still(last, (t, g, a)):
-                    self._fill(last, (t, g, a), period)
+                    rest = self._rest_before(last[0])
+                    self._fill((last[0], *rest), (t, *rest), period)
                     self._counts["imu_fault_filled_at_rest"] += 1
                 else:
                     why = (f"the IMU was silent for {dt:.1f} s (a data gap or a clock step): "
@@ -140,8 +155,16 @@ class GuardedNavigator(Navigator):
             else:
                 self._period = dt if self._period is None else 0.99 * self._period + 0.01 * dt
         self._last = (t, g, a)
+        self._recent.append(self._last)
         self._odo_at_last_imu = self._last_odo
         self._push(t, "imu", (gx, gy, gz, ax, ay, az))  # Inbox.imu_sample's, checked above
+
+    def _rest_before(self, t0: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The mean rate and specific force of the samples taken in the REST_WINDOW_S up to
+        t0 (s)."""
+        window = [(g, a) for t, g, a in self._recent if t > t0 - REST_WINDOW_S]
+        g, a = np.mean([w[0] for w in window], axis=0), np.mean([w[1] for w in window], axis=0)
+        return tuple(map(float, g)), tuple(map(float, a))
 
     def _stood_still(self, last: tuple, nxt: tuple) -> bool:
         """Whether the pig stood still across an IMU hole from sample last to nxt: the
