@@ -178,7 +178,8 @@ class _BagReader:
     def _ingest_batch(self, batch: MessageBatch, roles: dict[int, str]) -> None:
         if len(batch) == 0:
             return
-        # the channels present: ids are small counts (a sort, np.unique, took 0.3 s at 10 km)
+        # the channels present: ids are small, so counted (np.unique sorts: 0.037 s against
+        # 0.011 s over the 596 batches of the 10 km bag)
         for cid in np.flatnonzero(np.bincount(batch.channel)).tolist():
             role = roles.get(cid)
             if role is None:
