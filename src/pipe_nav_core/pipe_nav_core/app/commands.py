@@ -35,8 +35,6 @@ EXIT_INTERNAL = 70  # an internal error (EX_SOFTWARE): a bug, not the input
 SIM_EPOCH = 1780272000.0  # 2026-06-01T00:00:00Z: simulated bags carry realistic stamps
 
 
-
-
 def one_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return text.splitlines()[0]
