@@ -115,14 +115,12 @@ def smooth_log(
     layout = layout_for(config)
     markers = markers_sorted(log.markers)
     cfg = config
+    if method in LONG_EPOCH_METHODS:  # the smoothing passes' epochs
+        cfg = replace(config, filter_rate_hz=config.smoothing_rate_hz())
+    epochs = cfg
     if method != "forward":
-        if method in LONG_EPOCH_METHODS:  # the smoothing passes' epochs
-            cfg = replace(config, filter_rate_hz=config.smoothing_rate_hz())
-        anchored = smoothing_config(log, cfg, progress, reverse=reverse)
-        say("forward filter" if anchored is cfg else "forward filter (re-anchored heading)")
-        cfg = anchored
-    else:
-        say("forward filter")
+        cfg = smoothing_config(log, cfg, progress, reverse=reverse)
+    say("forward filter" if cfg is epochs else "forward filter (re-anchored heading)")
     nav = run_forward(log, cfg, reverse=reverse, progress=progress, release=True)
     assert nav.recording is not None
     forward = with_free_heading(forward_trajectory(nav.recording), nav.free_heading)
