@@ -347,3 +347,27 @@ def test_a_spilling_recording_has_its_read_buffers_written_beforehand(monkeypatc
     assert fresh == []
     rows.close()
     chunks.drop_spare()
+
+
+def test_the_next_recording_takes_every_chunk_the_last_kept_in_memory(monkeypatch):
+    """A recording's chunks in memory go to the spare pool when it closes, all of them even
+    beyond the pool's own budget (RAM_BUDGET_BYTES), and the next pass's recording writes into
+    those arrays instead of fresh memory (its pages to fault in)."""
+    monkeypatch.setattr(chunks, "CHUNK_EPOCHS", 8)
+    chunks.drop_spare()
+    width = 4
+    chunk_bytes = chunks.CHUNK_EPOCHS * width * 8
+    monkeypatch.setattr(chunks, "RAM_BUDGET_BYTES", 2 * chunk_bytes)  # the pool's own: two
+    first = chunks.Chunks(width, budget=5 * chunk_bytes, read_back=True)  # five in memory
+    for _ in range(5):
+        first.claim(chunks.CHUNK_EPOCHS)
+    held = [first.chunk(i).base for i in range(first.n_chunks)]  # (not freed: ids stay apart)
+    assert len({id(a) for a in held}) == 5
+    first.close()
+    second = chunks.Chunks(width, budget=5 * chunk_bytes, read_back=True)
+    for _ in range(5):
+        second.claim(chunks.CHUNK_EPOCHS)
+    taken = {id(second.chunk(i).base) for i in range(second.n_chunks)}
+    assert taken == {id(a) for a in held}
+    second.close()
+    chunks.drop_spare()
