@@ -31,7 +31,6 @@ def test_live_filter_after_the_heading_is_anchored():
     assert diag["accepted_marker"] == len(run.log.markers) and diag["rejected_marker"] == 0
 
 
-
 def test_free_heading_direction_is_a_rotation_about_the_pivot():
     """FreeHeading.direction is the error state of the whole solution turned about the
     vertical through the first marker: truth (-) estimate = angle * direction to first order."""
@@ -73,7 +72,6 @@ def test_free_heading_direction_is_a_rotation_about_the_pivot():
     )
 
 
-
 def test_unknown_heading_covariance_is_that_of_a_uniform_rotation():
     """FreeHeading(unknown): position and velocity covariances are the second moments of a
     vector turned by a uniform angle (Monte Carlo), the variances agree with them, and the
@@ -99,7 +97,6 @@ def test_unknown_heading_covariance_is_that_of_a_uniform_rotation():
     np.testing.assert_allclose(var, [cov[i, i], cov[i + 1, i + 1], math.pi**2 / 3], rtol=1e-6)
 
 
-
 def test_live_filter_heading_holds_before_the_second_marker():
     """Before the anchoring, the initial heading's 20 deg prior is a rotation about the first
     marker that nothing measures. Carried inside the filter, its second-order gains walked the
@@ -120,7 +117,6 @@ def test_live_filter_heading_holds_before_the_second_marker():
     assert sig_h[k] > 0.95 * dist * cfg.initial_heading_sigma, (sig_h[k], dist)
     assert nav.free_heading is not None and nav.free_heading.until < math.inf
     assert max(np.sqrt(e.cov_pose[0, 0] + e.cov_pose[1, 1]) for e in est if e.t > t2 + 1) < 0.2
-
 
 
 def test_live_filter_without_a_survey_reports_its_heading_unknown_until_the_second_marker():
@@ -144,3 +140,38 @@ def test_live_filter_without_a_survey_reports_its_heading_unknown_until_the_seco
     # with the survey the bearing gives the heading and its configured prior
     nav = _live("sag104", 2)[1]
     assert nav.free_heading is not None and not nav.free_heading.unknown
+
+
+def test_an_inflation_after_the_wheel_was_lost_is_the_filters_own():
+    """A marker passage that inflates the covariance is named with the others, and also as
+    one the filter reached having lost the odometer when it rejected ODOMETER_LOST_FRACTION
+    or more of its speed updates since the passage before (then its own drift disagreed, not
+    the marker); a clean stretch (1-3 % rejected) does not count."""
+    from collections import defaultdict
+
+    from pipe_nav_core.filter.anchoring import ODOMETER_LOST_FRACTION, SPEED_KIND, HeadingAnchor
+    from pipe_nav_core.filter.kalman import ErrorStateKF
+    from pipe_nav_core.types import Marker
+
+    cfg = NavConfig()
+    lay = layout_for(cfg)
+    anchor = HeadingAnchor(cfg, lay, anchored=True, counts=defaultdict(int))
+    lat0, lon0 = math.radians(30.0), math.radians(114.0)
+    s = NavState(t=10.0, lat=lat0, lon=lon0, h=5.0, vel_n=np.array([1.0, 0.0, 0.0]),
+                 q_nb=att.quat_from_dcm(att.dcm_from_euler(0.0, 0.0, 0.0)),
+                 bg=np.zeros(3), ba=np.zeros(3))  # fmt: skip
+
+    def passage(name: str, east_m: float, accepted: int, rejected: int) -> None:
+        kf = ErrorStateKF(np.eye(lay.n) * 0.01, cfg.gate_probability)
+        kf.stats.accepted[SPEED_KIND] += accepted
+        kf.stats.rejected[SPEED_KIND] += rejected
+        lat, lon, h = earth.enu_to_geodetic(np.array([east_m, 0.0, 0.0]), lat0, lon0, 5.0)
+        anchor.before_marker(kf, s, Marker(name, s.t, float(lat), float(lon), float(h)), None)
+
+    lost = int(math.ceil(ODOMETER_LOST_FRACTION * 1000))
+    passage("agm_01", 0.0, 990, 10)  # agrees: no inflation
+    passage("agm_02", 20.0, 1980, 20)  # 20 m off after 1 % rejected: a suspect
+    passage("agm_03", 20.0, 1980 + 1000 - lost, 20 + lost)  # after a lost wheel
+    passage("agm_04", 20.0, 2 * 1980 + 1000, 40 + lost)  # a clean stretch again
+    assert anchor.inflated == ["agm_02", "agm_03", "agm_04"]
+    assert anchor.after_odometer_loss == ["agm_03"]

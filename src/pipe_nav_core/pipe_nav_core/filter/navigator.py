@@ -192,6 +192,12 @@ class Navigator:
         return list(self.anchor.inflated)
 
     @property
+    def inflated_after_odometer_loss(self) -> list[str]:
+        """Of :attr:`inflated_markers`, those the filter reached having lost the odometer (it
+        had rejected most speed updates since the passage before: HeadingAnchor)."""
+        return list(self.anchor.after_odometer_loss)
+
+    @property
     def odometer_resolution(self) -> float:
         """Encoder resolution (m per count) in use: configured or learnt so far (0 = none)."""
         return self.resolution.value
