@@ -222,3 +222,29 @@ def test_a_tactical_imu_is_smoothed_in_long_epochs_at_no_loss():
     s_long, s_short = (score(x.centreline, run.truth, run.log.markers, datum=x.datum)
                        for x in (long, short))  # fmt: skip
     assert s_long.max_h < s_short.max_h + 0.002 and s_long.max_v < s_short.max_v + 0.002
+
+
+def test_long_epochs_that_lose_the_odometer_give_way_to_the_live_filters(monkeypatch):
+    """Where the long epochs' first pass reaches a marker having lost the odometer (on the
+    100 km line after a 0.27 deg pitch step: 0.5 m off in height with a 5 cm sigma once
+    smoothed), the run is smoothed with the live filter's epochs instead, as if they had been
+    asked for, and the summary names the marker. Here every passage counts as one after a
+    lost wheel (ODOMETER_LOST_FRACTION 0)."""
+    from pipe_nav_core.filter import anchoring
+
+    sc = get_scenario("strain_span")
+    run = simulate(sc, seed=1)
+    cfg = NavConfig.from_dict(sc.estimator_settings())
+    clean = smooth_log(run.log, cfg, method="rts")
+    assert (
+        "long_epochs_lost_odometer" not in clean.summary
+        and not clean.summary["markers_after_odometer_loss"]
+    )
+    monkeypatch.setattr(anchoring, "ODOMETER_LOST_FRACTION", 0.0)
+    lost = smooth_log(run.log, cfg, method="rts")
+    short = smooth_log(run.log, dataclasses.replace(cfg, smoother_rate_hz=cfg.filter_rate_hz),
+                       method="rts")  # fmt: skip
+    assert lost.summary["long_epochs_lost_odometer"][0] == run.log.markers[0].name
+    assert lost.summary["epoch_rate_hz"] == cfg.filter_rate_hz
+    np.testing.assert_array_equal(lost.centreline.lat, short.centreline.lat)
+    np.testing.assert_array_equal(lost.centreline.h, short.centreline.h)

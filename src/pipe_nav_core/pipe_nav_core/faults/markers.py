@@ -155,7 +155,7 @@ def smooth_without_outliers(
         # (unless the filter had lost the odometer before it: then its drift is what disagreed,
         # as on the 100 km line after a 0.3 deg kink at 2.5 Hz epochs)
         named = result.summary.get("markers_inflated") or ()
-        lost = result.summary.get("markers_inflated_after_odometer_loss") or ()
+        lost = result.summary.get("markers_after_odometer_loss") or ()
         inflated = (set(named) - set(lost)) & screen.keys()  # type: ignore[call-overload]
         if not failing and not inflated:
             break

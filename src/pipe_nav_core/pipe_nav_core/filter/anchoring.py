@@ -154,9 +154,9 @@ class HeadingAnchor:
     (the heading no longer comes from the alignment alone), reanchor_rad (rad, the rotation
     applied at the anchoring), free_heading (the prior kept outside the filter, or None),
     inflated (the names of the markers whose passage inflated the covariance, in order) and
-    of those after_odometer_loss: the ones the filter reached having rejected at least
-    ODOMETER_LOST_FRACTION of its odometer speed updates since the passage before (its
-    velocity had drifted off the wheel's, so the disagreement is its own).
+    after_odometer_loss (those of the markers the filter reached having rejected at least
+    ODOMETER_LOST_FRACTION of its odometer speed updates since the passage before: its
+    velocity had drifted off the wheel's, and a disagreement there is its own).
 
     counts: the navigator's counters, incremented here."""
 
@@ -168,7 +168,7 @@ class HeadingAnchor:
         self.reanchor_rad = 0.0
         self.free_heading: FreeHeading | None = None
         self.inflated: list[str] = []  # the markers whose passage inflated the covariance
-        self.after_odometer_loss: list[str] = []  # of those, the ones after the wheel was lost
+        self.after_odometer_loss: list[str] = []  # the markers reached with the wheel lost
         self._counts = counts
         self._odometer = (0, 0)  # the speed updates accepted and rejected up to the last passage
         self._lost = False  # whether the filter had lost the wheel before the last passage
@@ -215,15 +215,14 @@ class HeadingAnchor:
             self.anchored = True
             self.reanchor_rad = d_az
             self._counts["heading_reanchor_mdeg"] = int(round(math.degrees(d_az) * 1000))
-        lost = self._odometer_lost(kf)
+        if self._odometer_lost(kf):
+            self.after_odometer_loss.append(m.name)
         grow = marker.inflation(s, lay, m, kf.x, kf.P, time_sigma=self.cfg.marker_time_sigma,
                                 gate_probability=self.cfg.gate_probability)  # fmt: skip
         if grow is not None:
             kf.P = kf.P * grow
             self._counts["marker_covariance_inflations"] += 1
             self.inflated.append(m.name)
-            if lost:
-                self.after_odometer_loss.append(m.name)
         return s, rz
 
     def _odometer_lost(self, kf: ErrorStateKF) -> bool:

@@ -192,9 +192,10 @@ class Navigator:
         return list(self.anchor.inflated)
 
     @property
-    def inflated_after_odometer_loss(self) -> list[str]:
-        """Of :attr:`inflated_markers`, those the filter reached having lost the odometer (it
-        had rejected most speed updates since the passage before: HeadingAnchor)."""
+    def after_odometer_loss(self) -> list[str]:
+        """The markers the filter reached having lost the odometer, in order (it had rejected
+        ODOMETER_LOST_FRACTION or more of the speed updates since the passage before:
+        HeadingAnchor)."""
         return list(self.anchor.after_odometer_loss)
 
     @property

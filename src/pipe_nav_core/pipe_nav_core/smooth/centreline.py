@@ -236,6 +236,6 @@ def summarize(result: SmoothResult, nav: Navigator) -> dict[str, object]:
         ),
         "warnings": nav.model_warnings(),
         "markers_inflated": nav.inflated_markers,
-        "markers_inflated_after_odometer_loss": nav.inflated_after_odometer_loss,
+        "markers_after_odometer_loss": nav.after_odometer_loss,
     }
     return out

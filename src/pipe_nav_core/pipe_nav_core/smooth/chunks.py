@@ -135,16 +135,29 @@ class Chunks:
         self._chunks: list[Array | str] = []  # in memory, or the path of a spilled chunk
         self._n = 0
         self._in_ram = max(2, budget // (self.chunk_rows * width * 8))  # chunks kept
-        if read_back:  # its chunks in memory and its read buffers are kept as spares
-            shape = (self.chunk_rows, width)
-            with _SPARE_LOCK:
-                _KEEP[shape] = max(_KEEP.get(shape, 0), self._in_ram, READ_BUFFERS)
+        self._keep_spares()
         self._oldest_in_ram = 0
         self._dir: str | None = None
         self._writer: ThreadPoolExecutor | None = None
         self._writes: list[Future[None]] = []
         self._finalizer: weakref.finalize | None = None
         self._read: list[tuple[int, Array]] = []  # the last chunks read back from disk
+
+    def _keep_spares(self) -> None:
+        """Read back: its chunks in memory and its read buffers are kept as spares."""
+        if self._read_back:
+            with _SPARE_LOCK:
+                _KEEP[(self.chunk_rows, self.width)] = max(self._in_ram, READ_BUFFERS)
+
+    def expect(self, rows: int) -> None:
+        """Before any row is claimed: ``rows`` rows are expected. Where they do not fit in the
+        budget (they will spill anyway) only RAM_BUDGET_BYTES are kept in memory: a larger
+        budget would only raise the peak (the 100 km line's at 10 Hz epochs)."""
+        if self._n or rows <= self._in_ram * self.chunk_rows:
+            return
+        fit = RAM_BUDGET_BYTES // (self.chunk_rows * self.width * 8)
+        self._in_ram = max(2, min(self._in_ram, fit))
+        self._keep_spares()
 
     def __len__(self) -> int:
         return self._n

@@ -377,7 +377,11 @@ class Recording:
     def reserve(self, epochs: int, samples: int) -> None:
         """Room for this many epochs and kept samples, the pass's expected counts (a pass that
         has more still records them all): the arrays are not grown by doubling, which holds
-        the old array beside one twice its size (at 100 km 0.5 GB for a moment)."""
+        the old array beside one twice its size (at 100 km 0.5 GB for a moment). The packed
+        rows of a pass that will spill keep only the chunks' own budget in memory
+        (Chunks.expect)."""
+        if not self.centreline_only:
+            self._packed.expect(epochs)
         for g in (self._states, self._dx, self._pose_var, self._x_upd, self._end_offset):
             if g is not None:
                 g.reserve(epochs)
