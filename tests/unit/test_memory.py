@@ -3,10 +3,7 @@ when let go, and trimming the heap leaves every live array as it was."""
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
-import pytest
 
 from pipe_nav_core import memory
 
@@ -42,33 +39,3 @@ def test_limiting_the_arenas_before_threads_start_keeps_allocating():
     with ThreadPoolExecutor(max_workers=4) as pool:
         sums = list(pool.map(lambda k: float(np.full(1 << 16, float(k)).sum()), range(8)))
     assert sums == [float(k << 16) for k in range(8)]
-
-
-def _resident_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
-
-
-@pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="needs Linux's /proc")
-def test_the_heap_is_trimmed_only_when_it_holds_enough_free_memory(monkeypatch):
-    """Free heap memory under TRIM_MIN_FREE_BYTES stays with the process (written again, it
-    costs no page faults); over it, it goes back to the system."""
-    libc = memory._c_library()
-    if libc is None or not hasattr(libc, "mallinfo2"):
-        pytest.skip("needs glibc 2.33+")
-
-    def free_some() -> None:  # 96 MB in blocks under the C heap's mmap threshold
-        blocks = [np.ones(4096) for _ in range(3072)]
-        del blocks
-
-    monkeypatch.setattr(memory, "TRIM_MIN_FREE_BYTES", 1 << 40)  # more than is ever free
-    free_some()
-    before = _resident_mb()
-    memory.trim_heap()
-    kept = before - _resident_mb()
-    monkeypatch.setattr(memory, "TRIM_MIN_FREE_BYTES", 0)
-    free_some()
-    before = _resident_mb()
-    memory.trim_heap()
-    given = before - _resident_mb()
-    assert kept < 16.0 and given > 32.0, (kept, given)

@@ -74,35 +74,17 @@ def limit_arenas(arenas: int = ARENAS) -> None:
         libc.mallopt(-8, int(arenas))  # M_ARENA_MAX
 
 
-# free bytes in the C heap below which trim_heap keeps them: memory given back and written again
-# is faulted in afresh, on this project's virtual machines some 3 ms per MB (at 10 km the
-# trims gave back 8-99 MB each and cost the run 0.2-0.4 s; at 100 km they give back 0.5 GB)
-TRIM_MIN_FREE_BYTES = 128 * 2**20
-
-
-class _MallInfo2(ctypes.Structure):
-    _fields_ = [(name, ctypes.c_size_t) for name in (
-        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
-        "fordblks", "keepcost")]  # fmt: skip
-
-
 def trim_heap() -> None:
     """Collect the garbage held in reference cycles (a finished pass's navigator and its
     recording wait in one until Python's collector happens to run: at 100 km some 0.9 GB
     after the smoothing), then give the C heap's free memory back to the system (glibc's
-    ``malloc_trim``; nothing elsewhere) when it holds TRIM_MIN_FREE_BYTES or more: the
-    allocator keeps what numpy frees below its mmap threshold (batches of a few MB), some
-    0.5 GB after the smoothing at 100 km, which the products stages would otherwise have on
-    top of their own."""
+    ``malloc_trim``; nothing elsewhere): the allocator keeps what numpy frees below its mmap
+    threshold (batches of a few MB), some 0.3 GB after the smoothing at 100 km, which the
+    products stages would otherwise have on top of their own."""
     gc.collect()
     libc = _c_library()
-    if libc is None or not hasattr(libc, "malloc_trim"):
-        return
-    if hasattr(libc, "mallinfo2"):  # glibc 2.33+; older ones always trim
-        libc.mallinfo2.restype = _MallInfo2
-        if libc.mallinfo2().fordblks < TRIM_MIN_FREE_BYTES:
-            return
-    libc.malloc_trim(0)
+    if libc is not None and hasattr(libc, "malloc_trim"):
+        libc.malloc_trim(0)
 
 
 @functools.cache

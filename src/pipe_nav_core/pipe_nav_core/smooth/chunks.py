@@ -66,14 +66,14 @@ class Growable:
 # Chunk arrays no recording uses any more (spilled, or of a closed recording), by shape, for
 # the next chunks: memory the process has written before costs nothing to write again, while
 # fresh memory costs a page fault per 4 kB (on a virtual machine up to 10 us each, ten times
-# the packing itself). At most RAM_BUDGET_BYTES are kept, or more chunks of a shape whose
-# Chunks read_back keep more: as many as one keeps in memory (the next pass's recording takes
-# them all), or the READ_BUFFERS that the RTS after a forward pass reads spilled chunks back
-# into, written beforehand in the writer thread as the chunks first spill (fresh ones cost
-# the 10 km line's RTS 0.15-0.2 s of page faults). drop_spare() frees them.
+# the packing itself). At most RAM_BUDGET_BYTES are kept, or READ_BUFFERS chunks if more: the
+# RTS after a forward pass reads the spilled chunks back into READ_BUFFERS arrays, which
+# a recording's chunks (read_back) write beforehand in their writer thread as they first
+# spill: fresh ones cost the 10 km line's RTS 0.15-0.2 s of page faults. drop_spare() frees
+# them.
 _SPARE: dict[tuple[int, ...], list[Array]] = {}
 _SPARE_LOCK = threading.Lock()
-_KEEP: dict[tuple[int, ...], int] = {}  # spare chunks kept of a shape beyond RAM_BUDGET_BYTES
+_READ_BACK: set[tuple[int, ...]] = set()  # the chunk shapes of Chunks(read_back=True)
 
 
 READ_BUFFERS = 3  # chunks read back from disk that a caller may still be reading
@@ -93,8 +93,8 @@ def _give(chunk: Array) -> None:
     """Keep a chunk array no recording uses any more for the next (within the budget)."""
     with _SPARE_LOCK:
         spare = _SPARE.setdefault(chunk.shape, [])
-        keep = max(RAM_BUDGET_BYTES // max(chunk.nbytes, 1), _KEEP.get(chunk.shape, 0))
-        if len(spare) < keep:
+        read = READ_BUFFERS * chunk.nbytes if chunk.shape in _READ_BACK else 0
+        if (len(spare) + 1) * chunk.nbytes <= max(RAM_BUDGET_BYTES, read):
             spare.append(chunk)
 
 
@@ -132,22 +132,18 @@ class Chunks:
         self.width = width
         self._read_back = read_back
         self.chunk_rows = CHUNK_EPOCHS if rows is None else rows
+        if read_back:
+            with _SPARE_LOCK:
+                _READ_BACK.add((self.chunk_rows, width))
         self._chunks: list[Array | str] = []  # in memory, or the path of a spilled chunk
         self._n = 0
         self._in_ram = max(2, budget // (self.chunk_rows * width * 8))  # chunks kept
-        self._keep_spares()
         self._oldest_in_ram = 0
         self._dir: str | None = None
         self._writer: ThreadPoolExecutor | None = None
         self._writes: list[Future[None]] = []
         self._finalizer: weakref.finalize | None = None
         self._read: list[tuple[int, Array]] = []  # the last chunks read back from disk
-
-    def _keep_spares(self) -> None:
-        """Read back: its chunks in memory and its read buffers are kept as spares."""
-        if self._read_back:
-            with _SPARE_LOCK:
-                _KEEP[(self.chunk_rows, self.width)] = max(self._in_ram, READ_BUFFERS)
 
     def expect(self, rows: int) -> None:
         """Before any row is claimed: ``rows`` rows are expected. Where they do not fit in the
@@ -157,7 +153,6 @@ class Chunks:
             return
         fit = RAM_BUDGET_BYTES // (self.chunk_rows * self.width * 8)
         self._in_ram = max(2, min(self._in_ram, fit))
-        self._keep_spares()
 
     def __len__(self) -> int:
         return self._n
