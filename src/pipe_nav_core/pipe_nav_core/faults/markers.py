@@ -152,10 +152,8 @@ def smooth_without_outliers(
         # a marker the filter had to inflate its covariance for disagreed with the run: the
         # smoother, given that freedom, can fit it (a passage stamped 3 s late on the 3 km
         # line, 2 cm off its survey, the run 6.5 m off), so it is a suspect whatever its residual
-        # (unless the filter had lost the odometer before it: then its drift is what disagreed)
         named = result.summary.get("markers_inflated") or ()
-        lost = result.summary.get("markers_after_odometer_loss") or ()
-        inflated = (set(named) - set(lost)) & screen.keys()  # type: ignore[call-overload]
+        inflated = set(named) & screen.keys()  # type: ignore[call-overload]
         if not failing and not inflated:
             break
         best: tuple[float, MarkerOutlier, SmoothResult, SensorLog] | None = None

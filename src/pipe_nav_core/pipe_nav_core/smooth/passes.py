@@ -141,10 +141,6 @@ def smooth_log(
     first = nav.recording.states[0].copy()  # a view would keep every pass-1 state alive
     datum = nav.datum or Datum(float(first[SV_LAT]), float(first[SV_LON]), float(first[SV_H]))
 
-    # the inflated markers some pass reached having lost the odometer: the passes after it
-    # linearize about what it made, and inflate there too with the wheel kept
-    lost: dict[str, None] = {}
-
     def result_of(nav: Navigator, centre: Trajectory) -> SmoothResult:
         centre = with_free_heading(centre, nav.free_heading)
         result = SmoothResult(
@@ -157,8 +153,6 @@ def smooth_log(
         )
         result.summary = summarize(result, nav)
         result.summary["epoch_rate_hz"] = nav.cfg.filter_rate_hz
-        lost.update(dict.fromkeys(nav.after_odometer_loss))
-        result.summary["markers_after_odometer_loss"] = list(lost)
         return result
 
     if method == "forward":
