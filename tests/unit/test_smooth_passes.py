@@ -224,7 +224,7 @@ def test_a_tactical_imu_is_smoothed_in_long_epochs_at_no_loss():
     assert s_long.max_h < s_short.max_h + 0.002 and s_long.max_v < s_short.max_v + 0.002
 
 
-def test_long_epochs_that_lose_the_odometer_give_way_to_the_live_filters(monkeypatch):
+def test_long_epochs_that_lose_the_odometer_give_way_to_the_live_filters(monkeypatch, capsys):
     """Where the long epochs' first pass reaches a marker having lost the odometer (on the
     100 km line after a 0.27 deg pitch step: 0.5 m off in height with a 5 cm sigma once
     smoothed), the run is smoothed with the live filter's epochs instead, as if they had been
@@ -244,7 +244,22 @@ def test_long_epochs_that_lose_the_odometer_give_way_to_the_live_filters(monkeyp
     lost = smooth_log(run.log, cfg, method="rts")
     short = smooth_log(run.log, dataclasses.replace(cfg, smoother_rate_hz=cfg.filter_rate_hz),
                        method="rts")  # fmt: skip
-    assert lost.summary["long_epochs_lost_odometer"][0] == run.log.markers[0].name
+    first = run.log.markers[0].name
+    assert lost.summary["long_epochs_lost_odometer"][0] == first
     assert lost.summary["epoch_rate_hz"] == cfg.filter_rate_hz
     np.testing.assert_array_equal(lost.centreline.lat, short.centreline.lat)
     np.testing.assert_array_equal(lost.centreline.h, short.centreline.h)
+    # said in the printed summary and recorded in the smoothed bag's metadata
+    from pipe_nav_core.app.commands import _print_summary
+    from pipe_nav_core.app.outputs import run_metadata
+
+    meta = run_metadata(lost.summary)
+    assert meta["long_epochs_lost_odometer"].split(",")[0] == first
+    assert meta["epoch_rate_hz"] == f"{cfg.filter_rate_hz:g}"
+    assert "long_epochs_lost_odometer" not in run_metadata(clean.summary)
+    _print_summary(lost.summary, "rts")
+    said = capsys.readouterr().out
+    assert (
+        f"epochs at {cfg.filter_rate_hz:g} Hz: the long epochs lost the odometer before {first})"
+        in said
+    )

@@ -255,11 +255,13 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
     print(f"  max sigma between markers (horizontal) {s['max_sigma_h_between_markers_m']:.3f} m")
     print(f"  max marker residual {s['max_marker_residual_m']:.3f} m")
     if "converged" in s:
+        lost = s.get("long_epochs_lost_odometer")
+        why = f": the long epochs lost the odometer before {lost[0]}" if lost else ""
         print(
             f"  passes              {s['passes_run']} "
             + ("(converged" if s["converged"] else "(NOT converged: more --iterations may help")
             + f"; last attitude step {1e3 * float(s['last_step_rad']):.3f} mrad; epochs at "
-            + f"{float(s.get('epoch_rate_hz', 0.0)):g} Hz)"
+            + f"{float(s.get('epoch_rate_hz', 0.0)):g} Hz{why})"
         )
     products = s.get("integrity") or {}
     if products:

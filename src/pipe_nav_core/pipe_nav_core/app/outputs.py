@@ -134,8 +134,9 @@ def write_products(
 def run_metadata(summary: dict[str, object]) -> dict[str, str]:
     """What the smoothed bag records of its run (MCAP metadata ``pipe_nav``): the quality
     verdict and its reasons, the IMU model and why, the markers used and rejected, the smoothing
-    passes run and whether they converged, and for the graph smoother its iterations and
-    whether it converged."""
+    passes run, whether they converged and their epoch rate (Hz; with the markers before which
+    the long epochs lost the odometer, when the run was smoothed again at the live filter's),
+    and for the graph smoother its iterations and whether it converged."""
     q = summary.get("quality") or {}
     model = summary.get("imu_model") or {}
     return {
@@ -149,8 +150,14 @@ def run_metadata(summary: dict[str, object]) -> dict[str, str]:
             {
                 "passes": str(summary["passes_run"]),
                 "passes_converged": str(bool(summary["converged"])).lower(),
+                "epoch_rate_hz": f"{float(summary.get('epoch_rate_hz', 0.0)):g}",
             }
             if "converged" in summary
+            else {}
+        ),  # fmt: skip
+        **(
+            {"long_epochs_lost_odometer": ",".join(summary["long_epochs_lost_odometer"])}  # type: ignore[arg-type]
+            if summary.get("long_epochs_lost_odometer")
             else {}
         ),  # fmt: skip
         **(
