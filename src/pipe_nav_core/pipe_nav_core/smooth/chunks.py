@@ -137,7 +137,7 @@ class Chunks:
                 _READ_BACK.add((self.chunk_rows, width))
         self._chunks: list[Array | str] = []  # in memory, or the path of a spilled chunk
         self._n = 0
-        self._in_ram = max(2, budget // (self.chunk_rows * width * 8))  # chunks kept
+        self._in_ram = self._fitting(budget)  # chunks kept
         self._oldest_in_ram = 0
         self._dir: str | None = None
         self._writer: ThreadPoolExecutor | None = None
@@ -151,8 +151,11 @@ class Chunks:
         budget would only raise the peak (the 100 km line's at 10 Hz epochs)."""
         if self._n or rows <= self._in_ram * self.chunk_rows:
             return
-        fit = RAM_BUDGET_BYTES // (self.chunk_rows * self.width * 8)
-        self._in_ram = max(2, min(self._in_ram, fit))
+        self._in_ram = min(self._in_ram, self._fitting(RAM_BUDGET_BYTES))
+
+    def _fitting(self, budget: int) -> int:
+        """The chunks kept in memory within budget bytes (at least two)."""
+        return max(2, budget // (self.chunk_rows * self.width * 8))
 
     def __len__(self) -> int:
         return self._n
