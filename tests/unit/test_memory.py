@@ -3,7 +3,10 @@ when let go, and trimming the heap leaves every live array as it was."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
+import pytest
 
 from pipe_nav_core import memory
 
@@ -39,3 +42,42 @@ def test_limiting_the_arenas_before_threads_start_keeps_allocating():
     with ThreadPoolExecutor(max_workers=4) as pool:
         sums = list(pool.map(lambda k: float(np.full(1 << 16, float(k)).sum()), range(8)))
     assert sums == [float(k << 16) for k in range(8)]
+
+
+def _huge_page_advised(a: np.ndarray) -> bool:
+    """Whether the kernel mapping holding the middle of ``a`` was advised MADV_HUGEPAGE ("hg"
+    in its VmFlags, /proc/self/smaps; numpy advises only the whole huge pages inside)."""
+    address, advised, inside = a.ctypes.data + a.nbytes // 2, False, False
+    with open("/proc/self/smaps") as f:
+        for line in f:
+            head = line.split(maxsplit=1)[0]
+            if "-" in head and not head.endswith(":"):
+                lo, hi = (int(x, 16) for x in head.split("-"))
+                inside = lo <= address < hi
+            elif inside and head == "VmFlags:":
+                advised = "hg" in line.split()[1:]
+    return advised
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/smaps"), reason="Linux mappings only")
+def test_small_pages_stop_numpy_asking_for_huge_pages(monkeypatch):
+    """small_pages (what the command line and the nodes call first): a large array is no
+    longer advised MADV_HUGEPAGE (numpy's default does, and where the kernel compacts memory
+    for it the first write stalls); NUMPY_MADVISE_HUGEPAGE in the environment is obeyed."""
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage
+    except ImportError:  # numpy 1.x
+        from numpy.core.multiarray import _set_madvise_hugepage
+
+    before = _set_madvise_hugepage(True)
+    try:
+        assert _huge_page_advised(np.ones(1 << 23))  # numpy's default: 64 MB asks
+        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")
+        memory.small_pages()  # the user said so: left as it is
+        assert _huge_page_advised(np.ones(1 << 23))
+        monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE")
+        memory.small_pages()
+        a = np.ones(1 << 23)
+        assert not _huge_page_advised(a) and a.sum() == a.size
+    finally:
+        _set_madvise_hugepage(before)

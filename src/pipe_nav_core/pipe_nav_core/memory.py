@@ -13,6 +13,7 @@ import ctypes.util
 import functools
 import gc
 import mmap
+import os
 import tempfile
 
 import numpy as np
@@ -72,6 +73,24 @@ def limit_arenas(arenas: int = ARENAS) -> None:
     libc = _c_library()
     if libc is not None and hasattr(libc, "mallopt"):
         libc.mallopt(-8, int(arenas))  # M_ARENA_MAX
+
+
+def small_pages() -> None:
+    """Have numpy's large arrays take the system's ordinary pages, unless the environment says
+    otherwise (``NUMPY_MADVISE_HUGEPAGE``). numpy asks for transparent huge pages on every
+    array of 4 MB and more (``madvise(MADV_HUGEPAGE)``), and where the kernel then compacts
+    memory to find them as the array is first written (``transparent_hugepage/defrag`` set
+    to ``madvise``, the default of many distributions and of these machines) a run stalls:
+    the first write of 240 MB took 0.02-2.0 s so, against 0.10-0.12 s in ordinary pages, and
+    the 10 km run lost 1-1.5 s of its 6-7 (BENCHMARKS.md). Process-wide: the command line
+    and the nodes call it first."""
+    if "NUMPY_MADVISE_HUGEPAGE" in os.environ:
+        return
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage
+    except ImportError:  # numpy 1.x
+        from numpy.core.multiarray import _set_madvise_hugepage
+    _set_madvise_hugepage(False)
 
 
 def trim_heap() -> None:
