@@ -172,7 +172,7 @@ def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
 
     monkeypatch.setattr(chunks, "ThreadPoolExecutor", SlowWriter)
     chunks.drop_spare()
-    width, n = 3, 5
+    width, n = 3, 2 + chunks.PENDING_WRITES  # as many spilled as may wait for the disk
     rows = chunks.Chunks(width, budget=0)  # two chunks in memory, older ones spill
     for k in range(n):
         for _a, _b, view in rows.claim(chunks.CHUNK_EPOCHS):
@@ -183,6 +183,48 @@ def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
     time.sleep(0.5)  # the writes are done: their arrays are spare
     before = rows.chunk(last_spilled - 1)  # read back into a spare array
     assert np.all(got == last_spilled) and np.all(before == last_spilled - 1)
+    rows.close()
+
+
+def test_a_recording_faster_than_its_disk_waits_for_it(monkeypatch):
+    """Chunks whose files are written more slowly than they are filled: at most
+    PENDING_WRITES wait in memory for the disk and the next spill waits for the oldest (before,
+    they queued without bound: the 100 km line's peak rose by 0.9 GB on a slow disk); every
+    row comes back as written."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    held = threading.Event()
+
+    class SlowWriter(ThreadPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):  # the write waits until the test lets it
+            return super().submit(lambda: (held.wait(10.0), fn(*args, **kwargs)))
+
+    monkeypatch.setattr(chunks, "ThreadPoolExecutor", SlowWriter)
+    chunks.drop_spare()
+    n, per = 10, 4
+    rows = chunks.Chunks(2, budget=0, rows=per)  # two chunks in memory, older ones spill
+    waiting: list[int] = []
+
+    def fill() -> None:
+        for k in range(n * per):
+            for _a, _b, view in rows.claim(1):
+                view[:] = k
+            waiting.append(len(rows._writes))
+
+    filler = threading.Thread(target=fill)
+    filler.start()
+    try:
+        filler.join(1.0)
+        assert filler.is_alive()  # held at the spill after PENDING_WRITES unwritten ones
+        assert len(rows._writes) == chunks.PENDING_WRITES
+        assert len(waiting) < (2 + chunks.PENDING_WRITES + 1) * per
+    finally:
+        held.set()
+    filler.join(10.0)
+    assert not filler.is_alive() and max(waiting) <= chunks.PENDING_WRITES
+    got = rows.rows(np.arange(n * per))
+    assert np.array_equal(got, np.repeat(np.arange(n * per, dtype=float)[:, None], 2, axis=1))
     rows.close()
 
 

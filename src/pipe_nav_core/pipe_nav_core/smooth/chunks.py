@@ -77,6 +77,11 @@ _READ_BACK: set[tuple[int, ...]] = set()  # the chunk shapes of Chunks(read_back
 
 
 READ_BUFFERS = 3  # chunks read back from disk that a caller may still be reading
+# chunks a recording may have waiting for the disk: beyond, the next spill waits for the
+# oldest write. Unbounded, the chunks of a pass that records faster than the disk writes (the
+# 100 km line at 10 Hz epochs: 7.8 GB a pass, 0.2-0.3 GB/s, at a 0.2 GB/s disk) queued in
+# memory: its peak went from 1.8 to 2.7 GB as the disk slowed
+PENDING_WRITES = 2
 
 
 def _take(rows: int, width: int) -> Array:
@@ -192,6 +197,9 @@ class Chunks:
         for job in [w for w in self._writes if w.done()]:
             self._writes.remove(job)
             job.result()  # a failed write (disk full) raises here
+        while len(self._writes) >= PENDING_WRITES:
+            self._writes[0].result()
+            del self._writes[0]
         path = os.path.join(self._dir, f"{i}.bin")  # raw float64 rows
         chunks, chunk = self._chunks, self._chunks[i]
 
