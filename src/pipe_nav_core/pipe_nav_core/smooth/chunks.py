@@ -65,12 +65,11 @@ class Growable:
 
 # Chunk arrays no recording uses any more (spilled, or of a closed recording), by shape, for
 # the next chunks: memory the process has written before costs nothing to write again, while
-# fresh memory costs a page fault per 4 kB (on a virtual machine up to 10 us each, ten times
-# the packing itself). At most RAM_BUDGET_BYTES are kept, or READ_BUFFERS chunks if more: the
-# RTS after a forward pass reads the spilled chunks back into READ_BUFFERS arrays, which
-# a recording's chunks (read_back) write beforehand in their writer thread as they first
-# spill: fresh ones cost the 10 km line's RTS 0.15-0.2 s of page faults. drop_spare() frees
-# them.
+# fresh memory costs a page fault per 4 kB (0.10-0.12 s for a 10 km pass's 240 MB here, in
+# small pages: memory.small_pages). At most RAM_BUDGET_BYTES are kept, or READ_BUFFERS chunks
+# if more: the RTS after a forward pass reads the spilled chunks back into READ_BUFFERS
+# arrays, which a recording's chunks (read_back) write beforehand in their writer thread as
+# they first spill. drop_spare() frees them.
 _SPARE: dict[tuple[int, ...], list[Array]] = {}
 _SPARE_LOCK = threading.Lock()
 _READ_BACK: set[tuple[int, ...]] = set()  # the chunk shapes of Chunks(read_back=True)
