@@ -214,6 +214,11 @@ class PipeGeometry:
         grid[-1] = self.length
         return grid
 
+    def feature_spans(self) -> FloatArray:
+        """(N, 2) the chainage extent [start, end] of every bend and sag, m, by start."""
+        spans = [(e.start, e.end) for lst in self._planes.values() for e in lst]
+        return np.array(sorted(spans), dtype=np.float64).reshape(-1, 2)
+
     # -- direction -------------------------------------------------------------------------
     def _plane(self, plane: str, s: FloatArray) -> tuple[FloatArray, FloatArray]:
         ends, cum = self._ends[plane]

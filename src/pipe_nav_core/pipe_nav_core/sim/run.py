@@ -19,7 +19,15 @@ from numpy.typing import NDArray
 
 from pipe_nav_core.sim.geometry import PipeGeometry
 from pipe_nav_core.sim.imu import ImuErrorModel, TriadErrors
-from pipe_nav_core.sim.kinematics import evaluate, interval_means, lobatto_times, quat_from_angles
+from pipe_nav_core.sim.kinematics import (
+    evaluate,
+    interval_means,
+    lobatto_times,
+    quat_from_angles,
+    short_feature_intervals,
+    sub_interval_means,
+    sub_interval_times,
+)
 from pipe_nav_core.sim.magnetometer import WeldField, earth_field_enu, magnetometer_reading
 from pipe_nav_core.sim.markers import make_markers
 from pipe_nav_core.sim.motion import PigMotion, build_roll_profiles, build_speed_profile
@@ -192,6 +200,7 @@ def simulate(
     b_a: list[FloatArray] = []
     w_carry = 0.0
 
+    spans = geometry.feature_spans()
     for i0 in range(0, n, chunk):
         i1 = min(n, i0 + chunk)
         tn = lobatto_times(t_imu[i0:i1], dt, t_imu[i0 - 1] if i0 > 0 else None)
@@ -203,6 +212,14 @@ def simulate(
         g_mean = interval_means(w_ib)
         f_mean = interval_means(f_b)
         inc = interval_means(wall_speed) * dt
+        short = short_feature_intervals(spans, st.s[0::4])
+        if len(short):  # a feature too short for the nodes: finer sub-intervals there
+            fine = evaluate(geometry, motion, sub_interval_times(tn, short))
+            w_fine = fine.omega_eb_b()
+            g_mean[short] = sub_interval_means(fine.omega_ib_b(), len(short))
+            f_mean[short] = sub_interval_means(fine.specific_force_b(), len(short))
+            wall_fine = fine.sd + (w_fine[:, 1] * lever[2] - w_fine[:, 2] * lever[1])
+            inc[short] = sub_interval_means(wall_fine, len(short)) * dt
         if i0 == 0:
             inc[0] = 0.0  # the distance is counted from the first sample
         wall[i0:i1] = np.cumsum(np.concatenate([[w_carry], inc]))[1:]
