@@ -16,7 +16,8 @@ name is imported from its module on first use, so ``import pipe_nav_core`` itsel
   NavEstimate, smooth_log, SmoothResult; warm_live (compiles the live engine's kernels on a
   short simulated run, so a live node is ready before its first sample arrives)
 - the jobs of the command line and the nodes: smooth_bag, replay_bag, Outputs,
-  centreline_rows, Progress
+  centreline_rows, Progress; small_pages (what a process running them calls first: numpy's
+  large arrays in ordinary pages, no stalls on huge-page compaction)
 - products: integrity_report, IntegrityReport, detect_welds
 - simulation and scoring: simulate, score
 
@@ -72,6 +73,7 @@ _API = {
     "Outputs": "app.outputs",
     "centreline_rows": "app.outputs",
     "Progress": "app.progress",
+    "small_pages": "memory",
     "integrity_report": "products",
     "IntegrityReport": "products",
     "detect_welds": "products.welds",

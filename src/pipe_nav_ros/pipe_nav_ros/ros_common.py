@@ -20,7 +20,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-from pipe_nav_core import ConfigError, memory
+from pipe_nav_core import ConfigError, small_pages
 
 from .params import ParamSpec
 
@@ -135,7 +135,7 @@ def run_node(
     converting a message, which makes that ``spin_once`` raise: once rclpy is shut down such
     an error is the stop, not a crash.
     """
-    memory.small_pages()  # no stalls on huge-page compaction (the smoother's arrays)
+    small_pages()  # no stalls on huge-page compaction (the smoother's arrays)
     ctrl_c = _CtrlC()
     signal.signal(signal.SIGINT, ctrl_c)  # before init: rclpy's handler chains to this one
     rclpy.init(args=list(args) if args is not None else None)
