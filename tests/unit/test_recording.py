@@ -156,22 +156,31 @@ def test_an_epoch_is_stored_as_it_was_given_while_the_caller_goes_on():
         np.testing.assert_array_equal(rec.P_upd(k), np.triu(P) + np.triu(P, 1).T)
 
 
-def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
-    """A chunk being spilled is read back whole, and its rows stay as they were while the
-    caller reads the chunk before it: its array returns to the pool only once its file is
-    complete, and reading waits for that (else the next read could refill it)."""
+def _writes_held(monkeypatch):
+    """Chunks' spill writes wait until the returned event is set (10 s at most); the spare
+    pool emptied."""
     import threading
-    import time
     from concurrent.futures import ThreadPoolExecutor
 
     held = threading.Event()
 
     class SlowWriter(ThreadPoolExecutor):
         def submit(self, fn, /, *args, **kwargs):  # the write waits until the test lets it
-            return super().submit(lambda: (held.wait(5.0), fn(*args, **kwargs)))
+            return super().submit(lambda: (held.wait(10.0), fn(*args, **kwargs)))
 
     monkeypatch.setattr(chunks, "ThreadPoolExecutor", SlowWriter)
     chunks.drop_spare()
+    return held
+
+
+def test_a_chunk_asked_for_while_its_file_is_written_stays_whole(monkeypatch):
+    """A chunk being spilled is read back whole, and its rows stay as they were while the
+    caller reads the chunk before it: its array returns to the pool only once its file is
+    complete, and reading waits for that (else the next read could refill it)."""
+    import threading
+    import time
+
+    held = _writes_held(monkeypatch)
     width, n = 3, 2 + chunks.PENDING_WRITES  # as many spilled as may wait for the disk
     rows = chunks.Chunks(width, budget=0)  # two chunks in memory, older ones spill
     for k in range(n):
@@ -192,16 +201,8 @@ def test_a_recording_faster_than_its_disk_waits_for_it(monkeypatch):
     they queued without bound: the 100 km line's peak rose by 0.9 GB on a slow disk); every
     row comes back as written."""
     import threading
-    from concurrent.futures import ThreadPoolExecutor
 
-    held = threading.Event()
-
-    class SlowWriter(ThreadPoolExecutor):
-        def submit(self, fn, /, *args, **kwargs):  # the write waits until the test lets it
-            return super().submit(lambda: (held.wait(10.0), fn(*args, **kwargs)))
-
-    monkeypatch.setattr(chunks, "ThreadPoolExecutor", SlowWriter)
-    chunks.drop_spare()
+    held = _writes_held(monkeypatch)
     n, per = 10, 4
     rows = chunks.Chunks(2, budget=0, rows=per)  # two chunks in memory, older ones spill
     waiting: list[int] = []

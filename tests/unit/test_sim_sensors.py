@@ -412,8 +412,16 @@ def test_a_bend_shorter_than_a_sample_turns_the_gyro_and_the_velocity():
 
     def clean_run(features):
         scn = error_free(
-            small_scenario(length=20.0, features=features, stops=(), roll0=0.0, roll_wander=0.0,
-                           roll_turns=(), speed=2.0, marker_chainages=None)  # fmt: skip
+            small_scenario(
+                length=20.0,
+                features=features,
+                stops=(),
+                roll0=0.0,
+                roll_wander=0.0,
+                roll_turns=(),
+                speed=2.0,
+                marker_chainages=None,
+            )
         )
         return simulate(scn, seed=3)
 
