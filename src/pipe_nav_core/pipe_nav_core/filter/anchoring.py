@@ -36,7 +36,8 @@ UNKNOWN_HEADING_VARIANCE = math.pi**2 / 3.0
 
 # the share of rejected odometer speed updates since the last marker passage from which the
 # filter has lost the wheel (clean runs: 1-3 %; the 100 km line at 2.5 Hz epochs after a
-# 0.27 deg pitch step: 33 %, its velocity 6 mm/s^2 off and every speed update beyond the gate)
+# 3.9 mrad pitch turn its simulated gyro did not show, before 0d6d5dc: 33 %, its velocity
+# 6 mm/s^2 off and every speed update beyond the gate)
 ODOMETER_LOST_FRACTION = 0.1
 SPEED_KIND = odometer.KINDS[odometer.SPEED]  # the speed row's name in the update statistics
 

@@ -84,6 +84,12 @@ class KinState:
         """Body rate relative to the Earth (and to the pipe), omega_eb^b (M, 3), rad/s."""
         return self.w_nb_b + np.einsum("mij,mi->mj", self.c_nb, self.w_en_n)
 
+    def wall_speed(self, lever: FloatArray) -> FloatArray:
+        """Speed (M,), m/s, of the wall point at ``lever`` (m, base_link) along the pipe: the
+        chainage rate plus (omega_eb x lever)_x, as the odometer wheel there rolls."""
+        w_eb = self.omega_eb_b()
+        return self.sd + (w_eb[:, 1] * lever[2] - w_eb[:, 2] * lever[1])
+
     def specific_force_b(self) -> FloatArray:
         """Ideal accelerometer signal f^b (M, 3), m/s^2, in base_link."""
         f_n = self.a_n + np.cross(2.0 * self.w_ie_n + self.w_en_n, self.v_n) - self.g_n

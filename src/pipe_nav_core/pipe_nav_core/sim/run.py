@@ -207,19 +207,16 @@ def simulate(
         st = evaluate(geometry, motion, tn)
         w_ib = st.omega_ib_b()
         f_b = st.specific_force_b()
-        w_eb = st.omega_eb_b()
-        wall_speed = st.sd + (w_eb[:, 1] * lever[2] - w_eb[:, 2] * lever[1])
+        wall_speed = st.wall_speed(lever)
         g_mean = interval_means(w_ib)
         f_mean = interval_means(f_b)
         inc = interval_means(wall_speed) * dt
         short = short_feature_intervals(spans, st.s[0::4])
         if len(short):  # a feature too short for the nodes: finer sub-intervals there
             fine = evaluate(geometry, motion, sub_interval_times(tn, short))
-            w_fine = fine.omega_eb_b()
             g_mean[short] = sub_interval_means(fine.omega_ib_b(), len(short))
             f_mean[short] = sub_interval_means(fine.specific_force_b(), len(short))
-            wall_fine = fine.sd + (w_fine[:, 1] * lever[2] - w_fine[:, 2] * lever[1])
-            inc[short] = sub_interval_means(wall_fine, len(short)) * dt
+            inc[short] = sub_interval_means(fine.wall_speed(lever), len(short)) * dt
         if i0 == 0:
             inc[0] = 0.0  # the distance is counted from the first sample
         wall[i0:i1] = np.cumsum(np.concatenate([[w_carry], inc]))[1:]
@@ -244,7 +241,7 @@ def simulate(
         tr_v[j0:j1] = st.v_n[e]
         tr_s[j0:j1] = st.s[e]
         tr_q[j0:j1] = quat_from_angles(st.roll[e], st.pitch[e], st.azimuth[e])
-        del st, w_ib, f_b, w_eb, wall_speed, tn
+        del st, w_ib, f_b, wall_speed, tn
 
     weld_field = _weld_field(scn)
     if scn.weld_bump_height > 0.0 and len(weld_field.welds):

@@ -125,9 +125,10 @@ def smooth_log(
     assert nav.recording is not None
     lost_at = nav.after_odometer_loss
     if lost_at and cfg.filter_rate_hz < config.filter_rate_hz:
-        # the long epochs' first pass lost the wheel somewhere (the 100 km line after a
-        # 0.27 deg pitch step: 0.5 m off in height with a 5 cm sigma after smoothing): the
-        # whole run is smoothed again with the live filter's epochs
+        # the long epochs' first pass lost the wheel somewhere (after an attitude turn no gyro
+        # sample saw: a shock that saturates the gyro; the 100 km line's simulator did so
+        # until 0d6d5dc, and smoothed it 0.5 m off in height with a 5 cm sigma): the whole run
+        # is smoothed again with the live filter's epochs
         say(f"the {cfg.filter_rate_hz:g} Hz epochs lost the odometer before {lost_at[0]}: "
             f"smoothing at {config.filter_rate_hz:g} Hz")  # fmt: skip
         nav.recording.close()  # its chunk arrays go to the next pass's recording
