@@ -9,6 +9,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core.jit import kernel
+
 Array = NDArray[np.float64]
 
 BATCH = 1 << 18  # rows at a time, wherever a whole run's samples are worked through in batches
@@ -21,6 +23,17 @@ def row_norms(a: Array, batch: int = BATCH) -> Array:
     for b in range(0, len(a), batch):
         out[b : b + batch] = np.linalg.norm(a[b : b + batch], axis=1)
     return out
+
+
+@kernel(nogil=True)
+def lerp_rows(a: Array, i: NDArray[np.int64], f: Array, out: Array) -> None:
+    """out[j] (M, C) <- a[i[j]] + (a[i[j] + 1] - a[i[j]]) f[j] (a (N, C), any unit): linear
+    interpolation between rows, the arithmetic of doing it with whole arrays, without their
+    temporaries."""
+    for j in range(i.shape[0]):
+        k = i[j]
+        for c in range(a.shape[1]):
+            out[j, c] = a[k, c] + (a[k + 1, c] - a[k, c]) * f[j]
 
 
 def gradient(f: Array, t: Array, batch: int = BATCH) -> Array:

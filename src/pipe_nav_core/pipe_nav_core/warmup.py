@@ -23,8 +23,9 @@ from pipe_nav_core.types import SensorLog
 # of the live filter (alignment, odometer, non-holonomic, magnetometer and marker updates).
 _SPAN_S = 70.0
 # what the warm-up runs (its kernels' argument types are what the AOT module exports): a new
-# number builds the module again where an older warm-up made it (3: the running windows too)
-WARM_UP = 3
+# number builds the module again where an older warm-up made it (3: the running windows too;
+# 4: the trajectory interpolation)
+WARM_UP = 4
 
 
 @lru_cache(maxsize=1)
@@ -59,14 +60,18 @@ def warm_smoothers() -> float:
 
 
 def warm_products() -> float:
-    """Call the products' window kernels (pipe_nav_core.products.windows) as the weld detector does
-    (s of wall time taken)."""
+    """Call the products' window kernels (pipe_nav_core.products.windows) as the weld detector does,
+    and the trajectory interpolation they all resample with (s of wall time taken)."""
     import numpy as np
 
+    from pipe_nav_core.io.centreline import interpolate_trajectory
     from pipe_nav_core.products.windows import correlate, running_maximum, running_median
+    from pipe_nav_core.types import Trajectory
 
     t0 = time.perf_counter()
     x = np.linspace(0.0, 1.0, 64)
+    xyz, q = np.column_stack([x, x, x]), np.tile([0.0, 0.0, 0.0, 1.0], (64, 1))
+    interpolate_trajectory(Trajectory(x, x, x, x, xyz, q, x, xyz, xyz), x[1:] - 0.005)
     running_median(x, 5)
     running_median(np.column_stack([x, x]), 5)
     running_maximum(x, 5)

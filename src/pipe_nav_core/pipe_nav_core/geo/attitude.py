@@ -340,3 +340,17 @@ def rotvec_of(q: Quat) -> Vec3:
     s = np.sqrt(x * x + y * y + z * z)
     k = 2.0 if s < 1e-9 else 2.0 * np.arctan2(s, w) / s
     return (x * k, y * k, z * k)
+
+
+@kernel(nogil=True)
+def slerp_rows(q: Array, i: NDArray[np.int64], f: Array, out: Array) -> None:
+    """out[j] (M, 4) <- the slerp from q[i[j]] to q[i[j] + 1] at fraction f[j] (q (N, 4) unit
+    quaternions; the shorter way round): the formulas of the vectorized slerp, sample by
+    sample, without its temporaries."""
+    for j in range(i.shape[0]):
+        a, b = i[j], i[j] + 1
+        q0 = (q[a, 0], q[a, 1], q[a, 2], q[a, 3])
+        q1 = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
+        rx, ry, rz = rotvec_of(qmul((-q0[0], -q0[1], -q0[2], q0[3]), q1))
+        r = qnormalize(qmul(q0, qrotvec(rx * f[j], ry * f[j], rz * f[j])))
+        out[j, 0], out[j, 1], out[j, 2], out[j, 3] = r

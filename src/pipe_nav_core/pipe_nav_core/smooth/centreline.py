@@ -16,9 +16,9 @@ from pipe_nav_core import batched
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.anchoring import FreeHeading
 from pipe_nav_core.filter.navigator import Navigator
-from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.geo import earth
 from pipe_nav_core.model.state import SV_DIST, SV_H, SV_LAT, SV_LON, SV_Q, SV_T, SV_VEL
+from pipe_nav_core.smooth import samples
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.types import Datum, Marker, Trajectory
 
@@ -95,7 +95,6 @@ def smoothed_centreline(rec: Recording, e_pose: Array, var: Array) -> Trajectory
     correction is interpolated in time. The centreline is made in the recording's own
     per-sample arrays (:meth:`Recording.take_nominal`): the recording has no nominal after.
     """
-    P, A = slice(0, 3), slice(3, 6)
     if e_pose.shape[1:] != (len(rec.pose),) or var.shape[1:] != (len(rec.pose),):
         raise ValueError(f"smoothed_centreline: e_pose {e_pose.shape}, var {var.shape}: "
                          f"not rec.pose's {len(rec.pose)} columns")  # fmt: skip
@@ -103,21 +102,13 @@ def smoothed_centreline(rec: Recording, e_pose: Array, var: Array) -> Trajectory
     d_end = d_lin + rec.end_offset  # its columns are pose's
     t_ep = rec.t
     k_of = rec.s_epoch
-    t, lat, lon, h, q = rec.take_nominal()  # the nominal, overwritten with the centreline
+    # the nominal, overwritten with the centreline (the kernel writes in place)
+    t, lat, lon, h, q = (np.ascontiguousarray(a, dtype=np.float64) for a in rec.take_nominal())
     N = len(t)
     sig_p, sig_a = np.empty((N, 3)), np.empty((N, 3))
-    for b in range(0, N, batched.BATCH):  # bounded temporaries
-        s = slice(b, b + batched.BATCH)
-        k = k_of[s]
-        frac = (t[s] - t_ep[k - 1]) / np.maximum(t_ep[k] - t_ep[k - 1], 1e-12)
-        w0, w1 = (1.0 - frac)[:, None], frac[:, None]
-        corr = w0 * d_lin[k - 1] + w1 * d_end[k]
-        dlat, dlon, dh = earth.enu_to_geodetic_increment(corr[:, P], lat[s], h[s])
-        lat[s], lon[s], h[s] = lat[s] + dlat, lon[s] + dlon, h[s] + dh
-        q[s] = att.quat_normalize(att.quat_mul(att.quat_from_rotvec(corr[:, A]), q[s]))
-        var_s = w0 * var[k - 1] + w1 * var[k]
-        sig_p[s] = np.sqrt(np.maximum(var_s[:, P], 0.0))
-        sig_a[s] = np.sqrt(np.maximum(var_s[:, A], 0.0))
+    arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in (d_lin, d_end, var)]
+    samples.correct_samples(t, lat, lon, h, q, np.ascontiguousarray(k_of, dtype=np.int32),
+                            np.ascontiguousarray(t_ep), *arrays, sig_p, sig_a)  # fmt: skip
     distance = arc_chainage(lat, lon, h, q)
     return Trajectory(t, lat, lon, h, enu_velocity(t, lat, lon, h), q, distance, sig_p, sig_a)
 
@@ -145,14 +136,8 @@ def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
     if np.any(np.abs(dlon) >= np.pi):  # across the antimeridian (else unwrap adds exact zeros)
         dlon = np.diff(np.unwrap(lon))
     along = np.empty(len(lat) - 1)
-    for b in range(0, len(along), batched.BATCH):  # in batches: bounded temporaries
-        end = min(b + batched.BATCH, len(along))
-        s, s1 = slice(b, end), slice(b + 1, end + 1)  # the steps' first and last samples
-        rm, rn = earth.radii(lat[s1])
-        step = np.stack([dlon[s] * (rn + h[s1]) * np.cos(lat[s1]),
-                         (lat[s1] - lat[s]) * (rm + h[s1]), h[s1] - h[s]], axis=1)  # fmt: skip
-        axis = att.dcm_from_quat(quat_nb[s1])[:, :, 0]
-        along[s] = np.einsum("ij,ij->i", step, axis)
+    c = [np.ascontiguousarray(a, dtype=np.float64) for a in (lat, dlon, h, quat_nb)]
+    samples.axis_steps(*c, along)
     return np.r_[0.0, np.cumsum(along)]
 
 
