@@ -4,6 +4,10 @@ mcap.records, whole or not at all."""
 
 from __future__ import annotations
 
+import mmap
+import sys
+
+import numpy as np
 import pytest
 from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Schema
@@ -63,3 +67,42 @@ def test_a_damaged_chunk_index_makes_the_summary_unusable_not_wrong(tmp_path):
     got, rep = read_bag(bad, workers=0)
     assert_logs_equal(got, read_bag(p, workers=0)[0])
     assert not rep.truncated
+
+
+def _resident_kb(path) -> int:
+    """kB of ``path``'s mappings resident in this process (/proc/self/smaps)."""
+    total, ours = 0, False
+    with open("/proc/self/smaps") as f:
+        for line in f:
+            head = line.split()
+            if len(head) >= 5 and "-" in head[0] and len(head[0]) > 8:  # a mapping's first line
+                ours = line.rstrip("\n").endswith(str(path))
+            elif ours and head[0] == "Rss:":
+                total += int(head[1])
+    return total
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/smaps")
+@pytest.mark.parametrize("compression", ["", "zstd"])
+def test_the_bag_is_read_in_place_and_let_go_of_behind_the_reading(tmp_path, compression):
+    """The chunks are read from the mapped file (an uncompressed chunk's records are not
+    copied), and the pages before the chunk being read are let go of: while the last batch is
+    read, what is resident of the bag is about the chunks in flight, not the file."""
+    from pipe_nav_core.io.mcapread import McapScanner
+    from pipe_nav_core.sim import simulate
+
+    log = simulate("demo", 0).log
+    p = tmp_path / "run.mcap"
+    write_sensor_bag(p, log, compression=compression, chunk_size=1 << 16)
+    size_kb = p.stat().st_size // 1024  # 14 MB uncompressed, 2 MB zstd
+    sc = McapScanner(p, lambda w: None)
+    batches = resident = 0
+    for batch in sc.batches(workers=1):
+        batches += 1
+        int(np.asarray(batch.buf).sum())  # every byte of the chunk read
+        resident = max(resident, _resident_kb(p))
+    assert batches > 10 and not sc.truncated
+    assert resident < (0.15 if compression else 0.05) * size_kb
+    if not compression:  # the batch's records are the file's mapped bytes, not a copy
+        assert isinstance(batch.buf.base, memoryview) and isinstance(batch.buf.base.obj, mmap.mmap)
+    assert_logs_equal(read_bag(p)[0], read_bag(p, workers=0)[0])

@@ -61,8 +61,10 @@ class MessageBatch:
 
 
 def _decompressor(compression: str) -> Callable[[bytes, int], bytes]:
+    """The decompression of a chunk's records (data: bytes or a memoryview, size: bytes when
+    decompressed); an uncompressed chunk's records are given as they are (not copied)."""
     if compression == "":
-        return lambda data, size: bytes(data)
+        return lambda data, size: data
     if compression == "zstd":
         try:
             import zstandard
@@ -205,7 +207,7 @@ def chunk_compression(content: bytes) -> str | None:
     n = U32.unpack_from(content, 28)[0]
     if 32 + n > len(content):
         return None
-    return content[32 : 32 + n].decode("utf-8", "replace")
+    return bytes(content[32 : 32 + n]).decode("utf-8", "replace")
 
 
 def unpack_chunk(content: bytes) -> bytes:

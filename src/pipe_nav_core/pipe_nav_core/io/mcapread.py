@@ -18,7 +18,7 @@ MCAP format: https://mcap.dev/spec (little-endian; records are opcode u8, length
 
 from __future__ import annotations
 
-import io
+import mmap
 import os
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -118,6 +118,7 @@ class McapScanner:
         self.summary: Summary | None = None
         self.size = os.path.getsize(self.path)
         self._ended = False
+        self._map: _MappedFile | None = None
         with open(self.path, "rb") as f:
             magic = f.read(8)
         if len(magic) < 8 or magic != MAGIC:
@@ -223,6 +224,8 @@ class McapScanner:
         kind = item[0]
         if kind == "chunk":
             _, content, indexes, offset = item
+            if self._map is not None:  # the records before it: their batches are done with
+                self._map.release(offset)
             if u is None:
                 u = unpack(content, indexes, False)
             return self._finish_chunk(u, indexes, offset)
@@ -286,64 +289,83 @@ class McapScanner:
         offset) for a complete Chunk record, ("batch", MessageBatch) for a run of un-chunked
         Message records, ("partial", content, offset) for a Chunk record cut off by the end of
         the file, ("schema" | "channel", content) for those records outside chunks. Sets
-        ``_ended`` when the data section ends properly."""
-        with open(self.path, "rb", buffering=0) as raw_f:
-            f = io.BufferedReader(raw_f, buffer_size=1 << 20)
-            f.seek(8)
-            pos = 8
-            size = self.size
-            pending: tuple[bytes, int] | None = None
-            indexes: list[bytes] = []
-            loose = bytearray()
-            loose_offs: list[int] = []
-            while True:
-                hdr = f.read(9)
-                if len(hdr) < 9:
-                    break
-                op, length = REC.unpack(hdr)
-                if op == OP_MESSAGE_INDEX and pending is not None and pos + 9 + length <= size:
-                    indexes.append(f.read(length))
-                    pos += 9 + length
-                    continue
-                if pending is not None:
-                    yield ("chunk", pending[0], indexes, pending[1])
-                    pending, indexes = None, []
-                if op in (OP_DATA_END, OP_FOOTER):
-                    self._ended = True
-                    break
-                if op == 0 or pos + 9 + length > size:
-                    # cut off (or garbage where a record should start)
-                    if op == OP_CHUNK and length > 0:
-                        if loose_offs:
-                            yield ("batch", loose_batch(loose, loose_offs))
-                            loose, loose_offs = bytearray(), []
-                        yield ("partial", f.read(size - pos - 9), pos)
-                    break
-                if op in (OP_CHUNK, OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
-                    content = f.read(length)
-                    if len(content) < length:
-                        break
-                    if op == OP_CHUNK:
-                        if loose_offs:
-                            yield ("batch", loose_batch(loose, loose_offs))
-                            loose, loose_offs = bytearray(), []
-                        pending = (content, pos)
-                    elif op == OP_MESSAGE:
-                        loose_offs.append(len(loose))
-                        loose += hdr
-                        loose += content
-                        if len(loose) > _LOOSE_BATCH_BYTES:
-                            yield ("batch", loose_batch(loose, loose_offs))
-                            loose, loose_offs = bytearray(), []
-                    else:
-                        yield ("schema" if op == OP_SCHEMA else "channel", content)
-                else:
-                    f.seek(length, io.SEEK_CUR)
-                pos += 9 + length
+        ``_ended`` when the data section ends properly. Contents are views of the mapped file
+        (:class:`_MappedFile`): nothing is copied until a chunk is decompressed."""
+        self._map = mapped = _MappedFile(self.path, self.size)
+        data, size = mapped.view, len(mapped.view)
+        pos = 8
+        pending: tuple[memoryview, int] | None = None
+        indexes: list[memoryview] = []
+        loose = bytearray()
+        loose_offs: list[int] = []
+        while pos + 9 <= size:
+            op, length = REC.unpack_from(data, pos)
+            body, end = pos + 9, pos + 9 + length
+            if op == OP_MESSAGE_INDEX and pending is not None and end <= size:
+                indexes.append(data[body:end])
+                pos = end
+                continue
             if pending is not None:
                 yield ("chunk", pending[0], indexes, pending[1])
-            if loose_offs:
-                yield ("batch", loose_batch(loose, loose_offs))
+                pending, indexes = None, []
+            if op in (OP_DATA_END, OP_FOOTER):
+                self._ended = True
+                break
+            if op == 0 or end > size:
+                # cut off (or garbage where a record should start)
+                if op == OP_CHUNK and length > 0:
+                    if loose_offs:
+                        yield ("batch", loose_batch(loose, loose_offs))
+                        loose, loose_offs = bytearray(), []
+                    yield ("partial", data[body:size], pos)
+                break
+            if op == OP_CHUNK:
+                if loose_offs:
+                    yield ("batch", loose_batch(loose, loose_offs))
+                    loose, loose_offs = bytearray(), []
+                pending = (data[body:end], pos)
+            elif op == OP_MESSAGE:
+                loose_offs.append(len(loose))
+                loose += data[pos:end]
+                if len(loose) > _LOOSE_BATCH_BYTES:
+                    yield ("batch", loose_batch(loose, loose_offs))
+                    loose, loose_offs = bytearray(), []
+            elif op in (OP_SCHEMA, OP_CHANNEL):
+                yield ("schema" if op == OP_SCHEMA else "channel", bytes(data[body:end]))
+            pos = end
+        if pending is not None:
+            yield ("chunk", pending[0], indexes, pending[1])
+        if loose_offs:
+            yield ("batch", loose_batch(loose, loose_offs))
+
+
+class _MappedFile:
+    """A file's first ``size`` bytes mapped read-only (``view``): the records are read in
+    place, not copied out (an uncompressed 10 km bag is 620 MB of chunks: copying them and
+    faulting in the copies' fresh pages took 0.3 s of 1.1 s). The pages read count in the
+    process's resident memory until :meth:`release` lets go of them (the file's data stay in
+    the page cache); where the file cannot be mapped it is read whole."""
+
+    def __init__(self, path: str, size: int) -> None:
+        self._mm: mmap.mmap | None = None
+        self._released = 0
+        with open(path, "rb") as f:
+            try:
+                self._mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+                whole: bytes | mmap.mmap = self._mm
+            except (OSError, ValueError):  # a file system without mmap
+                whole = f.read(size)
+        self.view = memoryview(whole)[:size]
+
+    def release(self, upto: int) -> None:
+        """Take the pages before byte ``upto`` out of the process's resident memory (a read
+        of them after maps them in again, from the page cache)."""
+        start = self._released
+        upto -= upto % mmap.PAGESIZE
+        if self._mm is None or upto <= start or not hasattr(self._mm, "madvise"):
+            return
+        self._mm.madvise(mmap.MADV_DONTNEED, start, upto - start)
+        self._released = upto
 
 
 # One item of the data section (see McapScanner._items).
