@@ -192,6 +192,24 @@ def test_weld_bump_is_off_by_default_and_seen_when_on():
     assert len(other) <= 3 and all(np.min(np.abs(motion - x)) < 0.3 for x in other)
 
 
+def test_the_jolts_found_before_the_smoothing_give_the_same_welds():
+    """The IMU's part of the jolt search (jolt_deviation) is found while the run is smoothed
+    (the pipeline's other core): handed in, the jolts and the welds are those found after."""
+    from pipe_nav_core.products.welds import jolt_deviation
+
+    scn = replace(get_scenario("demo").with_length(120.0), weld_bump_height=5e-4,
+                  weld_bump_duration=0.01)  # fmt: skip
+    run = simulate(scn, seed=2)
+    res = smooth_log(run.log, NavConfig.from_dict(scn.estimator_settings()))
+    after = jolt_chainages(run.log, res.centreline)
+    before = jolt_chainages(run.log, res.centreline, deviation=jolt_deviation(run.log.imu))
+    assert len(after) >= 5 and after.tobytes() == before.tobytes()
+    found = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)
+    given = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2,
+                         jolts=jolt_deviation(run.log.imu))  # fmt: skip
+    assert repr(given) == repr(found) and len(found) >= 5
+
+
 def test_welds_csv_round_trip_and_layout(demo, tmp_path):
     run, res = demo
     welds = detect_welds(run.log, res.centreline, res.datum, pipe_diameter=0.2)

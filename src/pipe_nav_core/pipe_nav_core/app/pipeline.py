@@ -44,7 +44,7 @@ from pipe_nav_core.memory import trim_heap
 from pipe_nav_core.model import imu_noise as imu_model
 from pipe_nav_core.model.sensors import GRADES
 from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
-from pipe_nav_core.products.welds import Weld, detect_welds
+from pipe_nav_core.products.welds import Weld, detect_welds, jolt_deviation
 from pipe_nav_core.smooth.centreline import SmoothResult
 from pipe_nav_core.smooth.chunks import drop_spare
 from pipe_nav_core.smooth.logs import let_go, map_imu
@@ -168,6 +168,12 @@ def smooth_bag(
             "nothing ties the run to the ground"
         )
 
+    # the IMU's part of the weld search on the other core while the run is smoothed (when the
+    # welds are found beside the bends: their working set is small then)
+    jolts: Background | None = None
+    if 0 < len(log.mag.t) <= WELDS_BESIDE_BENDS_MAX:
+        jolts = Background("pipe-nav-jolts", jolt_deviation, log.imu, imu_mount(config))
+
     def smooth(part: SensorLog, reverse: bool = False) -> SmoothResult:
         return smooth_with_imu_model(
             part, config, declared=report.imu_noise_declared, method=method,
@@ -191,8 +197,8 @@ def smooth_bag(
     # memory (some 400 bytes per magnetometer sample: 1 GB at 100 km)
     cfg = result.config or config
     welds: Background | None = None
-    if 0 < len(log.mag.t) <= WELDS_BESIDE_BENDS_MAX:
-        welds = Background("pipe-nav-welds", run_welds, log, result, cfg)
+    if jolts is not None:
+        welds = Background("pipe-nav-welds", run_welds, log, result, cfg, jolts.result())
     say("bends and strain")
     result.products = integrity_report(result.centreline, cfg, spacing=spacing, reference=reference)
     result.summary["integrity"] = result.products.summary()
@@ -303,13 +309,20 @@ def require_imu(
         raise ValueError(f"{bag}: no IMU samples on {topics.imu}{carries}")
 
 
-def run_welds(log: SensorLog, result: SmoothResult, config: NavConfig) -> list[Weld]:
+def run_welds(
+    log: SensorLog, result: SmoothResult, config: NavConfig, jolts: np.ndarray | None = None
+) -> list[Weld]:
     """The girth welds of a smoothed run (products.welds.detect_welds) with the pig's pipe
-    diameter and IMU mount."""
+    diameter and IMU mount (``jolts``: the IMU's jolt_deviation, when found before)."""
+    return detect_welds(log, result.centreline, result.datum, pipe_diameter=config.pipe_diameter,
+                        r_base_imu=imu_mount(config), jolts=jolts)  # fmt: skip
+
+
+def imu_mount(config: NavConfig) -> np.ndarray:
+    """(3, 3) imu_link -> base_link of the configured IMU mount."""
     from pipe_nav_core.filter.ingest import mount_rotation
 
-    return detect_welds(log, result.centreline, result.datum, pipe_diameter=config.pipe_diameter,
-                        r_base_imu=mount_rotation(config.imu_mount_rpy))  # fmt: skip
+    return mount_rotation(config.imu_mount_rpy)
 
 
 def weld_summary(welds: Sequence[Weld]) -> dict[str, object]:

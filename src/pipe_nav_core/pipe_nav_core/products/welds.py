@@ -52,7 +52,7 @@ from pipe_nav_core.io.centreline import interpolate_trajectory
 from pipe_nav_core.memory import file_array, let_go
 from pipe_nav_core.products.windows import correlate, running_maximum, running_median
 from pipe_nav_core.smooth import logs
-from pipe_nav_core.types import Datum, SensorLog, Trajectory
+from pipe_nav_core.types import Datum, ImuSamples, SensorLog, Trajectory
 
 FloatArray = NDArray[np.float64]
 
@@ -224,27 +224,37 @@ def mag_snr(residual: FloatArray, width: float, step: float = GRID_STEP_M) -> Fl
     return np.sqrt(z2)
 
 
+def jolt_deviation(imu: ImuSamples, r_base_imu: ArrayLike | None = None) -> FloatArray:
+    """(N,) per IMU sample, the vertical specific force (base_link z, m/s^2) less its
+    ``JOLT_BASELINE_S`` running median (which follows the pig's roll and surges): where
+    :func:`jolt_chainages` looks for the wheel's jolts. From the IMU alone, so that it can be
+    found while the run is still being smoothed."""
+    r_bi = np.eye(3) if r_base_imu is None else np.asarray(r_base_imu, dtype=np.float64)
+    az = np.asarray(imu.accel, dtype=np.float64) @ r_bi[2]
+    logs.let_go(imu)  # read from a file (smooth.logs.map_imu): 0.33 GB at 100 km, read again
+    if len(az) < 2:  # no sample interval
+        return az
+    size = max(3, int(round(JOLT_BASELINE_S / float(np.median(np.diff(imu.t))))) | 1)
+    return np.subtract(az, running_median(az, size), out=az)
+
+
 def jolt_chainages(
     log: SensorLog,
     centreline: Trajectory,
     r_base_imu: ArrayLike | None = None,
     threshold: float = JOLT_SNR,
     min_separation: float = 1.0,
+    deviation: FloatArray | None = None,
 ) -> FloatArray:
-    """Chainages (m) where the vertical specific force (base_link z) spikes over ``threshold``
-    robust sigmas of its deviation from a ``JOLT_BASELINE_S`` running median
-    (which follows the pig's roll and surges): the wheel on a weld bead. Only while the pig
-    moves (a jolt at rest is not a weld)."""
+    """Chainages (m) where the vertical specific force spikes over ``threshold`` robust sigmas
+    of its :func:`jolt_deviation` (``deviation``, when found before: used up) while the pig
+    moves: the wheel on a weld bead (a jolt at rest is not a weld)."""
     imu = log.imu
     t_c, d_c = _monotone_distance(centreline)
     if len(imu.t) < 10 or len(t_c) < 2:
         return np.empty(0)
-    r_bi = np.eye(3) if r_base_imu is None else np.asarray(r_base_imu, dtype=np.float64)
-    az = np.asarray(imu.accel, dtype=np.float64) @ r_bi[2]
-    logs.let_go(imu)  # read from a file (smooth.logs.map_imu): 0.33 GB at 100 km, read again
+    dev = jolt_deviation(imu, r_base_imu) if deviation is None else deviation
     dt = float(np.median(np.diff(imu.t)))
-    size = max(3, int(round(JOLT_BASELINE_S / dt)) | 1)
-    dev = np.subtract(az, running_median(az, size), out=az)  # az - its running median
     d = np.interp(imu.t, t_c, d_c)
     speed = batched.gradient(d, imu.t)  # np.gradient's values, without its temporaries
     moving = (speed > 0.05) & (imu.t > t_c[0]) & (imu.t < t_c[-1])
@@ -364,13 +374,15 @@ def detect_welds(
     weak: float = WEAK_SNR,
     use_jolts: bool = True,
     clean: bool = True,
+    jolts: FloatArray | None = None,
 ) -> list[Weld]:
     """The girth welds of a run (module doc) from its sensor log (``log.mag`` in imu_link, T;
     ``log.imu`` for the jolts) and its smoothed ``centreline`` (attitude, chainage, sigma_enu
     at the IMU rate or finer). pipe_diameter: m (the anomaly's width is ``width_d`` of it);
     r_base_imu: (3, 3) imu_link -> base_link (identity when None); threshold, weak: snr of a
     weld on its own and of one the joint sequence or a jolt expects; use_jolts: look for the
-    wheel's jolts in the IMU; clean: apply the joint-length sequence. ``datum`` is the run's
+    wheel's jolts in the IMU (``jolts``: their :func:`jolt_deviation`, when found before);
+    clean: apply the joint-length sequence. ``datum`` is the run's
     (the welds are given in WGS84, so it is not needed for the positions). [] when the log has
     no magnetometer samples within the centreline."""
     del datum  # positions come from the centreline's own geodetic coordinates
@@ -395,7 +407,7 @@ def detect_welds(
     cands = [_candidate(grid, snr, int(k), width) for k in peaks]
     if use_jolts and len(log.imu.t):
         have = np.array([c.distance for c in cands])
-        for s in jolt_chainages(log, centreline, r_base_imu, min_separation=sep):
+        for s in jolt_chainages(log, centreline, r_base_imu, min_separation=sep, deviation=jolts):
             if len(have) and np.min(np.abs(have - s)) < sep:
                 continue
             found = _strongest_near(grid, snr, s, JOLT_MATCH_M, weak, width)
