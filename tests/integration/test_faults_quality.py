@@ -51,6 +51,13 @@ def test_verdicts():
     assert judge({**short, "last_step_rad": 0.024}, _line()).status == FAILED
     assert judge({**short, "last_step_rad": 0.024, "passes_run": 1}, _line()).status == OK
     assert judge({**short, "converged": True}, _line()).status == OK
+    # markers reached with the wheel lost: the centreline there is the IMU's, named
+    wheel = {**good, "markers_after_odometer_loss": ["agm_3", "agm_4", "agm_5", "agm_6"]}
+    v = judge(wheel, _line())
+    assert v.status == DEGRADED and v.reasons == [
+        "the filter had lost the odometer (rejected most of its speed updates) before marker(s) "
+        "agm_3, agm_4, agm_5 and 1 more: the centreline there rests on the IMU"]  # fmt: skip
+    assert judge({**good, "markers_after_odometer_loss": []}, _line()).status == OK
     nan = dataclasses.replace(_line(), h=np.array([0, 0, np.nan, 0, 0]))
     v = judge(good, nan)
     assert v.status == FAILED and "non-finite" in v.line()

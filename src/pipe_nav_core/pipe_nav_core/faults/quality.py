@@ -6,8 +6,9 @@ chainage: a filter that has lost its way, nothing finite), nothing tied it to th
 the smoothing passes were still moving it by much; DEGRADED when something the engineer must
 know about happened (the IMU model did not fit, markers were rejected or left out, the heading
 is not anchored, messages were skipped, the bag was cut short, the passes stopped short of
-converging); else OK. ``pipe-nav smooth`` prints it, writes it into
-the smoothed bag (MCAP metadata ``pipe_nav``) and, with ``--strict``, exits 3 unless OK.
+converging, the filter reached markers having lost the odometer); else OK. ``pipe-nav smooth``
+prints it, writes it into the smoothed bag (MCAP metadata ``pipe_nav``) and, with
+``--strict``, exits 3 unless OK.
 """
 
 from __future__ import annotations
@@ -90,6 +91,13 @@ def judge(
     rejected = int(summary.get("markers_rejected", 0))  # type: ignore[call-overload]
     if rejected:
         degraded.append(f"{rejected} marker(s) rejected")
+    lost = [str(m) for m in summary.get("markers_after_odometer_loss") or []]  # type: ignore[union-attr]
+    if lost:
+        more = f" and {len(lost) - 3} more" if len(lost) > 3 else ""
+        degraded.append(
+            f"the filter had lost the odometer (rejected most of its speed updates) before "
+            f"marker(s) {', '.join(lost[:3])}{more}: the centreline there rests on the IMU"
+        )
     degraded += list(warnings)
     if failed:
         return Verdict(FAILED, failed + degraded)
