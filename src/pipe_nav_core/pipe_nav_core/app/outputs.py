@@ -26,7 +26,7 @@ from pipe_nav_core.io import (
     write_output_bag,
 )
 from pipe_nav_core.io.atomic import all_or_none, check_output, ensure_not_input
-from pipe_nav_core.io.centreline import concat, pieces_of
+from pipe_nav_core.io.centreline import centreline_text, concat, pieces_of
 from pipe_nav_core.io.products_csv import (
     write_bends_csv,
     write_strain_csv,
@@ -187,8 +187,9 @@ def _write_staged(
         say("plotting")
         _submit_plot(result, rows, staged[outputs.plot], Path(outputs.plot).stem, plotter)
     # what does not show the welds, while they are found (in the caller's other thread)
+    text = centreline_text(rows, result.datum) if outputs.csv or outputs.bag else None
     if outputs.csv:
-        write_centreline_csv(staged[outputs.csv], rows, result.datum)
+        write_centreline_csv(staged[outputs.csv], rows, result.datum, text)
     if result.products is not None:
         write_products_csv(result.products, outputs, staged)
     if meanwhile is not None:
@@ -199,8 +200,8 @@ def _write_staged(
         write_output_bag(staged[outputs.bag], path=rows, datum=result.datum,
                          odometry=result.forward, file_name=Path(outputs.bag).name,
                          run_metadata=run_metadata(result.summary), bends=bends,
-                         attachments=smoothed_attachments(rows, result.datum,
-                                                          result.welds))  # fmt: skip
+                         attachments=smoothed_attachments(rows, result.datum, result.welds,
+                                                          text))  # fmt: skip
     welds = result.welds or []
     bridges = result.summary.get("bridges") or []  # across data gaps (segments.Bridge)
     if outputs.geojson:

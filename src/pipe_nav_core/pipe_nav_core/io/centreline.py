@@ -271,11 +271,15 @@ def require_finite(traj: Trajectory, what: str) -> None:
         )
 
 
-def write_centreline_csv(path: str | os.PathLike[str], traj: Trajectory, datum: Datum) -> None:
+def write_centreline_csv(
+    path: str | os.PathLike[str], traj: Trajectory, datum: Datum, text: str | None = None
+) -> None:
     """Write the centreline CSV (header row + one row per sample, sorted by time); atomic.
-    About 4 microseconds per row (Python float formatting). Refuses non-finite samples."""
+    About 4 microseconds per row (Python float formatting; ``text``: the body
+    :func:`centreline_text` gave for traj and datum, when made already). Refuses non-finite
+    samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
-    text = centreline_text(traj, datum)
+    text = centreline_text(traj, datum) if text is None else text
     with atomic_write(path, "w", newline="") as f:
         f.write(CENTRELINE_HEADER + "\n")
         f.write(text)

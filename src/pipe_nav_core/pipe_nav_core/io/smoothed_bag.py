@@ -48,15 +48,16 @@ class SmoothedRun:
 
 
 def smoothed_attachments(
-    centreline: Trajectory, datum: Datum, welds: Sequence[Weld] | None
+    centreline: Trajectory, datum: Datum, welds: Sequence[Weld] | None, text: str | None = None
 ) -> list[tuple[str, str, bytes]]:
-    """The attachments of a smoothed bag: ``centreline.csv`` (the centreline CSV text) and,
-    when ``welds`` is not None, ``welds.csv`` (the RUN_welds.csv text)."""
+    """The attachments of a smoothed bag: ``centreline.csv`` (the centreline CSV text;
+    ``text``: its body, when made already) and, when ``welds`` is not None, ``welds.csv`` (the
+    RUN_welds.csv text)."""
     from pipe_nav_core.io.centreline import CENTRELINE_HEADER, centreline_text
     from pipe_nav_core.io.welds_csv import welds_text
 
-    out = [(CENTRELINE_ATTACHMENT, CSV_MEDIA_TYPE,
-            (CENTRELINE_HEADER + "\n" + centreline_text(centreline, datum)).encode())]  # fmt: skip
+    body = centreline_text(centreline, datum) if text is None else text
+    out = [(CENTRELINE_ATTACHMENT, CSV_MEDIA_TYPE, (CENTRELINE_HEADER + "\n" + body).encode())]
     if welds is not None:
         out.append((WELDS_ATTACHMENT, CSV_MEDIA_TYPE, welds_text(welds).encode()))
     return out
