@@ -372,3 +372,23 @@ def test_interpolation_is_the_whole_array_arithmetic():
         rv = att.rotvec_from_quat(att.quat_mul(att.quat_conj(q0), q1))
         q = att.quat_normalize(att.quat_mul(q0, att.quat_from_rotvec(rv * f[:, None])))
         assert np.abs(got.quat_nb - q).max() < 1e-15
+
+
+def test_the_centreline_coordinates_made_once_serve_both_formats():
+    """pipe-nav smooth makes the centreline's coordinates once, before the welds are known,
+    and hands them to both writers: what they write is then those coordinates, and by
+    default the ones they make themselves."""
+    from pipe_nav_core.io.gis import centreline_coords, to_kml
+
+    traj = make_traj(n=50)
+    coords = centreline_coords(traj)
+    assert len(coords) == 50 and coords[0] == [
+        round(math.degrees(traj.lon[0]), 9), round(math.degrees(traj.lat[0]), 9),
+        round(float(traj.h[0]), 4)]  # fmt: skip
+    line = to_geojson(traj, coords=coords)["features"][0]["geometry"]["coordinates"]
+    assert line is coords and to_geojson(traj) == to_geojson(traj, coords=coords)
+    assert to_kml(traj) == to_kml(traj, coords=coords)
+    other = [[1.0, 2.0, 3.0], [1.5, 2.5, 3.5]]
+    assert to_geojson(traj, coords=other)["features"][0]["geometry"]["coordinates"] == other
+    kml = to_kml(traj, coords=other)
+    assert "1.000000000,2.000000000,3.0000 1.500000000,2.500000000,3.5000" in kml

@@ -27,6 +27,7 @@ from pipe_nav_core.io import (
 )
 from pipe_nav_core.io.atomic import all_or_none, check_output, ensure_not_input
 from pipe_nav_core.io.centreline import centreline_text, concat, pieces_of
+from pipe_nav_core.io.gis import centreline_coords
 from pipe_nav_core.io.products_csv import (
     write_bends_csv,
     write_strain_csv,
@@ -186,12 +187,14 @@ def _write_staged(
     if outputs.plot:  # first: a child process draws it while the others are written
         say("plotting")
         _submit_plot(result, rows, staged[outputs.plot], Path(outputs.plot).stem, plotter)
-    # what does not show the welds, while they are found (in the caller's other thread)
+    # what does not show the welds, while they are found (in the caller's other thread): the
+    # files without them, the centreline's text and coordinates for those with them
     text = centreline_text(rows, result.datum) if outputs.csv or outputs.bag else None
     if outputs.csv:
         write_centreline_csv(staged[outputs.csv], rows, result.datum, text)
     if result.products is not None:
         write_products_csv(result.products, outputs, staged)
+    coords = centreline_coords(rows) if outputs.geojson or outputs.kml else None
     if meanwhile is not None:
         meanwhile()
     features = products.features if products else []
@@ -206,10 +209,12 @@ def _write_staged(
     bridges = result.summary.get("bridges") or []  # across data gaps (segments.Bridge)
     if outputs.geojson:
         write_geojson(staged[outputs.geojson], rows, result.markers, bends=bends,
-                      strain_features=features, welds=welds, bridges=bridges)  # fmt: skip
+                      strain_features=features, welds=welds, bridges=bridges,
+                      coords=coords)  # fmt: skip
     if outputs.kml:
         write_kml(staged[outputs.kml], rows, result.markers, bends=bends,
-                  strain_features=features, welds=welds, bridges=bridges)  # fmt: skip
+                  strain_features=features, welds=welds, bridges=bridges,
+                  coords=coords)  # fmt: skip
     if outputs.welds and result.welds is not None:
         write_welds_csv(staged[outputs.welds], result.welds)
     if plotter is not None:

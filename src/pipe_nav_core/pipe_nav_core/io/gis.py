@@ -33,7 +33,10 @@ if TYPE_CHECKING:
     from pipe_nav_core.products.welds import Weld
 
 
-def _coords(traj: Trajectory) -> list[list[float]]:
+def centreline_coords(traj: Trajectory) -> list[list[float]]:
+    """The centreline's [lon, lat, h] (degrees to 9 decimals, m to 4) of every finite sample,
+    as both formats write them: made once, and before the welds are known, by
+    ``pipe-nav smooth`` (``coords`` of the writers)."""
     lon = np.degrees(np.asarray(traj.lon, dtype=np.float64)).tolist()
     lat = np.degrees(np.asarray(traj.lat, dtype=np.float64)).tolist()
     h = np.asarray(traj.h, dtype=np.float64).tolist()
@@ -111,14 +114,16 @@ def to_geojson(
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
     bridges: Sequence[Mapping[str, float]] = (),
+    coords: list[list[float]] | None = None,
 ) -> dict[str, object]:
     """GeoJSON FeatureCollection: a LineString of the centreline ([lon, lat, h] degrees and
-    ellipsoidal metres) with properties name, start/end time (s) and length (chainage, m),
-    one Point per marker with properties name, time_s, sigma_east/north/up_m, one Point per
-    bend at its apex (kind ``bend``, :func:`bend_properties`) and one per strain feature at its
-    peak (kind ``strain_feature``, :func:`strain_feature_properties`) and one per girth weld
-    (kind ``weld``, :func:`weld_properties`). Non-finite property values are null."""
-    coords = _coords(traj)
+    ellipsoidal metres; ``coords``: its :func:`centreline_coords`, when made already) with
+    properties name, start/end time (s) and length (chainage, m), one Point per marker with
+    properties name, time_s, sigma_east/north/up_m, one Point per bend at its apex (kind
+    ``bend``, :func:`bend_properties`) and one per strain feature at its peak (kind
+    ``strain_feature``, :func:`strain_feature_properties`) and one per girth weld (kind
+    ``weld``, :func:`weld_properties`). Non-finite property values are null."""
+    coords = centreline_coords(traj) if coords is None else coords
     d = np.asarray(traj.distance, dtype=np.float64)
     t = np.asarray(traj.t, dtype=np.float64)
     line_props: dict[str, object] = {
@@ -204,13 +209,14 @@ def write_geojson(
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
     bridges: Sequence[Mapping[str, float]] = (),
+    coords: list[list[float]] | None = None,
 ) -> None:
     """Write :func:`to_geojson` to ``path`` (RFC 7946 GeoJSON, UTF-8); refuses non-finite
     samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_geojson(traj, markers, name=target_stem(path),
                      bends=bends, strain_features=strain_features, welds=welds,
-                     bridges=bridges)  # fmt: skip
+                     bridges=bridges, coords=coords)  # fmt: skip
     with atomic_write(path, "w") as f:
         f.write(json_text(doc))
 
@@ -331,12 +337,14 @@ def to_kml(
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
     bridges: Sequence[Mapping[str, float]] = (),
+    coords: list[list[float]] | None = None,
 ) -> str:
-    """KML 2.2 document: a LineString Placemark of the centreline, a Point Placemark per
-    marker, and one per bend apex, strain feature peak and girth weld (their GeoJSON
-    properties as ExtendedData), altitudeMode absolute with WGS84 ellipsoidal heights (see the
-    module docstring)."""
-    line = " ".join(f"{x:.9f},{y:.9f},{z:.4f}" for x, y, z in _coords(traj))
+    """KML 2.2 document: a LineString Placemark of the centreline (``coords``: its
+    :func:`centreline_coords`, when made already), a Point Placemark per marker, and one per
+    bend apex, strain feature peak and girth weld (their GeoJSON properties as ExtendedData),
+    altitudeMode absolute with WGS84 ellipsoidal heights (see the module docstring)."""
+    coords = centreline_coords(traj) if coords is None else coords
+    line = " ".join(f"{x:.9f},{y:.9f},{z:.4f}" for x, y, z in coords)
     parts = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<kml xmlns="http://www.opengis.net/kml/2.2">',
@@ -411,11 +419,12 @@ def write_kml(
     strain_features: Sequence[StrainFeature] = (),
     welds: Sequence[Weld] = (),
     bridges: Sequence[Mapping[str, float]] = (),
+    coords: list[list[float]] | None = None,
 ) -> None:
     """Write :func:`to_kml` to ``path`` (UTF-8); refuses non-finite samples."""
     require_finite(traj, f"{os.fspath(path)}: the centreline")
     doc = to_kml(traj, markers, name=target_stem(path),
                  bends=bends, strain_features=strain_features, welds=welds,
-                 bridges=bridges)  # fmt: skip
+                 bridges=bridges, coords=coords)  # fmt: skip
     with atomic_write(path, "w") as f:
         f.write(doc)
