@@ -344,9 +344,10 @@ def rotvec_of(q: Quat) -> Vec3:
 
 @kernel(nogil=True)
 def slerp_rows(q: Array, i: NDArray[np.int64], f: Array, out: Array) -> None:
-    """out[j] (M, 4) <- the slerp from q[i[j]] to q[i[j] + 1] at fraction f[j] (q (N, 4) unit
-    quaternions; the shorter way round): the formulas of the vectorized slerp, sample by
-    sample, without its temporaries."""
+    """out[j] (M, 4) <- the slerp from q0 = q[i[j]] to q1 = q[i[j] + 1] at fraction f[j] (q (N,
+    4) unit quaternions; the shorter way round): q0 times the quaternion of f[j] times the
+    rotation vector of q0^-1 q1, normalized (quat_mul, rotvec_from_quat, quat_from_rotvec and
+    quat_normalize's formulas, sample by sample, without their temporaries)."""
     for j in range(i.shape[0]):
         a, b = i[j], i[j] + 1
         q0 = (q[a, 0], q[a, 1], q[a, 2], q[a, 3])

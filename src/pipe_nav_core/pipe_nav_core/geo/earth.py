@@ -118,6 +118,14 @@ def enu_to_geodetic_increment(
     return d[..., 1] / (rm + h), d[..., 0] / ((rn + h) * np.cos(lat)), d[..., 2]
 
 
+def unwrapped_lon(lon: ArrayLike) -> Array:
+    """Longitudes (rad, in sample order) made continuous across +-180 deg (np.unwrap's
+    values); the array itself where no step crosses it (there np.unwrap only adds exact
+    zeros, at a pass over the samples)."""
+    lon = np.asarray(lon, dtype=np.float64)
+    return np.unwrap(lon) if np.any(np.abs(np.diff(lon)) >= np.pi) else lon
+
+
 def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> Array:
     """WGS84 geodetic (rad, rad, m) -> ECEF (m), shape (..., 3)."""
     x, y, z = pymap3d.geodetic2ecef(lat, lon, h, deg=False)

@@ -31,7 +31,12 @@ from pipe_nav_core.geo.attitude import (
     slerp_rows,
     turn_deg,
 )
-from pipe_nav_core.geo.earth import ecef_to_geodetic, geodetic_to_ecef, geodetic_to_enu
+from pipe_nav_core.geo.earth import (
+    ecef_to_geodetic,
+    geodetic_to_ecef,
+    geodetic_to_enu,
+    unwrapped_lon,
+)
 from pipe_nav_core.io.atomic import atomic_write
 from pipe_nav_core.types import Datum, Trajectory
 
@@ -66,17 +71,6 @@ _FORMATS = {
 # ----------------------------------------------------------------------------- interpolation
 
 
-def slerp(q0: ArrayLike, q1: ArrayLike, f: ArrayLike) -> NDArray[np.float64]:
-    """Spherical linear interpolation between unit quaternions (vectorized): q0 at f=0, q1 at
-    f=1, the shorter way round."""
-    q0, q1 = np.broadcast_arrays(np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64))
-    f = np.broadcast_to(np.asarray(f, dtype=np.float64), q0.shape[:-1])
-    pairs = np.stack([q0.reshape(-1, 4), q1.reshape(-1, 4)], axis=1).reshape(-1, 4)
-    out = np.empty((len(pairs) // 2, 4))
-    slerp_rows(pairs, np.arange(0, len(pairs), 2), np.ascontiguousarray(f.reshape(-1)), out)
-    return out.reshape(q0.shape)
-
-
 def interpolate_trajectory(traj: Trajectory, times: ArrayLike) -> Trajectory:
     """Trajectory at ``times`` (s, clipped to the trajectory's span): positions, velocity,
     distance and sigmas linearly in time (latitude/longitude in radians, fine at pipeline
@@ -105,11 +99,7 @@ def interpolate_trajectory(traj: Trajectory, times: ArrayLike) -> Trajectory:
         lerp_rows(rows, i, f, out)
         return out.reshape((len(tq),) + a.shape[1:])
 
-    lon = traj.lon
-    dlon = np.diff(lon)
-    if np.any(np.abs(dlon) >= np.pi):  # across the antimeridian (else unwrap changes nothing)
-        lon = np.unwrap(lon)
-    lon = lin(lon)
+    lon = lin(unwrapped_lon(traj.lon))
     lon = (lon + np.pi) % (2.0 * np.pi) - np.pi
     q = np.ascontiguousarray(traj.quat_nb, dtype=np.float64).reshape(n, 4)
     quat = np.empty((len(tq), 4))

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from pipe_nav_core import batched
 from pipe_nav_core.geo.attitude import dcm_from_quat
-from pipe_nav_core.geo.earth import radii
+from pipe_nav_core.geo.earth import radii, unwrapped_lon
 from pipe_nav_core.io.centreline import chainage_times, interpolate_trajectory
 from pipe_nav_core.model.sensors import ImuSpec
 from pipe_nav_core.types import Trajectory
@@ -112,7 +112,7 @@ def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
                else np.asarray(p.sigma_enu, dtype=np.float64).reshape(-1, 3))  # fmt: skip
         sigma_h[s], sigma_v[s] = np.hypot(sig[:, 0], sig[:, 1]), sig[:, 2]
     del times, p, a, sig
-    lon_u = np.unwrap(lon)
+    lon_u = unwrapped_lon(lon)
     steps = np.empty(n - 1)  # m, from each point to the next
     for b in range(1, n, batched.BATCH):
         e = min(b + batched.BATCH, n)

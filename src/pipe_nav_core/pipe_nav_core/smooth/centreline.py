@@ -132,9 +132,7 @@ def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
     it. Steps in the local ENU of each sample (lat, lon rad, h m; quat_nb base_link->ENU)."""
     if len(lat) < 2:
         return np.zeros(len(lat))
-    dlon = np.diff(lon)
-    if np.any(np.abs(dlon) >= np.pi):  # across the antimeridian (else unwrap adds exact zeros)
-        dlon = np.diff(np.unwrap(lon))
+    dlon = np.diff(earth.unwrapped_lon(lon))
     along = np.empty(len(lat) - 1)
     c = [np.ascontiguousarray(a, dtype=np.float64) for a in (lat, dlon, h, quat_nb)]
     samples.axis_steps(*c, along)
