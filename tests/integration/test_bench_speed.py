@@ -82,14 +82,18 @@ def test_markdown_has_a_row_per_bag_form():
         "read_pooled_s": 0.25,
         "read_pooled_thread_cpu_s": 0.2,
         "cli_wall_s": 1.0,
+        "cli_wall_worst_s": 1.25,
+        "cli_runs": 3.0,
         "peak_rss_mb": 700.0,
     }
-    lz4 = {**row, "name": "lz4", "read_serial_s": 0.4, "cli_wall_s": 0.8}
+    lz4 = {**row, "name": "lz4", "read_serial_s": 0.4, "cli_wall_s": 0.8, "cli_wall_worst_s": 0.8}
     lines = speed.forms_markdown([row, lz4])
     assert "| read + decode, 2 workers: x real time |" in lines[4]
     assert "| reading thread's CPU: x real time |" in lines[4]
-    assert "| zstd | 101 | 1000 | 200 | 400 | 500 | 100 | 4.0 | 700 |" in lines
-    assert "| lz4 | 101 | 1000 | 250 | 400 | 500 | 125 | 3.2 | 700 |" in lines
+    assert "| whole `pipe-nav smooth`: x real time, best (worst) |" in lines[4]
+    assert "the best and the worst of 3 runs" in lines[2]
+    assert "| zstd | 101 | 1000 | 200 | 400 | 500 | 100 (80) | 4.0 | 700 |" in lines
+    assert "| lz4 | 101 | 1000 | 250 | 400 | 500 | 125 (125) | 3.2 | 700 |" in lines
     field = {
         "duration_s": 100.0,
         "imu_messages": 1000.0,
@@ -108,3 +112,13 @@ def test_markdown_has_a_row_per_bag_form():
     md = speed.markdown({"field": field, "online": online, "forms": [row]}, "pipe-nav bench")
     assert "### Bag forms" in md and "| zstd | 101 |" in md
     assert "(PIPE_NAV_READ_WORKERS=0): 20 x real time" in md
+
+
+def test_a_bag_form_is_smoothed_several_times_best_and_worst_kept(monkeypatch):
+    walls = iter([5.0, 4.0, 6.0])
+    peaks = iter([400.0, 450.0, 420.0])
+    monkeypatch.setattr(speed, "peak_memory_mb", lambda bag: (next(peaks), next(walls)))
+    monkeypatch.setattr(speed, "read_seconds", lambda bag, workers, repeat: (1.0, 0.5))
+    row = speed.form_figures(SAMPLE, speed.FORMS[0], 100.0, smooth_repeat=3)
+    assert (row["cli_wall_s"], row["cli_wall_worst_s"], row["cli_runs"]) == (4.0, 6.0, 3.0)
+    assert row["peak_rss_mb"] == 450.0
