@@ -24,8 +24,8 @@ from pipe_nav_core.types import SensorLog
 _SPAN_S = 70.0
 # what the warm-up runs (its kernels' argument types are what the AOT module exports): a new
 # number builds the module again where an older warm-up made it (3: the running windows too;
-# 4: the trajectory interpolation)
-WARM_UP = 4
+# 4: the trajectory interpolation; 5: the transitions made on the other core)
+WARM_UP = 5
 
 
 @lru_cache(maxsize=1)

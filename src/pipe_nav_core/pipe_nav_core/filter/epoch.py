@@ -48,7 +48,6 @@ from pipe_nav_core.model.sensors import ImuSpec
 from pipe_nav_core.model.state import (
     I_BG,
     I_VEL,
-    L_N,
     L_VEL,
     SV_DIST,
     SV_K,
@@ -187,6 +186,12 @@ class EpochOutputs(NamedTuple):
     fac: Array
     fac_i: Index
     fac_n: Index
+    tr_qd: Array
+    tr_offset: Array
+    tr_ws: Array
+    tr_ws_i: Index
+    tr_ws_sv: Array
+    tr_ws_m: Array
 
 
 class Prediction(NamedTuple):
@@ -222,9 +227,13 @@ class Batch:
     ``factors``, room for that many updates recorded (:func:`linearize_epochs`): ``fac``
     (factors, 3, n + 4) the rows of each update's H (n columns), r (1) and R (3), ``fac_i``
     (factors, 3) its kind (index into KINDS), rows and epoch of the batch, ``fac_n`` (1,)
-    how many."""
+    how many; the epochs' transitions as :func:`_transition` leaves them for
+    :func:`_propagate` (``tr_*``: qd, offset, ws, ws_i, ws_sv, ws_m; a row per epoch with
+    ``transitions`` (for :func:`transition_epochs`), else one row that each epoch reuses)."""
 
-    def __init__(self, size: int, samples: int, n: int, factors: int = 0) -> None:
+    def __init__(
+        self, size: int, samples: int, n: int, factors: int = 0, transitions: bool = False
+    ) -> None:
         self.sv = np.zeros((size, SV_SIZE))
         self.x_upd = np.zeros((size, n))
         self.dx = np.zeros((size, n))
@@ -253,6 +262,13 @@ class Batch:
         self.fac = np.zeros((factors, 3, n + 4))
         self.fac_i = np.zeros((factors, 3), dtype=np.int64)
         self.fac_n = np.zeros(1, dtype=np.int64)
+        rows = size if transitions else 1
+        self.tr_qd = np.zeros((rows, n, n))
+        self.tr_offset = np.zeros((rows, n))
+        self.tr_ws = np.zeros((rows, W_SIZE))
+        self.tr_ws_i = np.zeros((rows, W_INT_SIZE), dtype=np.int64)
+        self.tr_ws_sv = np.zeros((rows, 2, SV_SIZE))
+        self.tr_ws_m = np.zeros((rows, 3, 12))
 
     def reset(self) -> None:
         """Zero the counters and statistics (before reusing the buffers)."""
@@ -265,19 +281,26 @@ class Batch:
 
 
 @kernel
-def _predict(
+def _transition(
     e: int,
     k_ep: int,
-    f: Filter,
+    row: int,
+    sv: Array,
+    carry: Array,
+    dyn: Array,
+    dyn_i: Index,
     L: Index,
     prm: Settings,
     ref: Array,
     inp: Inputs,
     out: EpochOutputs,
 ) -> None:
-    """Epoch e of the batch up to the prediction: mechanization, stop detection, transition,
-    process noise, covariance propagation (Navigator's epoch, first half)."""
-    sv, x, P, carry, dyn, dyn_i = f
+    """Epoch e of the batch up to its transition: mechanization, stop detection, transition
+    matrix (out.phi[e]), process noise and the offset from the linearization point, and what
+    the updates read (into the transition rows ``row``, out.tr_*; the per-sample outputs
+    into theirs). It reads no error state: about a reference trajectory it depends on the
+    reference and the data alone (and on carry and the previous epoch's odometer reading,
+    speed and Jacobian velocity in dyn, which it updates as the epoch's updates will)."""
     has_ref = ref.shape[0] > 0
     s0 = ref[k_ep - 1] if has_ref else sv.copy()
     i0 = inp.ends[e - 1] + 1 if e > 0 else 0
@@ -370,21 +393,58 @@ def _predict(
         inp.resolution[e],
     )
     phi, qd = discretize_k(A, Q, L)
-    offset = difference_k(s1, s_lin, L) if has_ref else np.zeros(L[L_N])
-    predict_k(x, P, phi, qd, offset)
-    s1[SV_DIST] = s0[SV_DIST] + (1.0 + s0[SV_K]) * ds.sum()
-    out.P_pred[e] = P
     out.phi[e] = phi
-    out.ws_x[:] = x
-    out.ws_sv[S_MECH] = s1
-    out.ws_sv[S_LIN] = s_lin
+    out.tr_qd[row] = qd
+    if has_ref:
+        out.tr_offset[row] = difference_k(s1, s_lin, L)
+    else:
+        out.tr_offset[row] = 0.0
+    s1[SV_DIST] = s0[SV_DIST] + (1.0 + s0[SV_K]) * ds.sum()
+    out.tr_ws_sv[row, S_MECH] = s1
+    out.tr_ws_sv[row, S_LIN] = s_lin
     lever = prm.lever
     lever_rate = omega_b[1] * lever[2] - omega_b[2] * lever[1]  # (omega x d)_x
     p = Prediction(T, speed, lever_rate, w_yz, gyro_mean, omega_b, mean_vel_b, f_mean_n, dp,
                    v_jac, i0, i1, inp.mag_i[e], stopped, odo_ok, inp.excluded[e])  # fmt: skip
-    _keep(p, out.ws, out.ws_i)
-    out.ws_m[:, :3] = sum_c_dt  # for the tilt update: C_mean and the accelerometer coupling
-    out.ws_m[:, 3:] = sum_c_f_dt
+    _keep(p, out.tr_ws[row], out.tr_ws_i[row])
+    out.tr_ws_m[row, :, :3] = sum_c_dt  # for the tilt update: C_mean and the accelerometer
+    out.tr_ws_m[row, :, 3:] = sum_c_f_dt  # coupling
+    # what the epoch's updates set in the filter's memory, the next transition reads
+    dyn[D_PREV_SPEED] = speed
+    dyn[D_V_JAC : D_V_JAC + 3] = v_jac
+    dyn[D_S_START] = out.s_odo[i1 - 1]
+
+
+@kernel
+def _propagate(e: int, row: int, f: Filter, out: EpochOutputs) -> None:
+    """Epoch e's prediction from its transition (rows ``row`` of out.tr_*, :func:`_transition`):
+    x <- phi x + offset, P <- phi P phi^T + qd (out.P_pred[e]), and the records the updates
+    read (out.ws, ws_i, ws_sv, ws_m, ws_x)."""
+    x, P = f.x, f.P
+    predict_k(x, P, out.phi[e], out.tr_qd[row], out.tr_offset[row])
+    out.P_pred[e] = P
+    out.ws_x[:] = x
+    out.ws[:] = out.tr_ws[row]
+    out.ws_i[:] = out.tr_ws_i[row]
+    out.ws_sv[:] = out.tr_ws_sv[row]
+    out.ws_m[:] = out.tr_ws_m[row]
+
+
+@kernel
+def _predict(
+    e: int,
+    k_ep: int,
+    f: Filter,
+    L: Index,
+    prm: Settings,
+    ref: Array,
+    inp: Inputs,
+    out: EpochOutputs,
+) -> None:
+    """Epoch e of the batch up to the prediction (Navigator's epoch, first half):
+    :func:`_transition` into the first transition rows, then :func:`_propagate`."""
+    _transition(e, k_ep, 0, f.sv, f.carry, f.dyn, f.dyn_i, L, prm, ref, inp, out)
+    _propagate(e, 0, f, out)
 
 
 @kernel
@@ -509,6 +569,9 @@ def _updates(
 def run_epochs(
     stop: bool,
     resume: bool,
+    ready: bool,
+    e0: int,
+    e1: int,
     k0: int,
     f: Filter,
     L: Index,
@@ -518,17 +581,45 @@ def run_epochs(
     markers: Array,
     out: EpochOutputs,
 ) -> None:
-    """The epochs ending at ``ends`` (see the module docstring); epoch e is the filter's epoch
-    number k0 + e. stop: leave the last epoch after its prediction (its results in ws, ws_sv,
-    ws_x, ws_m); resume: the first epoch's prediction was left so. The markers (M, 7)
-    (:func:`measurements.marker.marker_vector`) are applied in the last epoch."""
+    """The epochs e0 to e1 - 1 of those ending at ``ends`` (see the module docstring); epoch
+    e is the filter's epoch number k0 + e. stop: leave the last epoch after its prediction
+    (its results in ws, ws_sv, ws_x, ws_m); resume: the first epoch's prediction was left
+    so; ready: their transitions are in out's transition rows already
+    (:func:`transition_epochs`). The markers (M, 7)
+    (:func:`measurements.marker.marker_vector`) are applied in the batch's last epoch."""
     B = inp.ends.shape[0]
-    for e in range(B):
-        if not (resume and e == 0):
+    for e in range(e0, e1):
+        if ready:
+            _propagate(e, e, f, out)
+        elif not (resume and e == e0):
             _predict(e, k0 + e, f, L, prm, ref, inp, out)
         if stop and e == B - 1:
             return
         _updates(e, k0 + e, f, L, prm, ref, inp, markers if e == B - 1 else markers[:0], out)
+
+
+@kernel(nogil=True)
+def transition_epochs(
+    e0: int,
+    e1: int,
+    k0: int,
+    sv: Array,
+    carry: Array,
+    dyn: Array,
+    dyn_i: Index,
+    L: Index,
+    prm: Settings,
+    ref: Array,
+    inp: Inputs,
+    out: EpochOutputs,
+) -> None:
+    """The transitions of epochs e0 to e1 - 1 (:func:`_transition`, epoch e into transition
+    row e) from the filter's memory carry, dyn, dyn_i (updated as the epochs run): about a
+    reference trajectory they do not depend on the error state, so that they are made on
+    one core while :func:`run_epochs` with ``ready`` applies the ones before on the other
+    (sv: the filter's nominal state, read only without a reference)."""
+    for e in range(e0, e1):
+        _transition(e, k0 + e, e, sv, carry, dyn, dyn_i, L, prm, ref, inp, out)
 
 
 @kernel(nogil=True)

@@ -19,6 +19,7 @@ heading re-anchored at the second marker when it comes from the markers
 
 from __future__ import annotations
 
+import threading
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -26,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from pipe_nav_core.background import Background
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter import alignment
 from pipe_nav_core.filter.anchoring import FreeHeading, HeadingAnchor
@@ -42,6 +44,7 @@ from pipe_nav_core.filter.epoch import (
     Settings,
     parameters,
     run_epochs,
+    transition_epochs,
 )
 from pipe_nav_core.filter.estimates import NavEstimate, Reporter, model_warnings
 from pipe_nav_core.filter.ingest import Inbox
@@ -55,6 +58,10 @@ from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.types import Datum, Marker, SensorLog, markers_sorted
 
 Array = NDArray[np.float64]
+# epochs whose transitions are made at a time on the other core about a reference trajectory
+# (Navigator._call_ahead): small enough that the first costs little waiting, large enough that
+# the handing over costs little
+AHEAD_SPAN = 32
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,7 +159,8 @@ class Navigator:
         self.anchor = HeadingAnchor(cfg, self.layout, anchored, self._counts)
         self.report = Reporter(cfg, self.layout, emit=opt.emit, record=opt.record,
                                reference=self.reference)  # fmt: skip
-        self._pool = BatchPool(self.layout.n, double=opt.record)
+        self._pool = BatchPool(self.layout.n, double=opt.record,
+                               transitions=self.reference is not None)  # fmt: skip
         self.state: NavState | None = None
         self.kf: ErrorStateKF | None = None
         # the filter's memory as the compiled epoch keeps it (epoch.Filter)
@@ -352,8 +360,8 @@ class Navigator:
         ref = self.reference if self.reference is not None else np.empty((0, SV_SIZE))
         state = Filter(self._sv, kf.x, kf.P, self._carry, self._dyn, self._dyn_i)
         run_epochs(
-            stop, resume, self._epoch + 1, state, self.layout.index, self._prm, ref, inputs,
-            markers, batch.buffers(),
+            stop, resume, False, 0, len(inputs.ends), self._epoch + 1, state, self.layout.index,
+            self._prm, ref, inputs, markers, batch.buffers(),
         )  # fmt: skip
 
     def _inputs(self, ends: Ends) -> Inputs:
@@ -361,10 +369,50 @@ class Navigator:
         return epoch_inputs(self.inbox, self.state.t, ends, self.odometer_exclude, self.resolution)
 
     def _run_batch(self, ends: Ends) -> None:
-        """Epochs without a marker passage, all in one call of the compiled loop."""
+        """Epochs without a marker passage, all in one call of the compiled loop (about a
+        reference trajectory, on two cores: :meth:`_call_ahead`)."""
         batch = self._pool.get(len(ends), int(ends[-1]) + 1)
-        self._call(batch, self._inputs(ends), np.zeros((0, 7)))
+        if self.reference is not None and len(ends) > AHEAD_SPAN:
+            self._call_ahead(batch, self._inputs(ends))
+        else:
+            self._call(batch, self._inputs(ends), np.zeros((0, 7)))
         self._finish(batch, ends)
+
+    def _call_ahead(self, batch: Batch, inputs: Inputs) -> None:
+        """Epochs without a marker passage about the reference trajectory, on two cores: a
+        thread makes their transitions (epoch.transition_epochs, AHEAD_SPAN epochs at a time;
+        about a reference they depend on the reference and the data alone) while this one
+        propagates the error state through them and applies the updates (run_epochs with
+        ``ready``): the same arithmetic as :meth:`_call`'s, in two halves."""
+        kf, prm, ref = self.kf, self._prm, self.reference
+        assert kf is not None and prm is not None and ref is not None
+        B, k0, L, out = len(inputs.ends), self._epoch + 1, self.layout.index, batch.buffers()
+        carry, dyn, dyn_i = self._carry.copy(), self._dyn.copy(), self._dyn_i.copy()
+        spans = [(a, min(a + AHEAD_SPAN, B)) for a in range(0, B, AHEAD_SPAN)]
+        made = threading.Semaphore(0)
+        failed: list[bool] = []
+
+        def make() -> None:
+            try:
+                for a, b in spans:
+                    transition_epochs(a, b, k0, self._sv, carry, dyn, dyn_i, L, prm, ref,
+                                      inputs, out)  # fmt: skip
+                    made.release()
+            except BaseException:
+                failed.append(True)
+                made.release(len(spans))  # the waiting below ends; result() raises
+                raise
+
+        job = Background("pipe-nav transitions", make)
+        state = Filter(self._sv, kf.x, kf.P, self._carry, self._dyn, self._dyn_i)
+        no_markers = np.zeros((0, 7))
+        for a, b in spans:
+            made.acquire()
+            if failed:
+                break
+            run_epochs(False, False, True, a, b, k0, state, L, prm, ref, inputs, no_markers, out)
+        job.result()
+        self._carry[:] = carry  # the last epoch's, as _call leaves it
 
     def _run_marker_epoch(self, ends: Ends) -> None:
         """The epoch of a marker passage: prediction, then (Python) the heading re-anchoring

@@ -98,11 +98,13 @@ def epoch_inputs(
 class BatchPool:
     """The compiled loop's output buffers (n: error states), reused from batch to batch
     (fresh memory costs page faults); with double, two in turn, the recording packing one's
-    covariances in a second thread while the next batch runs (Recording.add_epochs)."""
+    covariances in a second thread while the next batch runs (Recording.add_epochs); with
+    transitions, a transition row per epoch (Batch)."""
 
-    def __init__(self, n: int, double: bool) -> None:
+    def __init__(self, n: int, double: bool, transitions: bool = False) -> None:
         self.n = n
         self.double = double
+        self.transitions = transitions
         self._batches: list[Batch | None] = [None, None]
         self._turn = 0
 
@@ -113,7 +115,8 @@ class BatchPool:
         b = self._batches[self._turn]
         if b is None or len(b.sv) < epochs or len(b.lat) < samples:
             size = max(epochs, MAX_BATCH if self.double else 1)
-            b = Batch(size, max(samples, 2 * size * SAMPLES_PER_EPOCH), self.n)
+            b = Batch(size, max(samples, 2 * size * SAMPLES_PER_EPOCH), self.n,
+                      transitions=self.transitions)  # fmt: skip
             self._batches[self._turn] = b
         b.reset()
         return b

@@ -135,11 +135,19 @@ class FactorRecorder(Navigator):
         stop: bool = False,
         resume: bool = False,
     ) -> None:
+        self._record(inputs, markers, stop, resume)
+        super()._call(batch, inputs, markers, stop=stop, resume=resume)
+
+    def _call_ahead(self, batch: Batch, inputs: Inputs) -> None:
+        self._record(inputs, np.zeros((0, 7)), False, False)
+        super()._call_ahead(batch, inputs)
+
+    def _record(self, inputs: Inputs, markers: Array, stop: bool, resume: bool) -> None:
+        """The linearization of the epochs a call of the compiled loop runs, before it."""
         if self.sink is not None and not (stop or resume or len(markers)):
             self._linearize_batch(inputs)
         else:
             self._linearize(inputs, markers, stop, resume)
-        super()._call(batch, inputs, markers, stop=stop, resume=resume)
 
     # ------------------------------------------------------------------ the problem
     def problem(self) -> LinearChain:
@@ -234,7 +242,8 @@ class FactorRecorder(Navigator):
                 f.x[:] = 0.0
                 f.P[:] = 0.0
                 assert self._buffers is not None
-                run_epochs(True, False, k, f, L, prm, ref, one, no_markers, self._buffers)
+                run_epochs(True, False, False, 0, 1, k, f, L, prm, ref, one, no_markers,
+                           self._buffers)  # fmt: skip
                 if self.sink is not None:
                     self._pending = (sb.phi[0].copy(), sb.P_pred[0].copy(), sb.ws_x.copy())
                 else:
@@ -253,7 +262,7 @@ class FactorRecorder(Navigator):
             bufs = self._buffers
             assert bufs is not None
             bufs = self._buffers = bufs._replace(marker_res=sb.marker_res)
-            run_epochs(False, True, k, f, L, prm, ref, one, mk, bufs)
+            run_epochs(False, True, False, 0, 1, k, f, L, prm, ref, one, mk, bufs)
 
     def _store_transition(self, k: int, phi: Array, qd: Array, offset: Array) -> None:
         """Epoch k's transition phi (n, n), process noise qd (n, n) (predicted from zero
