@@ -263,3 +263,55 @@ def test_long_epochs_that_lose_the_odometer_give_way_to_the_live_filters(monkeyp
         f"epochs at {cfg.filter_rate_hz:g} Hz: the long epochs lost the odometer before {first})"
         in said
     )
+
+
+def test_the_transitions_made_on_the_other_core_give_the_same_bytes(monkeypatch):
+    """A pass about a reference makes its epochs' transitions in a thread, AHEAD_SPAN epochs
+    ahead of the filter (Navigator._call_ahead): the same smoothed run, statistics and
+    summary, bit for bit, as the epochs run one after the other in one thread."""
+    from pipe_nav_core.filter import navigator
+
+    run = simulate(get_scenario("demo"), seed=2)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    ahead_calls: list[int] = []
+    call_ahead = navigator.Navigator._call_ahead
+
+    def counted(self, batch, inputs):
+        ahead_calls.append(len(inputs.ends))
+        call_ahead(self, batch, inputs)
+
+    monkeypatch.setattr(navigator.Navigator, "_call_ahead", counted)
+    monkeypatch.setattr(navigator, "AHEAD_SPAN", 10**9)  # never: one thread
+    plain = smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert not ahead_calls
+    monkeypatch.setattr(navigator, "AHEAD_SPAN", 5)
+    again = smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert len(ahead_calls) > 3 and max(ahead_calls) > 20  # spans of 5 in batches of more
+    assert again.summary == plain.summary
+    for name in ("t", "lat", "lon", "h", "vel_n", "quat_nb", "distance", "sigma_enu"):
+        assert (
+            getattr(again.centreline, name).tobytes() == getattr(plain.centreline, name).tobytes()
+        ), name
+
+
+def test_a_transition_that_fails_on_the_other_core_fails_the_pass(monkeypatch):
+    """An error in the thread that makes the transitions reaches the caller (the filter does
+    not wait for the transitions for ever, nor run on ones never made)."""
+    from pipe_nav_core.filter import navigator
+
+    run = simulate(get_scenario("demo"), seed=2)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    made = navigator.transition_epochs
+    calls: list[int] = []
+
+    def fails_later(e0, *args):
+        calls.append(e0)
+        if len(calls) > 2:
+            raise RuntimeError("the transitions failed")
+        made(e0, *args)
+
+    monkeypatch.setattr(navigator, "transition_epochs", fails_later)
+    monkeypatch.setattr(navigator, "AHEAD_SPAN", 5)
+    with pytest.raises(RuntimeError, match="the transitions failed"):
+        smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert len(calls) == 3
