@@ -9,6 +9,12 @@ heading re-anchoring and covariance recovery at a marker passage) stay in Python
 :func:`run_epochs` with ``stop`` (prediction only) and with ``resume`` (updates only). Every
 model is the shared one (:mod:`process`, :mod:`measurements`, :mod:`kalman`, :mod:`state`).
 
+An epoch's prediction is two halves: its transition (:func:`_transition`: mechanization, stop
+detection, Phi, Qd and the offset, which read no error state) and the propagation of the error
+state through it (:func:`_propagate`). About a reference trajectory the transitions depend on
+the reference and the data alone, so the Navigator has them made on the other core
+(:func:`transition_epochs`) ahead of :func:`run_epochs` with ``ready``.
+
 Arrays (float64 unless said):
 - :class:`Filter`: the filter's nominal state, mean error, covariance and memory, updated in
   place;
