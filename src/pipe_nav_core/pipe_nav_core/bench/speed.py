@@ -161,7 +161,7 @@ def read_seconds(bag: Path, workers: int, repeat: int = 2) -> tuple[float, float
 
 
 def form_figures(
-    bag: Path, form: BagForm, duration: float, repeat: int = 2, smooth_repeat: int = 3
+    bag: Path, form: BagForm, duration: float, repeat: int = 2, smooth_repeat: int = SMOOTH_REPEAT
 ) -> dict:
     """One row of the bag-form table: size, messages, read + decode time serially and with
     the pool (s, the best of ``repeat``; with the pool also the reading thread's CPU time),
@@ -380,7 +380,7 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
     workers = int(r0["read_workers"])
     plural = "" if workers == 1 else "s"
     chunk = f"{r0['chunk_size'] / 2**20:g} MiB"
-    runs = int(r0.get("cli_runs", 1))
+    runs = int(r0["cli_runs"])
     lines = [
         "### Bag forms",
         "",
@@ -404,7 +404,7 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
     ]
     for r in rows:
         dur = r["duration_s"]
-        worst = r.get("cli_wall_worst_s", r["cli_wall_s"])
+        worst = r["cli_wall_worst_s"]
         lines.append(
             f"| {r['name']} | {r['size_mb']:.0f} | {r['messages']:.0f} "
             f"| {dur / r['read_serial_s']:.0f} | {dur / r['read_pooled_s']:.0f} "
