@@ -116,6 +116,27 @@ def test_inside_three_sigma(truth):
     assert score(est2, truth).inside_3sigma == 0.0
 
 
+def test_the_sigma_where_the_error_is_largest(truth):
+    """The estimate's own sigma is read at the sample of its largest error, each axis on its
+    own: whether the estimator expected an error of that size there."""
+    n = len(truth)
+    bump = np.exp(-(((np.arange(n) - 0.3 * n) / 20.0) ** 2))  # horizontal, at 30 % of the run
+    dip = np.exp(-(((np.arange(n) - 0.7 * n) / 20.0) ** 2))  # vertical, at 70 %
+    sigma = np.empty((n, 3))
+    sigma[:, 0] = sigma[:, 1] = 0.01 + 0.01 * np.arange(n) / n  # grows along the run
+    sigma[:, 2] = 0.005 + 0.02 * np.arange(n) / n
+    d = truth.t * 1.0
+    enu = np.stack([d / math.sqrt(2), d / math.sqrt(2), 0.01 * d], axis=1)
+    off = np.stack([0.03 * bump, np.zeros(n), -0.02 * dip], axis=1)
+    est = make_traj(truth.t, enu + off, d, sigma)
+    s = score(est, truth)
+    i, j = int(np.argmax(bump)), int(np.argmax(dip))
+    assert s.max_h == pytest.approx(0.03, abs=1e-4) and s.max_v == pytest.approx(0.02, abs=2e-4)
+    assert s.sigma_h_at_max_h == pytest.approx(math.hypot(sigma[i, 0], sigma[i, 1]), rel=1e-3)
+    assert s.sigma_v_at_max_v == pytest.approx(sigma[j, 2], rel=1e-3)
+    assert math.isnan(score(shifted(truth, 0.01), truth).sigma_h_at_max_h)  # no sigmas
+
+
 def test_sag_depth_of_profiles():
     x = np.linspace(0.0, 100.0, 1001)
     z = -0.2 * np.sin(np.pi * x / 100.0) ** 2 + 0.03 * x  # sag on a grade

@@ -33,7 +33,10 @@ class Score:
     samples whose horizontal error is within 3 sqrt(sigma_e^2 + sigma_n^2) and whose vertical
     error is within 3 sigma_u (Trajectory.sigma_enu; nan without sigmas); n: samples compared.
     Also: max_v_between_markers, marker_spacing (median spacing of the markers' true chainages),
-    max_3d (largest 3-D error).
+    max_3d (largest 3-D error); sigma_h_at_max_h, sigma_v_at_max_v: the estimate's own
+    horizontal (sqrt(sigma_e^2 + sigma_n^2)) and vertical one-sigma at the sample of its
+    largest horizontal and vertical error (nan without sigmas): whether the estimator
+    expected an error of that size there.
     """
 
     max_h: float
@@ -47,6 +50,8 @@ class Score:
     max_v_between_markers: float = math.nan
     marker_spacing: float = math.nan
     max_3d: float = math.nan
+    sigma_h_at_max_h: float = math.nan
+    sigma_v_at_max_v: float = math.nan
 
     def summary(self) -> str:
         """One line for logs and reports (cm and 1:N)."""
@@ -131,12 +136,14 @@ def score(
     ev = np.abs(e[:, 2])
     e3 = np.linalg.norm(e, axis=1)
 
-    inside3 = nan
+    inside3 = sigma_h_at = sigma_v_at = nan
     if estimate.sigma_enu is not None:
         sig = np.asarray(estimate.sigma_enu, dtype=np.float64).reshape(-1, 3)[ok]
         sh = np.hypot(sig[:, 0], sig[:, 1])
         good = (eh <= 3.0 * sh) & (ev <= 3.0 * sig[:, 2])
         inside3 = float(np.mean(good))
+        sigma_h_at = float(sh[np.argmax(eh)])
+        sigma_v_at = float(sig[np.argmax(ev), 2])
 
     max_hb = max_vb = spacing = ratio = nan
     if markers:
@@ -165,6 +172,8 @@ def score(
         max_v_between_markers=max_vb,
         marker_spacing=spacing,
         max_3d=float(np.max(e3)),
+        sigma_h_at_max_h=sigma_h_at,
+        sigma_v_at_max_v=sigma_v_at,
     )
 
 
