@@ -48,16 +48,10 @@ def test_smoothers_are_judged_against_the_markers_only_limit():
     assert abs(d["rts"][0] - 1.1) < 1e-12 and abs(d["rts"][1] - 1.1) < 1e-12
     md = bench.markdown({"sag104": base}, "cmd", 1)
     # rts's own sigma on its worst seed (1.0 / 0.5 cm), not the other seed's
-    assert "| sag104 | 2.0 / 1.0 | 1.10 / 1.10 | yes | 1.0 / 0.5 |  |" in md
+    assert "| sag104 | 2.0 / 1.0 | 1.10 / 1.10 | yes | 1.0 / 0.5 |" in md
     md = bench.markdown({"sag104": base + rows("graph", 0.020, 0.013)}, "cmd", 1)
-    assert "| sag104 | 2.0 / 1.0 | 1.10 / 1.10 | 1.00 / 1.30 | NO | 1.0 / 0.5 |  |" in md
+    assert "| sag104 | 2.0 / 1.0 | 1.10 / 1.10 | 1.00 / 1.30 | NO | 1.0 / 0.5 |" in md
     assert bench.against_limit(rows("rts", 0.02, 0.01)) is None
-    # where rts's own sigma at its worst is above 1.2x the limit, the axis is out of reach
-    far = rows(bench.LIMIT, 0.020, 0.010) + rows("rts", 0.05, 0.011, sigma_h=0.09)
-    md = bench.markdown({"sag104": far}, "cmd", 1)
-    assert "| sag104 | 2.0 / 1.0 | 2.50 / 1.10 | NO | 9.0 / 0.5 | h |" in md
-    far = rows(bench.LIMIT, 0.020, 0.010) + rows("rts", 0.05, 0.03, sigma_h=0.025, sigma_v=0.03)
-    assert "| NO | 2.5 / 3.0 | h, v |" in bench.markdown({"sag104": far}, "cmd", 1)
 
 
 def test_verdict_judges_accuracy_and_consistency():

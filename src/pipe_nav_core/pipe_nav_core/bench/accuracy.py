@@ -490,8 +490,7 @@ def sigma_at_worst(rows: list[dict[str, object]], method: str) -> tuple[float, f
 
 def _limit_lines(results: dict[str, list[dict[str, object]]]) -> list[str]:
     """The table of every smoother against the markers-only limit per scenario, with the
-    default smoother's own sigma where its error is largest: where that sigma alone is above
-    LIMIT_WITHIN times the limit, the limit is out of reach of the run's information."""
+    default smoother's own sigma where its error is largest."""
     rows = [(c.scenario, d) for c in CASES if (d := against_limit(results.get(c.scenario, [])))]
     if not rows:
         return []
@@ -500,26 +499,22 @@ def _limit_lines(results: dict[str, list[dict[str, object]]]) -> list[str]:
         "",
         f"Every smoother against the markers-only limit (`{LIMIT}`): its max error over the",
         "limit's, worst seed each, horizontal / vertical; within: every smoother at most",
-        f"{LIMIT_WITHIN:g}x the limit, horizontal and vertical each. {DEFAULT_METHOD} sigma:",
-        "its own one-sigma where its error is largest (worst seed); out of reach: the axes",
-        f"where that sigma is above {LIMIT_WITHIN:g}x the limit. The smoother is the optimum of",
-        "its model (the batch smoother agrees with it) and its sigmas cover its errors, so",
-        "there no estimator with these sensors comes within the factor but by chance: the run",
-        "does not hold the information.",
+        f"{LIMIT_WITHIN:g}x the limit, horizontal and vertical each; {DEFAULT_METHOD} sigma: its",
+        "own one-sigma where its error is largest (worst seed, each axis on its own), the error",
+        "the run's information leaves there, the surveys' and the sensors' together:",
         "",
         f"| scenario | limit h / v [cm] | {' | '.join(methods)} | within {LIMIT_WITHIN:g}x "
-        f"| {DEFAULT_METHOD} sigma h / v [cm] | out of reach |",
-        "|---|---|" + "---|" * len(methods) + "---|---|---|",
+        f"| {DEFAULT_METHOD} sigma h / v [cm] |",
+        "|---|---|" + "---|" * len(methods) + "---|---|",
     ]
     for name, d in rows:
         lh, lv = d[LIMIT]
         cells = [f"{d[m][0]:.2f} / {d[m][1]:.2f}" if m in d else "" for m in methods]
         ok = all(max(d[m]) <= LIMIT_WITHIN for m in methods if m in d)
         sh, sv = sigma_at_worst(results[name], DEFAULT_METHOD)
-        out = [a for a, s, lim in (("h", sh, lh), ("v", sv, lv)) if s > LIMIT_WITHIN * lim]
         lines.append(
             f"| {name} | {_cm(lh)} / {_cm(lv)} | {' | '.join(cells)} | {'yes' if ok else 'NO'} "
-            f"| {_cm(sh)} / {_cm(sv)} | {', '.join(out)} |"
+            f"| {_cm(sh)} / {_cm(sv)} |"
         )
     return lines
 
