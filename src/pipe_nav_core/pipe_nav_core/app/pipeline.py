@@ -38,13 +38,16 @@ from pipe_nav_core.io import (
     read_markers_csv,
 )
 from pipe_nav_core.io.atomic import all_or_none
+from pipe_nav_core.io.bagfiles import bag_files
 from pipe_nav_core.io.centreline import read_centreline_csv
+from pipe_nav_core.io.mcaprecords import read_summary
 from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
 from pipe_nav_core.memory import trim_heap
 from pipe_nav_core.model import imu_noise as imu_model
 from pipe_nav_core.model.sensors import GRADES
 from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
 from pipe_nav_core.products.welds import Weld, detect_welds, jolt_deviation
+from pipe_nav_core.smooth.ahead import FirstPassAhead
 from pipe_nav_core.smooth.centreline import SmoothResult
 from pipe_nav_core.smooth.chunks import drop_spare
 from pipe_nav_core.smooth.logs import let_go, map_imu
@@ -57,6 +60,9 @@ MAX_BRIDGED_M = 0.5  # m: the filter carries a gap the pig moved less in; else s
 # magnetometer samples up to which the welds are found beside the bends and strain (1 M: some
 # 40 km of run at 50 Hz); longer runs find them after, to keep the peak memory down
 WELDS_BESIDE_BENDS_MAX = 1_000_000
+# messages up to which the first pass runs while the bag is read (smooth.ahead): some 20 km of
+# run at the speed bench's rates, 0.3 GB of chunks held beside the log they are joined into
+AHEAD_MAX_MESSAGES = 4_000_000
 
 
 DEFAULT_TOPICS = TopicNames()
@@ -68,13 +74,22 @@ def load_log(
     topics: TopicNames = DEFAULT_TOPICS,
     markers_csv: str | os.PathLike[str] | None = None,
     repair: bool = True,
+    ahead: FirstPassAhead | None = None,
 ) -> tuple[SensorLog, BagReport]:
     """Read a bag into memory (sorted per topic), leave out saturated IMU samples and shocks
     (imu_faults), re-align its clock steps and name its data gaps (gaps.find_holes; the bag's
     own markers follow its clock), leave out the readings of a stuck or spiking wheel
     (odometer_faults), merge the marker CSV. ``repair=False``: the data as recorded (what
-    ekf_node would see; the live guard checks it then)."""
-    log, report = read_bag(bag, topics)
+    ekf_node would see; the live guard checks it then). ``ahead``: told the bag's time chunks
+    as they are read, and the log read."""
+    try:
+        log, report = read_bag(bag, topics, pieces=ahead)
+    except BaseException:
+        if ahead is not None:
+            ahead.cancel()
+        raise
+    if ahead is not None:
+        ahead.finish(log)
     if not repair:
         return _with_markers(log, report, markers_csv)
     log, imu_faults = without_imu_faults(log)
@@ -155,8 +170,58 @@ def smooth_bag(
     told = QUIET if progress is None else progress
     reference = read_bends_reference(bends_reference) if bends_reference else None
     say = told.stage
-    say("reading bag")
-    log, report = load_log(bag, topics=topics, markers_csv=markers_csv)
+    ahead = first_pass_ahead(bag, config, method, markers_csv)
+    say("reading bag" + (" (the first pass beside it)" if ahead else ""))
+    try:
+        return _smooth_read(bag, outputs, config, method, iterations, markers_csv, spacing,
+                            topics, told, reference, plotter, ahead)  # fmt: skip
+    finally:
+        if ahead is not None:
+            ahead.cancel()  # when nothing took its pass: its thread stops
+
+
+def first_pass_ahead(
+    bag: str | os.PathLike[str],
+    config: NavConfig,
+    method: str,
+    markers_csv: str | os.PathLike[str] | None,
+) -> FirstPassAhead | None:
+    """The first pass run while ``bag`` is read (smooth.ahead), where it can be the run's:
+    the markers in the bag (not in a CSV that comes after it), and a bag whose MCAP summary
+    counts at most AHEAD_MAX_MESSAGES (the chunks are held until the log is joined from them:
+    twice the log's memory while it is read)."""
+    if markers_csv is not None:
+        return None
+    total = 0
+    try:
+        for f in bag_files(bag):
+            summary = read_summary(f)
+            if summary is None or summary.channel_message_counts is None:
+                return None
+            total += sum(summary.channel_message_counts.values())
+    except Exception:  # noqa: BLE001 - no summary to go by: the reading names the bag's faults
+        return None
+    return FirstPassAhead(config, method) if total <= AHEAD_MAX_MESSAGES else None
+
+
+def _smooth_read(
+    bag: str | os.PathLike[str],
+    outputs: Outputs,
+    config: NavConfig,
+    method: str,
+    iterations: int,
+    markers_csv: str | os.PathLike[str] | None,
+    spacing: float,
+    topics: TopicNames,
+    told: Progress,
+    reference: list[tuple[float, float]] | None,
+    plotter: PlotProcess | None,
+    ahead: FirstPassAhead | None,
+) -> tuple[SmoothResult, BagReport]:
+    """smooth_bag from the reading on (its arguments; ``ahead``: the first pass run while the
+    bag is read, or None)."""
+    say = told.stage
+    log, report = load_log(bag, topics=topics, markers_csv=markers_csv, ahead=ahead)
     require_imu(log, report, bag, topics)
     map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
     trim_heap()  # what the reading freed (the decoded pieces, the checks' temporaries)
@@ -177,7 +242,7 @@ def smooth_bag(
     def smooth(part: SensorLog, reverse: bool = False) -> SmoothResult:
         return smooth_with_imu_model(
             part, config, declared=report.imu_noise_declared, method=method,
-            iterations=iterations, progress=told, reverse=reverse,
+            iterations=iterations, progress=told, reverse=reverse, ahead=ahead,
         )  # fmt: skip
 
     try:
@@ -252,6 +317,7 @@ def smooth_with_imu_model(
     iterations: int = MAX_PASSES,
     progress: Progress = QUIET,
     reverse: bool = False,
+    ahead: FirstPassAhead | None = None,
 ) -> SmoothResult:
     """smooth_log (``reverse``: of a log in reversed time) with ``imu_grade: auto`` resolved
     from the run (imu_model.choose: the static spans, else ``declared``, the variances the Imu
@@ -259,7 +325,8 @@ def smooth_with_imu_model(
     that the model does not fit (Navigator.model_warnings), refitted with the next noisier
     grade. The summary's ``imu_model`` says which model was used and why; a named grade is used
     as given (its misfit warnings stay). ``progress`` is told each stage and the fraction of
-    each filter pass done, of every smoothing run (the marker outliers' too)."""
+    each filter pass done, of every smoothing run (the marker outliers' too). ``ahead``: the
+    first pass run while the bag was read (smooth_log takes it where it is this log's)."""
     say = progress.stage
     choice = imu_model.choose(log, config, declared if config.imu_grade == AUTO_GRADE else None)
     auto = config.imu_grade == AUTO_GRADE
@@ -271,8 +338,14 @@ def smooth_with_imu_model(
             log,
             cfg,
             lambda lg: smooth_log(
-                lg, cfg, method=method, iterations=iterations, progress=progress, reverse=reverse
-            ),  # fmt: skip
+                lg,
+                cfg,
+                method=method,
+                iterations=iterations,
+                progress=progress,
+                reverse=reverse,
+                ahead=ahead,
+            ),
             progress,
         )
         s = result.summary

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -302,11 +302,15 @@ def _log_len(log: SensorLog) -> int:
 # ----------------------------------------------------------------------------- public API
 
 
+PIECE_S = 60.0  # s of stamps in each time chunk read_bag hands to ``pieces``
+
+
 def read_bag(
     path: str | os.PathLike[str],
     topics: TopicNames = DEFAULT_TOPICS,
     *,
     workers: int | None = None,
+    pieces: Callable[[SensorLog, BagReport], None] | None = None,
 ) -> tuple[SensorLog, BagReport]:
     """Read a whole bag (single .mcap or rosbag2 directory) into a SensorLog.
 
@@ -317,10 +321,19 @@ def read_bag(
     ``workers``: threads that decompress and check the chunks a few ahead of the
     decoding (:func:`read_workers`; default one on two cores or more); everything else runs in
     this thread in file order, so the log and the report are exactly those of ``workers=0``.
+    ``pieces``: told each time chunk of PIECE_S s (:func:`iter_bag`'s) and the report so far
+    as the bag is read, so that work on the start of the run can begin before its end is
+    read; the log is then those chunks concatenated (the same, tested).
     """
     reader = _BagReader(path, topics, None, workers)
-    logs = list(reader.chunks(math.inf, 0.0))
-    return (logs[0] if logs else SensorLog()), reader.report
+    if pieces is None:
+        logs = list(reader.chunks(math.inf, 0.0))
+        return (logs[0] if logs else SensorLog()), reader.report
+    logs = []
+    for log in reader.chunks(PIECE_S, EMIT_LAG_S):
+        pieces(log, reader.report)
+        logs.append(log)
+    return concat_logs(logs), reader.report
 
 
 def iter_bag(

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,6 +41,7 @@ from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.background import Background
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator
+from pipe_nav_core.memory import trim_heap
 from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, SV_T, Layout, inject_many, layout_for
 from pipe_nav_core.smooth.centreline import (
     Parked,
@@ -53,13 +55,16 @@ from pipe_nav_core.smooth.centreline import (
 from pipe_nav_core.smooth.chunks import drop_spare
 from pipe_nav_core.smooth.forward import run_forward
 from pipe_nav_core.smooth.heading import smoothing_config
-from pipe_nav_core.smooth.logs import map_imu
+from pipe_nav_core.smooth.logs import let_go, map_imu
 from pipe_nav_core.smooth.methods import DEFAULT_METHOD, MAX_PASSES, METHODS
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.smooth.rts import rts_packed
 from pipe_nav_core.smooth.slips import find_slips
 from pipe_nav_core.smooth.two_filter import backward_pass, end_azimuth, fuse_passes, two_filter
 from pipe_nav_core.types import Datum, SensorLog, Trajectory, markers_sorted
+
+if TYPE_CHECKING:
+    from pipe_nav_core.smooth.ahead import FirstPassAhead
 
 Array = NDArray[np.float64]
 # A pass linearized within this attitude of its smoothed result has converged. What is
@@ -83,6 +88,7 @@ def smooth_log(
     iterations: int = MAX_PASSES,
     progress: Progress = QUIET,
     reverse: bool = False,
+    ahead: FirstPassAhead | None = None,
 ) -> SmoothResult:
     """Smooth a whole time-sorted log (IMU in imu_link as recorded) and return the centreline.
     ``reverse``: the log is a run in reversed time (:func:`.logs.reverse_log`: a segment that
@@ -103,6 +109,8 @@ def smooth_log(
     ``last_step_rad``).
     ``graph``: those passes with RTS, then the batch smoother from their last smoothed
     trajectory, with their odometer exclusions (:func:`_graph_result`).
+    ``ahead``: the heading search and first pass run while the bag was read, taken where they
+    are this log's (:class:`.ahead.FirstPassAhead`).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -114,14 +122,18 @@ def smooth_log(
     say = progress.stage
     layout = layout_for(config)
     markers = markers_sorted(log.markers)
-    cfg = config
-    if method in LONG_EPOCH_METHODS:  # the smoothing passes' epochs
-        cfg = replace(config, filter_rate_hz=config.smoothing_rate_hz())
-    epochs = cfg
-    if method != "forward":
-        cfg = smoothing_config(log, cfg, progress, reverse=reverse)
-    say("forward filter" if cfg is epochs else "forward filter (re-anchored heading)")
-    nav = run_forward(log, cfg, reverse=reverse, progress=progress, release=True)
+    cfg = epochs = epoch_config(config, method)
+    taken = ahead.take(log, epochs, method, reverse) if ahead is not None else None
+    if taken is not None:  # the same pass, run while the bag was read
+        cfg, nav = taken
+        say("forward filter (run while the bag was read)")
+        let_go(log.imu)  # as after run_forward's own pass: nothing of the log is in memory
+        trim_heap()  # for it, and what the pass freed
+    else:
+        if method != "forward":
+            cfg = smoothing_config(log, cfg, progress, reverse=reverse)
+        say("forward filter" if cfg is epochs else "forward filter (re-anchored heading)")
+        nav = run_forward(log, cfg, reverse=reverse, progress=progress, release=True)
     assert nav.recording is not None
     lost_at = nav.after_odometer_loss
     if lost_at and cfg.filter_rate_hz < config.filter_rate_hz:
@@ -234,6 +246,14 @@ def smooth_log(
     taken.summary["passes_run"] = it + 1
     taken.summary["converged"] = converged
     return taken
+
+
+def epoch_config(config: NavConfig, method: str) -> NavConfig:
+    """The settings of ``method``'s passes before the heading search: the smoothing epochs
+    (NavConfig.smoothing_rate_hz) for LONG_EPOCH_METHODS, else ``config``'s own."""
+    if method in LONG_EPOCH_METHODS:
+        return replace(config, filter_rate_hz=config.smoothing_rate_hz())
+    return config
 
 
 def _graph_result(
