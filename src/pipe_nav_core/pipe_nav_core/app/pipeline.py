@@ -171,7 +171,7 @@ def smooth_bag(
     reference = read_bends_reference(bends_reference) if bends_reference else None
     say = told.stage
     ahead = first_pass_ahead(bag, config, method, markers_csv)
-    say("reading bag" + (" (the first pass beside it)" if ahead else ""))
+    say("reading bag")
     try:
         return _smooth_read(bag, outputs, config, method, iterations, markers_csv, spacing,
                             topics, told, reference, plotter, ahead)  # fmt: skip
