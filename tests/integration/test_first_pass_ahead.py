@@ -108,7 +108,7 @@ def test_a_repaired_bag_is_smoothed_after_its_reading(tmp_path, monkeypatch):
     real = pipeline.first_pass_ahead
     monkeypatch.setattr(pipeline, "first_pass_ahead", lambda *a: made.append(real(*a)) or made[-1])
     ahead, said = smooth(bag, tmp_path / "ahead")
-    assert made and made[0] is not None  # it ran beside the reading
+    assert made and isinstance(made[0], FirstPassAhead)  # it ran beside the reading
     assert TAKEN not in said
     monkeypatch.setattr(pipeline, "AHEAD_MAX_MESSAGES", -1)
     after, _ = smooth(bag, tmp_path / "after")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import replace
 
 import numpy as np
@@ -170,86 +171,31 @@ def smooth_bag(
     told = QUIET if progress is None else progress
     reference = read_bends_reference(bends_reference) if bends_reference else None
     say = told.stage
-    ahead = first_pass_ahead(bag, config, method, markers_csv)
-    say("reading bag")
-    try:
-        return _smooth_read(bag, outputs, config, method, iterations, markers_csv, spacing,
-                            topics, told, reference, plotter, ahead)  # fmt: skip
-    finally:
-        if ahead is not None:
-            ahead.cancel()  # when nothing took its pass: its thread stops
+    with first_pass_ahead(bag, config, method, markers_csv) as ahead:
+        say("reading bag")
+        log, report = load_log(bag, topics=topics, markers_csv=markers_csv, ahead=ahead)
+        require_imu(log, report, bag, topics)
+        map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
+        trim_heap()  # what the reading freed (the decoded pieces, the checks' temporaries)
+        require_markers(log, report, bag, topics)
 
+        # the IMU's part of the weld search on the other core while the run is smoothed (when the
+        # welds are found beside the bends: their working set is small then)
+        jolts: Background | None = None
+        if 0 < len(log.mag.t) <= WELDS_BESIDE_BENDS_MAX:
+            jolts = Background("pipe-nav-jolts", jolt_deviation, log.imu, imu_mount(config))
 
-def first_pass_ahead(
-    bag: str | os.PathLike[str],
-    config: NavConfig,
-    method: str,
-    markers_csv: str | os.PathLike[str] | None,
-) -> FirstPassAhead | None:
-    """The first pass run while ``bag`` is read (smooth.ahead), where it can be the run's:
-    the markers in the bag (not in a CSV that comes after it), and a bag whose MCAP summary
-    counts at most AHEAD_MAX_MESSAGES (the chunks are held until the log is joined from them:
-    twice the log's memory while it is read)."""
-    if markers_csv is not None:
-        return None
-    total = 0
-    try:
-        for f in bag_files(bag):
-            summary = read_summary(f)
-            if summary is None or summary.channel_message_counts is None:
-                return None
-            total += sum(summary.channel_message_counts.values())
-    except Exception:  # noqa: BLE001 - no summary to go by: the reading names the bag's faults
-        return None
-    return FirstPassAhead(config, method) if total <= AHEAD_MAX_MESSAGES else None
+        def smooth(part: SensorLog, reverse: bool = False) -> SmoothResult:
+            return smooth_with_imu_model(
+                part, config, declared=report.imu_noise_declared, method=method,
+                iterations=iterations, progress=told, reverse=reverse, ahead=ahead,
+            )  # fmt: skip
 
-
-def _smooth_read(
-    bag: str | os.PathLike[str],
-    outputs: Outputs,
-    config: NavConfig,
-    method: str,
-    iterations: int,
-    markers_csv: str | os.PathLike[str] | None,
-    spacing: float,
-    topics: TopicNames,
-    told: Progress,
-    reference: list[tuple[float, float]] | None,
-    plotter: PlotProcess | None,
-    ahead: FirstPassAhead | None,
-) -> tuple[SmoothResult, BagReport]:
-    """smooth_bag from the reading on (its arguments; ``ahead``: the first pass run while the
-    bag is read, or None)."""
-    say = told.stage
-    log, report = load_log(bag, topics=topics, markers_csv=markers_csv, ahead=ahead)
-    require_imu(log, report, bag, topics)
-    map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
-    trim_heap()  # what the reading freed (the decoded pieces, the checks' temporaries)
-    if not log.markers:
-        left = [w for w in report.warnings if w.startswith("marker ")]
-        why = f" ({left[0]}{f' and {len(left) - 1} more' if len(left) > 1 else ''})" if left else ""
-        raise ValueError(
-            f"{bag}: no markers within the data (topic {topics.markers} or --markers CSV){why}: "
-            "nothing ties the run to the ground"
-        )
-
-    # the IMU's part of the weld search on the other core while the run is smoothed (when the
-    # welds are found beside the bends: their working set is small then)
-    jolts: Background | None = None
-    if 0 < len(log.mag.t) <= WELDS_BESIDE_BENDS_MAX:
-        jolts = Background("pipe-nav-jolts", jolt_deviation, log.imu, imu_mount(config))
-
-    def smooth(part: SensorLog, reverse: bool = False) -> SmoothResult:
-        return smooth_with_imu_model(
-            part, config, declared=report.imu_noise_declared, method=method,
-            iterations=iterations, progress=told, reverse=reverse, ahead=ahead,
-        )  # fmt: skip
-
-    try:
-        result = _smooth_segments(log, report, config, smooth, say)
-    finally:
-        drop_spare()  # the recordings' chunk arrays kept for the next pass
-        trim_heap()  # and what the passes freed: the products do not have it on top of theirs
+        try:
+            result = _smooth_segments(log, report, config, smooth, say)
+        finally:
+            drop_spare()  # the recordings' chunk arrays kept for the next pass
+            trim_heap()  # and what the passes freed: the products do not have it on top of theirs
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
     failures = [f"{d}: the centreline does not fit its markers"
@@ -280,6 +226,31 @@ def _smooth_read(
     write_products(result, outputs, spacing=spacing, progress=say, plotter=plotter,
                    meanwhile=find_welds)  # fmt: skip
     return result, report
+
+
+def first_pass_ahead(
+    bag: str | os.PathLike[str],
+    config: NavConfig,
+    method: str,
+    markers_csv: str | os.PathLike[str] | None,
+) -> AbstractContextManager[FirstPassAhead | None]:
+    """The first pass run while ``bag`` is read (smooth.ahead; its thread stops when the
+    context ends), where it can be the run's: the markers in the bag (not in a CSV that comes
+    after it), and a bag whose MCAP summary counts at most AHEAD_MAX_MESSAGES (the chunks are
+    held until the log is joined from them: twice the log's memory while it is read); else
+    None."""
+    if markers_csv is not None:
+        return nullcontext()
+    total = 0
+    try:
+        for f in bag_files(bag):
+            summary = read_summary(f)
+            if summary is None or summary.channel_message_counts is None:
+                return nullcontext()
+            total += sum(summary.channel_message_counts.values())
+    except Exception:  # noqa: BLE001 - no summary to go by: the reading names the bag's faults
+        return nullcontext()
+    return FirstPassAhead(config, method) if total <= AHEAD_MAX_MESSAGES else nullcontext()
 
 
 def _smooth_segments(
@@ -380,6 +351,20 @@ def require_imu(
         found = report.types.get(topics.imu)
         carries = f" (it carries {found})" if found else ""
         raise ValueError(f"{bag}: no IMU samples on {topics.imu}{carries}")
+
+
+def require_markers(
+    log: SensorLog, report: BagReport, bag: str | os.PathLike[str], topics: TopicNames
+) -> None:
+    """ValueError when no marker lies within the data, naming those left out."""
+    if log.markers:
+        return
+    left = [w for w in report.warnings if w.startswith("marker ")]
+    why = f" ({left[0]}{f' and {len(left) - 1} more' if len(left) > 1 else ''})" if left else ""
+    raise ValueError(
+        f"{bag}: no markers within the data (topic {topics.markers} or --markers CSV){why}: "
+        "nothing ties the run to the ground"
+    )
 
 
 def run_welds(

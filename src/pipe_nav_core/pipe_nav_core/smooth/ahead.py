@@ -32,7 +32,8 @@ _END = None  # the queue's last item: the reading is over (or failed)
 class FirstPassAhead:
     """The heading search and the first filter pass of ``method`` over a bag being read, in
     a thread of its own. Call it with each time chunk and the report so far (the reader's
-    ``pieces``), then :meth:`finish` with the log read (or :meth:`cancel`), then :meth:`take`.
+    ``pieces``), then :meth:`finish` with the log read (or :meth:`cancel`), then :meth:`take`;
+    as a context, its thread is stopped at the end.
     ``config``: the settings smooth_log is given (imu_grade auto is resolved here as
     :func:`pipe_nav_core.model.imu_noise.choose` resolves it, from the data read so far)."""
 
@@ -47,6 +48,12 @@ class FirstPassAhead:
         self._thread = threading.Thread(target=self._run, name="pipe-nav first pass",
                                         daemon=True)  # fmt: skip
         self._thread.start()
+
+    def __enter__(self) -> FirstPassAhead:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.cancel()
 
     def __call__(self, piece: SensorLog, report: BagReport) -> None:
         self._inbox.put((piece, report))
