@@ -43,9 +43,7 @@ def smooth(bag: Path, folder: Path, method: str = "rts") -> tuple[list[bytes], l
 
 
 def no_thread_left() -> bool:
-    for t in threading.enumerate():
-        if t.name == "pipe-nav first pass":
-            t.join(timeout=30.0)
+    """No first-pass thread alive: smooth_bag stops and waits for its own when it ends."""
     return not any(t.name == "pipe-nav first pass" for t in threading.enumerate())
 
 

@@ -54,6 +54,7 @@ class FirstPassAhead:
 
     def __exit__(self, *exc: object) -> None:
         self.cancel()
+        self._thread.join()  # nothing of it outlives the run (it stops at its next chunk)
 
     def __call__(self, piece: SensorLog, report: BagReport) -> None:
         self._inbox.put((piece, report))
@@ -99,7 +100,7 @@ class FirstPassAhead:
         while not chunks.past_second_marker():
             if not chunks.more():
                 break
-        if self._stop.is_set() and not chunks.done:
+        if self._stop.is_set():
             return None
         head = concat_logs(chunks.read)
         if len(head.imu) < 10:
@@ -113,12 +114,14 @@ class FirstPassAhead:
         fed = 0
         while True:
             while fed < len(chunks.read) - 1:  # the last chunk waits: it may be the final one
+                if self._stop.is_set():
+                    return None
                 nav.run(chunks.read[fed], final=False)
                 chunks.read[fed] = _EMPTY  # the log keeps its own copy
                 fed += 1
             if not chunks.more():
                 break
-        if self._stop.is_set() and not chunks.done:
+        if self._stop.is_set():
             return None
         nav.run(chunks.read[fed] if fed < len(chunks.read) else _EMPTY, final=True)
         if nav.state is None or nav.recording is None:
@@ -149,7 +152,7 @@ class _Chunks:
             return False
         item = self.inbox.get()
         if item is _END:
-            self.done = not self.stop.is_set()
+            self.done = True
             return False
         piece, self.report = item
         self.read.append(piece)
