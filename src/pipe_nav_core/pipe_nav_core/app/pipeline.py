@@ -83,12 +83,7 @@ def load_log(
     (odometer_faults), merge the marker CSV. ``repair=False``: the data as recorded (what
     ekf_node would see; the live guard checks it then). ``ahead``: told the bag's time chunks
     as they are read, and the log read."""
-    try:
-        log, report = read_bag(bag, topics, pieces=ahead)
-    except BaseException:
-        if ahead is not None:
-            ahead.cancel()
-        raise
+    log, report = read_bag(bag, topics, pieces=ahead)  # failing: the ahead's context stops it
     if ahead is not None:
         ahead.finish(log)
     if not repair:
