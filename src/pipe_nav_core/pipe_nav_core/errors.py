@@ -24,9 +24,13 @@ class ConfigError(InputError):
     it: ``--set KEY``, a YAML key, a ROS parameter) and what is allowed."""
 
 
-class McapFormatError(PipeNavError):
-    """The file is not MCAP at all (a one-line reason, without the path: the bag reader adds
-    it when it turns this into a :class:`BagError`)."""
+class BagFormatError(PipeNavError):
+    """A bag file is not of the form it should be (a one-line reason, without the path: the
+    bag reader adds it when it turns this into a :class:`BagError`)."""
+
+
+class McapFormatError(BagFormatError):
+    """The file is not MCAP at all (a one-line reason, without the path)."""
 
 
 class BagError(PipeNavError):

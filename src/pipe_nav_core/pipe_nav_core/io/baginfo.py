@@ -11,17 +11,20 @@ header, else log times.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.records import ChunkIndex
 from numpy.typing import NDArray
 
-from pipe_nav_core.errors import BagError, McapFormatError
+from pipe_nav_core.errors import BagError, BagFormatError
 from pipe_nav_core.io.bagdecode import declared_noise
-from pipe_nav_core.io.bagfiles import bag_files
-from pipe_nav_core.io.mcapread import McapScanner, MessageBatch, chunk_messages, read_summary
+from pipe_nav_core.io.bagfiles import BagFile, bag_layout
+from pipe_nav_core.io.bagforms import Scanner, open_scanner, payload_batch, unpacked
+from pipe_nav_core.io.mcapread import MessageBatch, chunk_messages, read_summary
 from pipe_nav_core.io.stamps import NS_PER_S, ns_to_sec
 from pipe_nav_core.io.topics import ROLE_TYPES, normalize_type
 
@@ -103,7 +106,8 @@ def bag_info(path: str | os.PathLike[str]) -> BagInfo:
     """Per-topic message counts, types and first/last header stamps, cheaply: from the MCAP
     summary (counts) and the first and last chunk of each topic (stamps) when the files are
     indexed, otherwise by scanning (slower, still vectorized)."""
-    files = bag_files(path)
+    layout = bag_layout(path)
+    files = [bf.path for bf in layout]
     topics: dict[str, TopicInfo] = {}
     warnings: list[str] = []
     indexed = True
@@ -120,13 +124,14 @@ def bag_info(path: str | os.PathLike[str]) -> BagInfo:
             e = float(ns_to_sec(hi))
             ti.end = e if ti.end is None else max(ti.end, e)
 
-    for f in files:
+    for bf in layout:
+        f = bf.path
         if not f.is_file():
             warnings.append(f"{f}: missing")
             truncated = True
             continue
         try:
-            summ = read_summary(f)
+            summ = read_summary(f) if bf.plain_mcap else None
         except OSError as exc:
             raise BagError(f"{f}: cannot read ({exc.strerror or exc})") from None
         if summ is not None and summ.chunk_indexes:
@@ -146,7 +151,7 @@ def bag_info(path: str | os.PathLike[str]) -> BagInfo:
                     for ci, want in ((first, "lo"), (last, "hi")):
                         key = ci.chunk_start_offset
                         if key not in cache:
-                            cache[key] = chunk_messages(f, ci)
+                            cache[key] = _chunk(f, ci)
                         b = cache[key]
                         if b is None:
                             continue
@@ -163,7 +168,7 @@ def bag_info(path: str | os.PathLike[str]) -> BagInfo:
                         for ci in cis:
                             key = ci.chunk_start_offset
                             if key not in cache:
-                                cache[key] = chunk_messages(f, ci)
+                                cache[key] = _chunk(f, ci)
                             b = cache[key]
                             n += 0 if b is None else int((b.channel == cid).sum())
                 add(ch.topic, typename, n, lo, hi)
@@ -171,22 +176,37 @@ def bag_info(path: str | os.PathLike[str]) -> BagInfo:
             continue
         indexed = False
         try:
-            sc = McapScanner(f, warnings.append)
-        except McapFormatError as exc:
+            with open_scanner(bf, warnings.append) as sc:
+                total += _scan(sc, add)
+                truncated |= sc.truncated
+        except BagFormatError as exc:
             raise BagError(f"{f}: {exc}") from None
-        for b in sc.batches():
-            for cid in np.flatnonzero(np.bincount(b.channel)).tolist():
-                ch = sc.channels.get(cid)
-                if ch is None:
-                    continue
-                sch = sc.schemas.get(ch.schema_id)
-                typename = normalize_type(sch.name) if sch else ""
-                sel = np.flatnonzero(b.channel == cid)
-                st = _stamps(b, sel, _has_header(sch.data if sch else b"", typename))
-                add(ch.topic, typename, len(sel), int(st.min()), int(st.max()))
-                total += len(sel)
-        truncated |= sc.truncated
     return BagInfo(str(path), [str(f) for f in files], topics, total, indexed, truncated, warnings)
+
+
+def _chunk(f: Path, ci: ChunkIndex) -> MessageBatch | None:
+    """One indexed chunk's messages, their payloads decompressed where rosbag2 compressed
+    each message."""
+    b = chunk_messages(f, ci)
+    return None if b is None else unpacked(b)
+
+
+def _scan(sc: Scanner, add: Callable[[str, str, int, int | None, int | None], None]) -> int:
+    """Every message of a file through ``add`` (topic, type, count, first and last stamp,
+    ns) batch by batch; the number of messages."""
+    total = 0
+    for b in map(unpacked, sc.batches()):
+        for cid in np.flatnonzero(np.bincount(b.channel)).tolist():
+            ch = sc.channels.get(cid)
+            if ch is None:
+                continue
+            sch = sc.schemas.get(ch.schema_id)
+            typename = normalize_type(sch.name) if sch else ""
+            sel = np.flatnonzero(b.channel == cid)
+            st = _stamps(b, sel, _has_header(sch.data if sch else b"", typename))
+            add(ch.topic, typename, len(sel), int(st.min()), int(st.max()))
+            total += len(sel)
+    return total
 
 
 def bag_time_range(
@@ -206,14 +226,31 @@ def declared_imu_noise(path: str | os.PathLike[str], topic: str) -> dict[str, An
     """The per-sample variances (diagonals, (rad/s)^2 and (m/s^2)^2) the bag's first Imu
     message on ``topic`` declares, or {} (no message, or one that does not decode): what the
     IMU model of imu_grade auto falls back on (imu_model.choose)."""
-    from mcap.reader import make_reader
-
-    for f in bag_files(path):
+    for bf in bag_layout(path):
         try:
-            with open(f, "rb") as fh:
-                for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
-                    buf = np.frombuffer(message.data, dtype=np.uint8)
-                    return declared_noise(buf, np.array([0]), np.array([len(buf)]))
+            payload = _first_payload(bf, topic)
         except Exception:  # an unreadable first message says nothing about the noise
             return {}
+        if payload is not None:
+            b = unpacked(payload_batch([payload], np.zeros(1), np.zeros(1)))
+            return declared_noise(b.buf, b.payload_start, b.size)
     return {}
+
+
+def _first_payload(bf: BagFile, topic: str) -> bytes | None:
+    """The payload of the first message on ``topic`` in one bag file (None: there is none)."""
+    if bf.plain_mcap:  # from its index: the first chunk that holds the topic
+        from mcap.reader import make_reader
+
+        with open(bf.path, "rb") as fh:
+            for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
+                return bytes(message.data)
+        return None
+    with open_scanner(bf, lambda _w: None, [topic]) as sc:
+        for b in sc.batches():
+            ids = [c.id for c in sc.channels.values() if c.topic == topic]
+            sel = np.flatnonzero(np.isin(b.channel, ids))
+            if len(sel):
+                s, n = int(b.payload_start[sel[0]]), int(b.size[sel[0]])
+                return b.buf[s : s + n].tobytes()
+    return None

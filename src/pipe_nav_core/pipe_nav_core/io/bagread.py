@@ -24,9 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipe_nav_core.errors import BagError, InputError, McapFormatError
+from pipe_nav_core.errors import BagError, BagFormatError, InputError, McapFormatError
 from pipe_nav_core.io.bagdecode import decode_role
-from pipe_nav_core.io.bagfiles import bag_files
+from pipe_nav_core.io.bagfiles import bag_layout
+from pipe_nav_core.io.bagforms import Scanner, open_scanner, unpacked
 from pipe_nav_core.io.mcapread import McapScanner, MessageBatch
 from pipe_nav_core.io.stamps import ns_to_sec, sec_to_ns_scalar
 from pipe_nav_core.io.topic_checks import REORDER_WINDOW_S, TIME_JUMP_S, TopicState
@@ -96,7 +97,8 @@ class _BagReader:
     ):
         self.path = Path(path)
         self.workers = read_workers(workers)
-        self.files = bag_files(path)
+        self.layout = bag_layout(path)
+        self.files = [f.path for f in self.layout]
         self.topics = topics
         self.report = report if report is not None else BagReport()
         self.report.path = str(self.path)
@@ -107,8 +109,8 @@ class _BagReader:
         for t in by_topic:
             self.report.counts.setdefault(t, 0)
         self.messages_read = 0
-        # Fail early on a single file that is not MCAP at all.
-        if len(self.files) == 1:
+        # Fail early on a single plain MCAP file that is not MCAP at all.
+        if len(self.layout) == 1 and self.layout[0].plain_mcap:
             self._check_magic(self.files[0])
 
     def _check_magic(self, f: Path) -> None:
@@ -122,34 +124,38 @@ class _BagReader:
     def _batches(self) -> Iterator[tuple[MessageBatch, dict[int, str]]]:
         """(batch, channel id -> role) over every file, with type checks."""
         usable = 0
-        for f in self.files:
+        for bf in self.layout:
+            f = bf.path
             if not f.is_file():
                 self.report.truncated = True
                 self.report.warn(f"{f}: listed in metadata.yaml but missing; skipped")
                 continue
             try:
-                sc = McapScanner(f, self.report.warn)
-            except (McapFormatError, OSError) as exc:
+                with open_scanner(bf, self.report.warn, self.role_of) as sc:
+                    usable += 1
+                    yield from self._file_batches(sc)
+            except (BagFormatError, OSError) as exc:
                 if len(self.files) == 1:
-                    raise BagError(f"{f}: {exc}") from None
+                    why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+                    raise BagError(f"{f}: {why}") from None
                 self.report.truncated = True
                 self.report.warn(f"{f}: unreadable ({exc}); skipped")
-                continue
-            usable += 1
-            warned: set[int] = set()
-            for batch in sc.batches(self.workers):
-                roles = self._channel_roles(sc, warned)
-                yield batch, roles
-            if sc.truncated:
-                self.report.truncated = True
-            for cid, n in sc.corrupt_messages.items():
-                ch = sc.channels.get(cid)
-                if ch is not None and ch.topic in self.role_of:
-                    self.report.add_skipped(ch.topic, SKIP_CORRUPT_CHUNK, n)
         if usable == 0:
-            raise BagError(f"{self.path}: no readable MCAP file")
+            raise BagError(f"{self.path}: no readable bag file")
 
-    def _channel_roles(self, sc: McapScanner, warned: set[int]) -> dict[int, str]:
+    def _file_batches(self, sc: Scanner) -> Iterator[tuple[MessageBatch, dict[int, str]]]:
+        warned: set[int] = set()
+        for batch in sc.batches(self.workers):
+            roles = self._channel_roles(sc, warned)
+            yield unpacked(batch), roles
+        if sc.truncated:
+            self.report.truncated = True
+        for cid, n in sc.corrupt_messages.items():
+            ch = sc.channels.get(cid)
+            if ch is not None and ch.topic in self.role_of:
+                self.report.add_skipped(ch.topic, SKIP_CORRUPT_CHUNK, n)
+
+    def _channel_roles(self, sc: Scanner, warned: set[int]) -> dict[int, str]:
         roles: dict[int, str] = {}
         for cid, ch in sc.channels.items():
             schema = sc.schemas.get(ch.schema_id)

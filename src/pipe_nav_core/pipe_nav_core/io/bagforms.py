@@ -1,0 +1,219 @@
+"""The forms rosbag2 writes a bag in besides plain MCAP files, read as message batches.
+
+- sqlite3 storage (``.db3``, rosbag2's default before Iron): :class:`Db3Scanner` reads its
+  ``messages`` table in recording order, the topics the reader asks for only (a camera's
+  images in the same bag are not read), through Python's own sqlite3.
+- zstd compression of whole files (``compression_mode: file``, ``x.mcap.zstd``):
+  :func:`open_scanner` decompresses the file into a temporary one, scans that and removes it;
+  a compressed stream cut short gives the part before the cut (a warning says so), which the
+  scanners read as they read a file cut short.
+- zstd compression of each message (``compression_mode: message``): :func:`unpacked` finds
+  the payloads that are zstd frames (their magic number, where CDR starts with its
+  encapsulation header) and decompresses them, so a bag copied out of its directory without
+  its metadata is read too.
+
+Every scanner has :class:`.mcapread.McapScanner`'s interface: ``batches(workers)``,
+``schemas``, ``channels``, ``truncated``, ``corrupt_messages``.
+"""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+import tempfile
+from collections.abc import Callable, Collection, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, BinaryIO, Protocol
+
+import numpy as np
+
+from pipe_nav_core.errors import BagFormatError
+from pipe_nav_core.io.bagfiles import BagFile
+from pipe_nav_core.io.mcapread import (
+    MESSAGE_HEADER_SIZE,
+    ChannelRecord,
+    McapScanner,
+    MessageBatch,
+    SchemaRecord,
+)
+
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # the first bytes of a zstd frame (a CDR payload starts 00 0x)
+DB3_BATCH_ROWS = 8192  # messages per batch of a sqlite3 file (those of a damaged one are lost)
+_PAD = bytes(MESSAGE_HEADER_SIZE)  # where a Message record's header would be
+_COPY_BYTES = 1 << 22  # bytes per step of a file's decompression
+
+
+class Scanner(Protocol):
+    """What the reader and bag_info take from a file: its batches and what they met."""
+
+    schemas: dict[int, SchemaRecord]
+    channels: dict[int, ChannelRecord]
+    truncated: bool
+    corrupt_messages: dict[int, int]
+
+    def batches(self, workers: int = 0) -> Iterator[MessageBatch]: ...
+
+
+def payload_batch(
+    payloads: Sequence[bytes | memoryview], channel: np.ndarray, log_time: np.ndarray
+) -> MessageBatch:
+    """A MessageBatch of the given payloads (each preceded by room for a record header, so
+    that payload i is read where MessageBatch says)."""
+    sizes = np.fromiter(map(len, payloads), dtype=np.int64, count=len(payloads))
+    rec = np.zeros(len(payloads), dtype=np.int64)
+    if len(sizes) > 1:
+        np.cumsum(sizes[:-1] + MESSAGE_HEADER_SIZE, out=rec[1:])
+    parts: list[bytes | memoryview] = [_PAD] * (2 * len(payloads))
+    parts[1::2] = payloads
+    buf = np.frombuffer(b"".join(parts), dtype=np.uint8)
+    return MessageBatch(buf, rec, np.asarray(channel, dtype=np.int64),
+                        np.asarray(log_time, dtype=np.int64), sizes)  # fmt: skip
+
+
+def unpacked(batch: MessageBatch) -> MessageBatch:
+    """The batch with its zstd-compressed payloads (rosbag2's compression of each message)
+    decompressed; the batch itself when it has none. A frame that does not decompress is
+    kept as it is (its decoding then fails and counts it)."""
+    if not len(batch):
+        return batch
+    start = batch.payload_start
+    if ZSTD_MAGIC[0] not in batch.buf.take(start, mode="clip"):  # 0.02 s over a 10 km bag
+        return batch
+    import zstandard
+
+    d, error = zstandard.ZstdDecompressor(), zstandard.ZstdError
+    mv = memoryview(batch.buf)
+    spans = zip(start.tolist(), batch.size.tolist(), strict=True)
+    payloads = [_frame(d, error, mv[s : s + n]) for s, n in spans]
+    return payload_batch(payloads, batch.channel, batch.log_time)
+
+
+def _frame(d: Any, error: type[Exception], p: memoryview) -> bytes | memoryview:
+    """A payload decompressed if it is a zstd frame (``d``: a zstandard.ZstdDecompressor,
+    ``error`` its exception), else (or if it does not decompress) as it is."""
+    if len(p) < 4 or p[:4] != ZSTD_MAGIC:
+        return p
+    try:
+        return d.decompress(p)
+    except error:  # no content size in the frame header: streamed
+        try:
+            return d.decompressobj().decompress(p)
+        except error:
+            return p
+
+
+class Db3Scanner:
+    """Reader of one rosbag2 sqlite3 file with McapScanner's interface; ``topics``: the
+    topic names whose messages are read (None: all). Channel and schema ids are the file's
+    topic ids; the schemas carry the type names (no definitions: the reader knows its types
+    by name)."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        warn: Callable[[str], None],
+        topics: Collection[str] | None = None,
+    ) -> None:
+        self.path = os.fspath(path)
+        self.warn = warn
+        self.truncated = False
+        self.corrupt_messages: dict[int, int] = {}
+        self.schemas: dict[int, SchemaRecord] = {}
+        self.channels: dict[int, ChannelRecord] = {}
+        try:
+            self._db = sqlite3.connect(f"file:{Path(self.path).resolve()}?mode=ro", uri=True)
+            rows = self._db.execute(
+                "SELECT id, name, type, serialization_format FROM topics"
+            ).fetchall()
+        except sqlite3.Error as exc:
+            raise BagFormatError(f"not a readable rosbag2 sqlite3 file ({exc})") from None
+        for tid, name, typename, encoding in rows:
+            self.schemas[tid] = SchemaRecord(tid, str(typename), "ros2msg", b"")
+            self.channels[tid] = ChannelRecord(tid, tid, str(name), str(encoding), {})
+        self._wanted = [c.id for c in self.channels.values()
+                        if topics is None or c.topic in topics]  # fmt: skip
+
+    def batches(self, workers: int = 0) -> Iterator[MessageBatch]:
+        """The messages of the wanted topics in recording order (the table's), in batches of
+        DB3_BATCH_ROWS; ``workers`` is not used (sqlite reads in this thread)."""
+        del workers
+        if not self._wanted:
+            return
+        marks = ",".join("?" * len(self._wanted))
+        try:
+            cur = self._db.execute(
+                f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) "
+                "ORDER BY id",
+                self._wanted,
+            )
+            while rows := cur.fetchmany(DB3_BATCH_ROWS):
+                tid, stamp, data = zip(*rows, strict=True)
+                yield payload_batch(list(data), np.array(tid), np.array(stamp))
+        except sqlite3.Error as exc:  # a damaged file: what was read before stays read
+            self.truncated = True
+            self.warn(f"{self.path}: unreadable past some message ({exc}); the rest was skipped")
+        finally:
+            self._db.close()
+
+
+@contextmanager
+def open_scanner(
+    f: BagFile, warn: Callable[[str], None], topics: Collection[str] | None = None
+) -> Iterator[Scanner]:
+    """A scanner of one bag file whatever its form (raises BagFormatError or OSError when
+    it cannot be read at all); ``topics``: the topics a sqlite3 file is asked for."""
+    if not f.compressed:
+        yield _scanner(f.path, f.storage, warn, topics)
+        return
+    with _decompressed(f.path, warn) as plain:
+        yield _scanner(plain, f.storage, warn, topics)
+
+
+def _scanner(
+    path: Path, storage: str, warn: Callable[[str], None], topics: Collection[str] | None
+) -> Scanner:
+    if storage == "sqlite3":
+        return Db3Scanner(path, warn, topics)
+    return McapScanner(path, warn)
+
+
+@contextmanager
+def _decompressed(path: Path, warn: Callable[[str], None]) -> Iterator[Path]:
+    """A zstd-compressed file decompressed into a temporary file (removed after), as much of
+    it as decompresses (a warning when that is not all)."""
+    with open(path, "rb") as src:
+        if src.read(4) != ZSTD_MAGIC:
+            raise BagFormatError("not a zstd-compressed file (bad magic)")
+        src.seek(0)
+        inner = path.with_suffix("").suffix or ".mcap"
+        with tempfile.TemporaryDirectory(prefix="pipe_nav_bag_") as tmp:
+            plain = Path(tmp) / f"decompressed{inner}"
+            with open(plain, "wb") as out:
+                why = _copy_frames(src, out)
+            if why:
+                warn(f"{path}: the compressed data end early or are damaged ({why}); "
+                     "what decompressed before that was read")  # fmt: skip
+            yield plain
+
+
+def _copy_frames(src: BinaryIO, out: BinaryIO) -> str:
+    """Decompress the zstd frames of ``src`` into ``out``: "" when they all ended, else why
+    not (what decompressed before is written)."""
+    import zstandard
+
+    d = zstandard.ZstdDecompressor()
+    obj = d.decompressobj()
+    ended = False  # the data so far end where a frame ends
+    try:
+        while data := src.read(_COPY_BYTES):
+            while data:
+                out.write(obj.decompress(data))
+                ended = obj.eof
+                if not ended:  # all of data taken, the frame goes on
+                    break
+                data = obj.unused_data  # the next frame (rosbag2 writes one, others more)
+                obj = d.decompressobj()
+    except zstandard.ZstdError as exc:
+        return str(exc)
+    return "" if ended else "the last frame is cut off"
