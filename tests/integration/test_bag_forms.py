@@ -21,36 +21,14 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from pipe_nav_core.app.cli import main
+from pipe_nav_core.bench.rosbag2_forms import COMPRESSIONS, STORAGES, rewrite
 from pipe_nav_core.errors import BagError
 from pipe_nav_core.io import bag_info, read_bag
-from pipe_nav_core.io.baginfo import declared_imu_noise
+from pipe_nav_core.io.baginfo import declared_imu_noise, message_count
 from pipe_nav_core.io.topics import DEFAULT_TOPICS
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
-from rosbags.typesys import Stores, get_typestore
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
-STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
-MODES = {"": None, "file": CompressionMode.FILE, "message": CompressionMode.MESSAGE}
-FORMS = [(s, m) for s in STORAGES for m in MODES]
-
-
-def rosbags_form(src: Path, out: Path, storage: str, mode: str) -> Path:
-    """The messages of the MCAP bag ``src``, as they are (log times, payloads), written by
-    rosbags as a rosbag2 directory ``out`` of that storage and compression."""
-    store = get_typestore(Stores.ROS2_JAZZY)
-    w = Writer(out, version=9, storage_plugin=STORAGES[storage])
-    if MODES[mode] is not None:
-        w.set_compression(MODES[mode], CompressionFormat.ZSTD)
-    w.open()
-    conns = {}
-    with open(src, "rb") as f:
-        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            if channel.id not in conns:
-                conns[channel.id] = w.add_connection(channel.topic, schema.name, typestore=store)
-            w.write(conns[channel.id], message.log_time, message.data)
-    w.close()
-    return out
+FORMS = [(s, m) for s in STORAGES for m in COMPRESSIONS]
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +39,7 @@ def plain():
 @pytest.fixture(scope="module")
 def forms(tmp_path_factory):
     root = tmp_path_factory.mktemp("forms")
-    return {(s, m): rosbags_form(SAMPLE, root / f"{s}_{m or 'plain'}", s, m) for s, m in FORMS}
+    return {(s, m): rewrite(SAMPLE, root / f"{s}_{m or 'plain'}", s, m) for s, m in FORMS}
 
 
 def assert_same_log(a, b):
@@ -99,6 +77,14 @@ def test_info_and_the_declared_noise_of_every_form(forms, storage, mode):
         assert (g.msgtype, g.count, g.start, g.end) == (t.msgtype, t.count, t.start, t.end)
     noise = declared_imu_noise(forms[(storage, mode)], DEFAULT_TOPICS.imu)
     assert noise == declared_imu_noise(SAMPLE, DEFAULT_TOPICS.imu)
+
+
+def test_the_message_count_from_summaries_or_metadata(forms):
+    """What decides whether the first pass runs while the bag is read."""
+    want = message_count(SAMPLE)
+    assert want == sum(t.count for t in bag_info(SAMPLE).topics.values())
+    assert {message_count(d) for d in forms.values()} == {want}
+    assert message_count(forms[("sqlite3", "")] / "sqlite3_plain.db3") is None  # no metadata
 
 
 def test_a_message_compressed_file_without_its_metadata(plain, forms, tmp_path):

@@ -39,9 +39,8 @@ from pipe_nav_core.io import (
     read_markers_csv,
 )
 from pipe_nav_core.io.atomic import all_or_none
-from pipe_nav_core.io.bagfiles import bag_files
+from pipe_nav_core.io.baginfo import message_count
 from pipe_nav_core.io.centreline import read_centreline_csv
-from pipe_nav_core.io.mcaprecords import read_summary
 from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
 from pipe_nav_core.memory import trim_heap
 from pipe_nav_core.model import imu_noise as imu_model
@@ -231,19 +230,16 @@ def first_pass_ahead(
 ) -> AbstractContextManager[FirstPassAhead | None]:
     """The first pass run while ``bag`` is read (smooth.ahead; its thread stops when the
     context ends), where it can be the run's: the markers in the bag (not in a CSV that comes
-    after it), and a bag whose MCAP summary counts at most AHEAD_MAX_MESSAGES (the chunks are
-    held until the log is joined from them: twice the log's memory while it is read); else
-    None."""
+    after it), and a bag whose MCAP summaries or rosbag2 metadata count at most
+    AHEAD_MAX_MESSAGES (the chunks are held until the log is joined from them: twice the log's
+    memory while it is read); else None."""
     if markers_csv is not None:
         return nullcontext()
-    total = 0
     try:
-        for f in bag_files(bag):
-            summary = read_summary(f)
-            if summary is None or summary.channel_message_counts is None:
-                return nullcontext()
-            total += sum(summary.channel_message_counts.values())
-    except Exception:  # noqa: BLE001 - no summary to go by: the reading names the bag's faults
+        total = message_count(bag)
+    except Exception:  # noqa: BLE001 - nothing to go by: the reading names the bag's faults
+        return nullcontext()
+    if total is None:
         return nullcontext()
     return FirstPassAhead(config, method) if total <= AHEAD_MAX_MESSAGES else nullcontext()
 

@@ -209,6 +209,29 @@ def _scan(sc: Scanner, add: Callable[[str, str, int, int | None, int | None], No
     return total
 
 
+def message_count(path: str | os.PathLike[str]) -> int | None:
+    """How many messages a bag holds, from its files' MCAP summaries or, for the other forms
+    rosbag2 writes, from its metadata.yaml (without reading a message); None when they do not
+    tell (a file without a summary, a form without metadata)."""
+    layout = bag_layout(path)
+    if all(bf.plain_mcap for bf in layout):
+        total = 0
+        for bf in layout:
+            summary = read_summary(bf.path)
+            if summary is None or summary.channel_message_counts is None:
+                return None
+            total += sum(summary.channel_message_counts.values())
+        return total
+    meta = Path(path) / "metadata.yaml"
+    try:
+        from ruamel.yaml import YAML
+
+        info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
+        return int(info["message_count"])
+    except Exception:  # no metadata (a single file), or none that tells
+        return None
+
+
 def bag_time_range(
     path: str | os.PathLike[str], topics: Sequence[str] | None = None
 ) -> tuple[float, float] | None:
