@@ -70,6 +70,22 @@ def test_field_bags_in_every_form_are_written_once(tmp_path):
     assert again == bags and {f: p.stat().st_mtime_ns for f, p in again.items()} == stamp
 
 
+def test_the_rosbag2_forms_are_rewritten_from_the_zstd_bag(tmp_path):
+    from pipe_nav_core.io import read_bag
+    from pipe_nav_core.io.bagfiles import bag_layout
+
+    forms = tuple(f for f in speed.FORMS if f.rosbag2 is not None)
+    assert {f.rosbag2 for f in forms} == {("sqlite3", ""), ("mcap", "file"), ("mcap", "message")}
+    bags, _ = speed.field_bags(tmp_path, 0.2, 200.0, forms)
+    src, _ = read_bag(tmp_path / "field_0.2km_200hz_mag50hz_zstd_1024k.mcap")
+    for f, p in bags.items():
+        assert (p / "metadata.yaml").is_file()
+        layout = bag_layout(p)
+        assert (layout[0].storage, layout[0].compressed) == (f.rosbag2[0], f.rosbag2[1] == "file")
+        log, _ = read_bag(p)
+        assert np.array_equal(log.imu.gyro, src.imu.gyro) and log.markers == src.markers
+
+
 def test_markdown_has_a_row_per_bag_form():
     row = {
         "name": "zstd",

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from pipe_nav_core.app.outputs import Outputs, write_products
 from pipe_nav_core.app.replay import replay_log
+from pipe_nav_core.bench.rosbag2_forms import rewrite
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import bag_info, read_bag, write_rosbag2_metadata, write_sensor_bag
 from pipe_nav_core.io.bagread import READ_WORKERS_ENV, read_workers
@@ -68,7 +70,9 @@ class BagForm:
 
     compression: chunk compression, ``zstd``, ``lz4`` or ``""`` (none); chunk_size: bytes of
     uncompressed records per chunk; mag: with the magnetometer topic; directory: a rosbag2
-    directory (``metadata.yaml`` beside the ``.mcap``) instead of a single ``.mcap``.
+    directory (``metadata.yaml`` beside the ``.mcap``) instead of a single ``.mcap``;
+    rosbag2: (storage, compression mode) of a rosbag2 directory written again by rosbags
+    from the form without it (:mod:`.rosbag2_forms`).
     """
 
     name: str
@@ -76,14 +80,16 @@ class BagForm:
     chunk_size: int = ROSBAG2_CHUNK_SIZE
     mag: bool = True
     directory: bool = False
+    rosbag2: tuple[str, str] | None = None
 
     def stem(self) -> str:
         """File name part that tells the form apart."""
         comp = self.compression or "none"
         kib = self.chunk_size // 1024
-        return (
-            f"{comp}_{kib}k" + ("" if self.mag else "_nomag") + ("_dir" if self.directory else "")
-        )
+        tail = "_dir" if self.directory else ""
+        if self.rosbag2 is not None:
+            tail = f"_rosbag2_{self.rosbag2[0]}_{self.rosbag2[1] or 'plain'}"
+        return f"{comp}_{kib}k" + ("" if self.mag else "_nomag") + tail
 
 
 FORMS = (
@@ -94,6 +100,9 @@ FORMS = (
     BagForm("uncompressed", ""),
     BagForm("uncompressed, no magnetometer", "", mag=False),
     BagForm("rosbag2 directory (metadata.yaml + zstd .mcap)", "zstd", directory=True),
+    BagForm("rosbag2 sqlite3 (.db3, written by rosbags)", "zstd", rosbag2=("sqlite3", "")),
+    BagForm("rosbag2, zstd-compressed files (rosbags)", "zstd", rosbag2=("mcap", "file")),
+    BagForm("rosbag2, zstd-compressed messages (rosbags)", "zstd", rosbag2=("mcap", "message")),
 )
 QUICK_FORMS = (FORMS[0], FORMS[2], FORMS[4], FORMS[6])
 
@@ -101,7 +110,7 @@ QUICK_FORMS = (FORMS[0], FORMS[2], FORMS[4], FORMS[6])
 def _form_path(out_dir: Path, base: str, form: BagForm) -> tuple[Path, Path]:
     """(the bag to read, the file whose existence says it was written completely)."""
     name = f"{base}_{form.stem()}"
-    if form.directory:
+    if form.directory or form.rosbag2 is not None:
         d = out_dir / name
         return d, d / "metadata.yaml"
     bag = out_dir / f"{name}.mcap"
@@ -124,10 +133,18 @@ def field_bags(
             mag_rate_hz=FIELD_MAG_RATE_HZ,
         )
         log = simulate(sc, seed=1, imu_rate_hz=imu_rate_hz, truth_every=100).log
-        for f in missing:
+        for f in sorted(missing, key=lambda f: f.rosbag2 is not None):  # their sources first
             bag, _ = paths[f]
             lg = log if f.mag else dataclasses.replace(log, mag=empty_mag())
-            if f.directory:
+            if f.rosbag2 is not None:
+                src = dataclasses.replace(f, name="", rosbag2=None)
+                src_bag, done = _form_path(out_dir, base, src)
+                if not done.exists():
+                    write_sensor_bag(src_bag, lg, compression=src.compression,
+                                     chunk_size=src.chunk_size)  # fmt: skip
+                shutil.rmtree(bag, ignore_errors=True)  # a rewrite cut short before
+                rewrite(src_bag, bag, *f.rosbag2)
+            elif f.directory:
                 bag.mkdir(parents=True, exist_ok=True)
                 one = bag / f"{bag.name}_0.mcap"
                 write_sensor_bag(one, lg, compression=f.compression, chunk_size=f.chunk_size)
