@@ -12,6 +12,8 @@ name says is refused in one line.
 
 from __future__ import annotations
 
+import errno
+import os
 import shutil
 import sqlite3
 import subprocess
@@ -201,3 +203,19 @@ def test_the_forms_rosbag2_itself_writes(plain, tmp_path):
         with open(f, "rb") as fh:
             held = sum(1 for _ in make_reader(fh).iter_messages(topics=[DEFAULT_TOPICS.imu]))
         assert len(log.imu) == held > 0.95 * len(plain[0].imu)
+
+
+def test_a_full_temporary_folder_is_named(forms, tmp_path, monkeypatch, capsys):
+    from pipe_nav_core.io import bagforms
+
+    def full(src, out):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(bagforms, "_copy_frames", full)
+    bag = forms[("mcap", "file")] / "mcap_file.mcap.zstd"
+    with pytest.raises(BagError, match=r"cannot decompress it into .*No space left on device"):
+        read_bag(bag)
+    assert main(["smooth", str(bag), "--out", f"{tmp_path}/o/", "--quiet"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"pipe-nav: error: {bag}: cannot decompress it into")
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

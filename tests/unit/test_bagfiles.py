@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 from pipe_nav_core.errors import BagError
-from pipe_nav_core.io.bagfiles import BagFile, bag_files, bag_layout
+from pipe_nav_core.io.bagfiles import BagFile, bag_files, bag_layout, bag_stem
 
 
 def _metadata(folder, files, storage="mcap", compression="", fmt=""):
@@ -86,3 +86,12 @@ def test_missing_and_empty_paths_are_refused(tmp_path):
     _metadata(tmp_path, ["gone.mcap"])
     with pytest.raises(BagError, match="none of the files"):
         bag_files(tmp_path)
+
+
+def test_a_bags_stem_names_the_files_made_from_it(tmp_path):
+    for name in ("run.mcap", "run.db3", "run.mcap.zstd", "run.db3.zstd"):
+        (tmp_path / name).write_bytes(b"")
+        assert bag_stem(tmp_path / name) == "run"
+    folder = tmp_path / "rosbag2_2026_12_05-10.30"
+    folder.mkdir()
+    assert bag_stem(folder) == bag_stem(f"{folder}/") == "rosbag2_2026_12_05-10.30"

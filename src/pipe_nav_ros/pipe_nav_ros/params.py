@@ -419,6 +419,8 @@ def smoother_node_settings(values: Mapping[str, Any]) -> dict[str, Any]:
     """Validated smoother_node settings; the output path is derived when not given."""
     from pathlib import Path
 
+    from pipe_nav_core.io import bag_stem
+
     v = values_from(SMOOTHER_NODE_SPECS, values)
     if not v["bag"]:
         raise ConfigError("bag must name the input bag (.mcap file or rosbag2 directory)")
@@ -434,8 +436,7 @@ def smoother_node_settings(values: Mapping[str, Any]) -> dict[str, Any]:
     if v["spacing"] <= 0:
         raise ConfigError(f"spacing must be > 0, not {v['spacing']!r}")
     if not v["output"]:
-        stem = bag.stem if bag.is_file() else bag.name
-        v["output"] = str(bag.parent / f"{stem}_smoothed.mcap")
+        v["output"] = str(bag.parent / f"{bag_stem(bag)}_smoothed.mcap")
     out = Path(v["output"]).expanduser()
     if out.resolve() == bag.resolve():
         raise ConfigError("output must differ from the input bag")

@@ -171,8 +171,10 @@ def out_is_dir(out: str) -> bool:
 def run_in_folder(folder: str, input_path: str) -> str:
     """--out DIR/: the folder made, and the path in it named like the input without its
     suffix, which the outputs' names extend (``DIR/run`` -> ``DIR/run_bends.csv``)."""
+    from pipe_nav_core.io.bagfiles import bag_stem
+
     Path(folder).mkdir(parents=True, exist_ok=True)
-    return str(Path(folder) / Path(str(input_path).rstrip("/")).stem)
+    return str(Path(folder) / bag_stem(input_path))
 
 
 def _smooth(args: argparse.Namespace, plotter: PlotProcess) -> int:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pipe_nav_core.errors import BagError, CentrelineCsvError, MarkerCsvError, OutputIsInputError
 from pipe_nav_core.io.atomic import atomic_path, atomic_write, ensure_not_input
-from pipe_nav_core.io.bagfiles import bag_files
+from pipe_nav_core.io.bagfiles import bag_files, bag_stem
 from pipe_nav_core.io.baginfo import BagInfo, TopicInfo, bag_info, bag_time_range
 from pipe_nav_core.io.bagread import concat_logs, iter_bag, read_bag
 from pipe_nav_core.io.bagwrite import write_output_bag, write_sensor_bag
@@ -50,6 +50,7 @@ __all__ = [
     "atomic_path",
     "atomic_write",
     "bag_files",
+    "bag_stem",
     "bag_info",
     "bag_time_range",
     "concat_logs",

@@ -98,6 +98,18 @@ def _from_metadata(p: Path, meta: Path) -> list[BagFile]:
     return files
 
 
+def bag_stem(path: str | os.PathLike[str]) -> str:
+    """A bag's name for the files made from it: a directory's name, a file's name without its
+    suffixes (``run.mcap``, ``run.db3``, ``run.mcap.zstd`` -> ``run``)."""
+    p = Path(os.fspath(path).rstrip("/") or "/")
+    if p.is_dir():
+        return p.name
+    name = p.name
+    if name.lower().endswith(FILE_COMPRESSION_SUFFIX):
+        name = name[: -len(FILE_COMPRESSION_SUFFIX)]
+    return Path(name).stem
+
+
 def bag_files(path: str | os.PathLike[str]) -> list[Path]:
     """The files of a bag, in reading order (raises BagError with a one-line reason)."""
     return [f.path for f in bag_layout(path)]

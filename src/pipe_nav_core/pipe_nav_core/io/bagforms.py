@@ -138,10 +138,10 @@ class Db3Scanner:
         """The messages of the wanted topics in recording order (the table's), in batches of
         DB3_BATCH_ROWS; ``workers`` is not used (sqlite reads in this thread)."""
         del workers
-        if not self._wanted:
-            return
         marks = ",".join("?" * len(self._wanted))
         try:
+            if not self._wanted:
+                return
             cur = self._db.execute(
                 f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) "
                 "ORDER BY id",
@@ -189,8 +189,12 @@ def _decompressed(path: Path, warn: Callable[[str], None]) -> Iterator[Path]:
         inner = path.with_suffix("").suffix or ".mcap"
         with tempfile.TemporaryDirectory(prefix="pipe_nav_bag_") as tmp:
             plain = Path(tmp) / f"decompressed{inner}"
-            with open(plain, "wb") as out:
-                why = _copy_frames(src, out)
+            try:
+                with open(plain, "wb") as out:
+                    why = _copy_frames(src, out)
+            except OSError as exc:  # a full temporary folder: name it
+                why = f"cannot decompress it into {tmp} ({exc.strerror})"
+                raise OSError(exc.errno, why) from None
             if why:
                 warn(f"{path}: the compressed data end early or are damaged ({why}); "
                      "what decompressed before that was read")  # fmt: skip
