@@ -10,8 +10,9 @@ name is imported from its module on first use, so ``import pipe_nav_core`` itsel
 - data (SI units, radians; frames in pipe_nav_core.types): SensorLog, ImuSamples,
   OdometerSamples, MagSamples, Marker, Datum, Trajectory; dcm_from_quat (the rotation matrix
   of an estimate's quaternion, to turn its ENU values into the body frame)
-- bags and files: read_bag, bag_info, write_sensor_bag, read_markers_csv, write_markers_csv,
-  read_centreline_csv, write_centreline_csv
+- bags and files: read_bag, bag_info, bag_stem (a bag's name for the files made from it),
+  write_sensor_bag, read_markers_csv, write_markers_csv, read_centreline_csv,
+  write_centreline_csv
 - estimation: Navigator (the live engine), GuardedNavigator (with the live fault guard),
   NavEstimate, smooth_log, SmoothResult; warm_live (compiles the live engine's kernels on a
   short simulated run, so a live node is ready before its first sample arrives)
@@ -57,6 +58,7 @@ _API = {
     "dcm_from_quat": "geo.attitude",
     "read_bag": "io",
     "bag_info": "io",
+    "bag_stem": "io",
     "write_sensor_bag": "io",
     "read_markers_csv": "io",
     "write_markers_csv": "io",

@@ -419,7 +419,7 @@ def smoother_node_settings(values: Mapping[str, Any]) -> dict[str, Any]:
     """Validated smoother_node settings; the output path is derived when not given."""
     from pathlib import Path
 
-    from pipe_nav_core.io import bag_stem
+    from pipe_nav_core import bag_stem
 
     v = values_from(SMOOTHER_NODE_SPECS, values)
     if not v["bag"]:
