@@ -86,6 +86,7 @@ def test_the_message_count_from_summaries_or_metadata(forms):
     want = message_count(SAMPLE)
     assert want == sum(t.count for t in bag_info(SAMPLE).topics.values())
     assert {message_count(d) for d in forms.values()} == {want}
+    assert message_count(forms[("sqlite3", "")] / "metadata.yaml") == want  # as bag_layout
     assert message_count(forms[("sqlite3", "")] / "sqlite3_plain.db3") is None  # no metadata
 
 

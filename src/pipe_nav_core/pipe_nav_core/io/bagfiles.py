@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path, PurePath
+from typing import Any
 
 from pipe_nav_core.errors import BagError
 
@@ -69,12 +70,17 @@ def bag_layout(path: str | os.PathLike[str]) -> list[BagFile]:
     raise BagError(f"{p}: directory has neither metadata.yaml nor .mcap or .db3 files")
 
 
+def rosbag2_info(meta: Path) -> Any:
+    """The ``rosbag2_bagfile_information`` mapping of a rosbag2 ``metadata.yaml`` (raises what
+    reading or parsing it raises)."""
+    from ruamel.yaml import YAML
+
+    return YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
+
+
 def _from_metadata(p: Path, meta: Path) -> list[BagFile]:
     try:
-        from ruamel.yaml import YAML
-
-        doc = YAML(typ="safe").load(meta.read_text())
-        info = doc["rosbag2_bagfile_information"]
+        info = rosbag2_info(meta)
         storage = str(info.get("storage_identifier", "mcap"))
         names = [PurePath(str(x)).name for x in info.get("relative_file_paths", [])]
         mode = str(info.get("compression_mode", "") or "").lower()

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from pipe_nav_core.errors import BagError, BagFormatError
 from pipe_nav_core.io.bagdecode import declared_noise
-from pipe_nav_core.io.bagfiles import BagFile, bag_layout
+from pipe_nav_core.io.bagfiles import BagFile, bag_layout, rosbag2_info
 from pipe_nav_core.io.bagforms import Scanner, open_scanner, payload_batch, unpacked
 from pipe_nav_core.io.mcapread import MessageBatch, chunk_messages, read_summary
 from pipe_nav_core.io.stamps import NS_PER_S, ns_to_sec
@@ -222,12 +222,10 @@ def message_count(path: str | os.PathLike[str]) -> int | None:
                 return None
             total += sum(summary.channel_message_counts.values())
         return total
-    meta = Path(path) / "metadata.yaml"
+    p = Path(path)
     try:
-        from ruamel.yaml import YAML
-
-        info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
-        return int(info["message_count"])
+        return int(rosbag2_info(p if p.name == "metadata.yaml" else p / "metadata.yaml")
+                   ["message_count"])  # fmt: skip
     except Exception:  # no metadata (a single file), or none that tells
         return None
 
