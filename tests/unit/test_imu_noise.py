@@ -120,15 +120,15 @@ def test_a_short_rest_falls_back_on_the_declared_noise():
 
 def test_the_declared_noise_is_read_from_the_bag_and_used(tmp_path):
     from pipe_nav_core.app.pipeline import load_log
-    from pipe_nav_core.io import write_sensor_bag
-    from pipe_nav_core.io.baginfo import declared_imu_noise
+    from pipe_nav_core.io import read_bag, write_sensor_bag
+    from pipe_nav_core.io.topics import TopicNames
 
     run = simulate("demo", 0)
     spec, dt = GRADES["consumer"], 1.0 / run.imu_rate_hz
     gv, av = spec.gyro_arw**2 / dt, spec.accel_vrw**2 / dt
     bag = tmp_path / "declared.mcap"
     write_sensor_bag(bag, run.log, gyro_var=gv, accel_var=av)
-    declared = declared_imu_noise(bag, "/imu/data")
+    declared = read_bag(bag)[1].imu_noise_declared
     np.testing.assert_allclose(declared["gyro_variance"], [gv] * 3)
     np.testing.assert_allclose(declared["accel_variance"], [av] * 3)
     log, _ = load_log(bag)
@@ -136,7 +136,7 @@ def test_the_declared_noise_is_read_from_the_bag_and_used(tmp_path):
         log.odometer, distance=log.odometer.distance + np.arange(len(log.odometer.t))
     ))  # fmt: skip
     assert imu_model.choose(moving, NavConfig(), declared).grade == "consumer"
-    assert declared_imu_noise(bag, "/no/such/topic") == {}
+    assert read_bag(bag, TopicNames(imu="/no/such/topic"))[1].imu_noise_declared == {}
 
 
 def _spans_one_reading_at_a_time(log, min_s):

@@ -21,7 +21,6 @@ from numpy.typing import NDArray
 
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.io import TopicNames, merge_markers, read_bag, read_markers_csv
-from pipe_nav_core.io.baginfo import declared_imu_noise
 from pipe_nav_core.io.topics import DEFAULT_TOPICS
 from pipe_nav_core.model.imu_noise import choose, measured_noise, nearest_grade, static_spans
 
@@ -76,7 +75,7 @@ def describe_bag(
         topic_rows.append(row)
     spans = static_spans(log)
     noise = measured_noise(log, spans)
-    declared = declared_imu_noise(path, topics.imu)
+    declared = report.imu_noise_declared
     chosen = choose(log, cfg, declared)
     spec = cfg.imu_spec()
     odo = log.odometer

@@ -1,6 +1,7 @@
 """Cheap facts about a bag without reading it through: per-topic types, counts and first/last
-stamps (:func:`bag_info`, :func:`bag_time_range`) and the IMU noise its messages declare
-(:func:`declared_imu_noise`).
+stamps (:func:`bag_info`, :func:`bag_time_range`) and its message count
+(:func:`message_count`). The IMU noise its messages declare comes with the reading
+(``BagReport.imu_noise_declared``).
 
 An indexed MCAP file answers from its summary (counts) and from the first and last chunk of
 each topic (stamps), a few chunks instead of the whole file; an unindexed one is scanned with
@@ -14,16 +15,14 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from mcap.records import ChunkIndex
 from numpy.typing import NDArray
 
 from pipe_nav_core.errors import BagError, BagFormatError
-from pipe_nav_core.io.bagdecode import declared_noise
-from pipe_nav_core.io.bagfiles import BagFile, bag_layout, rosbag2_info
-from pipe_nav_core.io.bagforms import Scanner, open_scanner, payload_batch, unpacked
+from pipe_nav_core.io.bagfiles import bag_layout, rosbag2_info
+from pipe_nav_core.io.bagforms import Scanner, open_scanner, unpacked
 from pipe_nav_core.io.mcapread import MessageBatch, chunk_messages, read_summary
 from pipe_nav_core.io.stamps import NS_PER_S, ns_to_sec
 from pipe_nav_core.io.topics import ROLE_TYPES, normalize_type
@@ -241,37 +240,3 @@ def bag_time_range(
     if not starts or not ends:
         return None
     return min(starts), max(ends)
-
-
-def declared_imu_noise(path: str | os.PathLike[str], topic: str) -> dict[str, Any]:
-    """The per-sample variances (diagonals, (rad/s)^2 and (m/s^2)^2) the bag's first Imu
-    message on ``topic`` declares, or {} (no message, or one that does not decode): what the
-    IMU model of imu_grade auto falls back on (imu_model.choose)."""
-    for bf in bag_layout(path):
-        try:
-            payload = _first_payload(bf, topic)
-        except Exception:  # an unreadable first message says nothing about the noise
-            return {}
-        if payload is not None:
-            b = unpacked(payload_batch([payload], np.zeros(1), np.zeros(1)))
-            return declared_noise(b.buf, b.payload_start, b.size)
-    return {}
-
-
-def _first_payload(bf: BagFile, topic: str) -> bytes | None:
-    """The payload of the first message on ``topic`` in one bag file (None: there is none)."""
-    if bf.plain_mcap:  # from its index: the first chunk that holds the topic
-        from mcap.reader import make_reader
-
-        with open(bf.path, "rb") as fh:
-            for _s, _c, message in make_reader(fh).iter_messages(topics=[topic]):
-                return bytes(message.data)
-        return None
-    with open_scanner(bf, lambda _w: None, [topic]) as sc:
-        for b in sc.batches():
-            ids = [c.id for c in sc.channels.values() if c.topic == topic]
-            sel = np.flatnonzero(np.isin(b.channel, ids))
-            if len(sel):
-                s, n = int(b.payload_start[sel[0]]), int(b.size[sel[0]])
-                return b.buf[s : s + n].tobytes()
-    return None
