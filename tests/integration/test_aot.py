@@ -93,7 +93,7 @@ def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
     assert exports is not None and len(exports["toy:scaled"]) == 2
     assert aot.load(tmp_path, "another stamp") is None
     ran = 0
-    for check, fn, _, _ in exports["toy:scaled"]:
+    for check, fn, _, _ in aot.checked(exports["toy:scaled"]):
         if check(x, 2.5):
             got = fn(x, 2.5)
             np.testing.assert_array_equal(got[0], want[0])
@@ -182,6 +182,25 @@ print(json.dumps({"before": before, "after": after, "g": g, "g2": g2, "n": list(
     assert r["rebound"] == "CPUDispatcher"
     # the registry of updates (a tuple of kernels) and numba's literal_unroll rebound too
     assert r["stand_in"] and r["unroll"] and r["registry"] == ["CPUDispatcher"]
+
+
+def test_an_exports_argument_checks_are_made_at_its_kernels_first_call():
+    """Loading the module makes no check (some 0.05 s for all of them, at every start); a
+    kernel's first call makes its own, and it runs its export."""
+    _skip_without_a_compiler()
+    code = """
+import json
+from pipe_nav_core import jit
+from pipe_nav_core.geo import earth
+before = [k.exports is not None for k in jit._KERNELS]
+g = float(earth._gravity(0.7, 100.0))
+made = sorted(k.__qualname__ for k in jit._KERNELS if k.exports is not None)
+print(json.dumps({"before": any(before), "kernels": len(before), "made": made,
+                  "jit": jit.JIT_REASON, "g": g}))
+"""
+    r = _python(code)
+    assert r["jit"] is None and r["kernels"] > 1 and 9.7 < r["g"] < 9.9
+    assert not r["before"] and r["made"] == ["_gravity"]
 
 
 def test_the_aot_kernels_are_said_in_the_warm_marker(tmp_path, monkeypatch):

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import json
+import os
+import signal
 import struct
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -90,6 +96,57 @@ def test_the_plot_process_draws_what_plot_report_draws(tmp_path):
         process = plotter._process
     assert not process.is_alive()  # ended with the context
     assert child.read_bytes() == inline.read_bytes()
+
+
+WARM_WORD = """
+import json, sys, time
+from pipe_nav_core.app.plot_process import PlotProcess
+
+def maps_matplotlib(pid):
+    with open(f"/proc/{pid}/maps", encoding="utf-8") as f:
+        return "ft2font" in f.read()  # matplotlib's font library, loaded with it
+
+with PlotProcess.start() as plotter:
+    pid = plotter._process.pid
+    time.sleep(1.5)  # more than it takes to import matplotlib
+    before = maps_matplotlib(pid)
+    plotter.warm()
+    deadline = time.monotonic() + 60.0
+    while not maps_matplotlib(pid) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    after = maps_matplotlib(pid)
+    from test_io_support import DATUM, make_traj
+    plotter.submit(sys.argv[1], make_traj(n=2001, seconds=200.0), DATUM, title="r")
+    plotter.wait()
+print(json.dumps({"before": before, "after": after,
+                  "parent": "matplotlib" in sys.modules}))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads /proc/PID/maps")
+def test_the_plot_process_loads_matplotlib_on_the_parents_word(tmp_path):
+    """The child waits with matplotlib until told (in a command, the parent reads the bag on
+    both cores meanwhile); warmed, it draws the same PNG as plot_report, and the parent never
+    imports matplotlib."""
+    inline, child = tmp_path / "inline.png", tmp_path / "child.png"
+    plot_report(inline, make_traj(n=2001, seconds=200.0), DATUM, title="r")
+    out = subprocess.run([sys.executable, "-c", WARM_WORD, str(child)], capture_output=True,
+                         text=True, timeout=300, check=True,
+                         env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})  # fmt: skip
+    r = json.loads(out.stdout.strip().splitlines()[-1])
+    assert r == {"before": False, "after": True, "parent": False}
+    assert child.read_bytes() == inline.read_bytes()
+
+
+def test_a_run_that_ends_early_does_not_wait_for_the_plot_process():
+    """Closed while it loads matplotlib (a run refused after its bag was read), the child is
+    ended there, not waited for."""
+    from pipe_nav_core.app.plot_process import PlotProcess
+
+    with PlotProcess.start() as plotter:
+        process = plotter._process
+        plotter.warm()
+    assert process.exitcode == -signal.SIGTERM
 
 
 def test_a_failing_plot_in_the_plot_process_is_raised_and_writes_nothing(tmp_path):

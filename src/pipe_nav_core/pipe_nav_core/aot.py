@@ -34,6 +34,7 @@ MODULE = "_pipe_nav_kernels"  # the extension module's name (its PyInit symbol)
 FORMAT = 1  # of the sidecar: a module built by another version of this file is not loaded
 SIDECAR = "kernels_aot.json"
 Check = Callable[..., bool]
+Loaded = tuple[Callable[..., Any], int, list[dict[str, Any]]]  # fn, arity, specs
 Export = tuple[Check, Callable[..., Any], int, list[dict[str, Any]]]  # check, fn, arity, specs
 
 
@@ -116,9 +117,17 @@ def coerced(args: tuple[Any, ...], specs: list[dict[str, Any]]) -> tuple[Any, ..
     return tuple(out)
 
 
-def load(package: Path, stamp: str) -> dict[str, list[Export]] | None:
-    """The exports of the module built for this stamp and CPU, by kernel ("module:qualname");
-    None when there is none (not built, stale, built elsewhere or failing to load)."""
+def checked(loaded: list[Loaded]) -> list[Export]:
+    """A kernel's exports as :func:`load` gives them, each with the check of its argument
+    types (made when the kernel is first called: making them all costs 0.05 s, and a command
+    calls some of the kernels only)."""
+    return [(_checker(specs), fn, arity, specs) for fn, arity, specs in loaded]
+
+
+def load(package: Path, stamp: str) -> dict[str, list[Loaded]] | None:
+    """The exports of the module built for this stamp and CPU, by kernel ("module:qualname"),
+    without their checks (:func:`checked`); None when there is none (not built, stale, built
+    elsewhere or failing to load)."""
     try:
         meta = json.loads((package / "__pycache__" / SIDECAR).read_text(encoding="utf-8"))
         if (meta.get("format"), meta.get("stamp"), meta.get("cpu")) != (FORMAT, stamp, _cpu()):
@@ -131,12 +140,10 @@ def load(package: Path, stamp: str) -> dict[str, list[Export]] | None:
         module = importlib.util.module_from_spec(spec)
         loader.exec_module(module)
         _preload_lapack()
-        exports: dict[str, list[Export]] = {}
+        exports: dict[str, list[Loaded]] = {}
         for e in meta["exports"]:
             fn = getattr(module, e["symbol"])
-            exports.setdefault(e["kernel"], []).append(
-                (_checker(e["args"]), fn, len(e["args"]), e["args"])
-            )
+            exports.setdefault(e["kernel"], []).append((fn, len(e["args"]), e["args"]))
         return exports
     except (OSError, ValueError, KeyError, ImportError, AttributeError, SyntaxError):
         return None

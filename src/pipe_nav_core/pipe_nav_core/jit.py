@@ -220,10 +220,11 @@ class AotKernel:
     copied to the layout an export takes; any other call turns the process to JIT
     (:func:`to_jit`) and runs the numba dispatcher."""
 
-    def __init__(self, func: Callable[..., Any], nogil: bool, exports: list[aot.Export]) -> None:
+    def __init__(self, func: Callable[..., Any], nogil: bool, exports: list[aot.Loaded]) -> None:
         self.py_func = func
         self.nogil = nogil
-        self.exports = exports
+        self.loaded = exports
+        self.exports: list[aot.Export] | None = None  # with their checks, from the first call
         self.dispatcher: Any = None
         self.__name__ = func.__name__
         self.__qualname__ = func.__qualname__
@@ -236,10 +237,13 @@ class AotKernel:
             if kwargs:
                 args = inspect.signature(self.py_func).bind(*args, **kwargs).args
                 kwargs = {}
-            for check, fn, arity, _ in self.exports:
+            exports = self.exports
+            if exports is None:
+                exports = self.exports = aot.checked(self.loaded)
+            for check, fn, arity, _ in exports:
                 if len(args) == arity and check(*args):
                     return fn(*args)
-            for check, fn, arity, specs in self.exports:
+            for check, fn, arity, specs in exports:
                 if len(args) == arity:
                     fitted = aot.coerced(args, specs)
                     if fitted is not None and check(*fitted):
@@ -256,7 +260,7 @@ _SWITCH = threading.Lock()
 JIT_REASON: str | None = None  # why this process runs numba's JIT kernels (None: AOT)
 
 
-def _load_exports() -> dict[str, list[aot.Export]] | None:
+def _load_exports() -> dict[str, list[aot.Loaded]] | None:
     return None if FORCED_JIT else aot.load(_PACKAGE, _package_stamp())
 
 

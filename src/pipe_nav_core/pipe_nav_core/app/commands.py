@@ -158,6 +158,7 @@ def cmd_smooth(args: argparse.Namespace) -> int:
     from pipe_nav_core.app.plot_process import PlotProcess
 
     # forked first, before the numeric imports: it loads matplotlib while this one smooths
+    # (once the bag is read: pipeline.smooth_bag tells it)
     wants_plot = bool(args.plot) or out_is_dir(args.out)
     with PlotProcess.start() if wants_plot else PlotProcess(None, None) as plotter:
         return _smooth(args, plotter)

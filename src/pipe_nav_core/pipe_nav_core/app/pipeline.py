@@ -172,6 +172,8 @@ def smooth_bag(
         map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
         trim_heap()  # what the reading freed (the decoded pieces, the checks' temporaries)
         require_markers(log, report, bag, topics)
+        if plotter is not None:  # the first pass goes on alone: a core to spare
+            plotter.warm()
 
         # the IMU's part of the weld search on the other core while the run is smoothed (when the
         # welds are found beside the bends: their working set is small then)

@@ -1,10 +1,13 @@
 """The report PNG drawn in a child process, on the machine's second core.
 
 Importing matplotlib and rendering the report cost as much as smoothing a short run. A
-:class:`PlotProcess` forked when a command starts imports matplotlib and loads its fonts while
-the parent reads and smooths the bag; the parent then hands it the finished centreline and
-writes its other products while the child draws. Where ``fork`` is not available (or the child
-died) the plot is drawn in the calling process, as :func:`plots.plot_report` always was.
+:class:`PlotProcess` is forked when a command starts; on the parent's word
+(:meth:`PlotProcess.warm`) it imports matplotlib and loads its fonts while the parent smooths
+the bag. The parent says it once the bag is read: reading and the first filter pass beside it
+keep both cores busy, the passes after it leave one core partly idle. The parent then hands it
+the finished centreline and writes its other products while the child draws. Where ``fork`` is
+not available (or the child died) the plot is drawn in the calling process, as
+:func:`plots.plot_report` always was.
 
 The child ignores Ctrl-C (the parent, in the same process group, handles it and cleans up), and
 exits when the parent closes the pipe or dies.
@@ -18,6 +21,8 @@ import signal
 from multiprocessing.connection import Connection
 from types import TracebackType
 from typing import Any
+
+_WARM = "warm"  # the parent's word to load matplotlib now (PlotProcess.warm)
 
 
 def _warm() -> None:
@@ -46,12 +51,15 @@ def _serve(conn: Connection, parent_end: Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
-        _warm()
         while True:
             try:
-                args, kwargs = conn.recv()
+                request = conn.recv()
             except (EOFError, OSError):
                 return
+            if request == _WARM:
+                _warm()
+                continue
+            args, kwargs = request
             try:
                 from pipe_nav_core.app.plots import plot_report
 
@@ -66,10 +74,10 @@ def _serve(conn: Connection, parent_end: Connection) -> None:
 class PlotProcess:
     """A child process that draws report PNGs (:func:`plots.plot_report`) on request.
 
-    ``with PlotProcess.start() as plotter:`` then ``plotter.submit(path, traj, ...)`` (the
-    arguments of plot_report) and, before the PNG is needed, ``plotter.wait()``, which raises
-    OSError (a file system error) or RuntimeError (any other) if drawing failed. Without a
-    child (no fork on this platform) submit draws in place.
+    ``with PlotProcess.start() as plotter:``, ``plotter.warm()`` when a core is to spare, then
+    ``plotter.submit(path, traj, ...)`` (the arguments of plot_report) and, before the PNG is
+    needed, ``plotter.wait()``, which raises OSError (a file system error) or RuntimeError (any
+    other) if drawing failed. Without a child (no fork on this platform) submit draws in place.
     """
 
     def __init__(self, process: Any | None, conn: Connection | None) -> None:
@@ -90,6 +98,15 @@ class PlotProcess:
         process.start()
         child.close()
         return cls(process, parent)
+
+    def warm(self) -> None:
+        """Have the child import matplotlib and draw the report's empty figure now, while the
+        caller leaves a core to spare; a plot submitted without it loads them first."""
+        if self._conn is not None:
+            try:
+                self._conn.send(_WARM)
+            except (OSError, ValueError):
+                self.close()  # the child is gone: submit draws in place
 
     def submit(self, *args: Any, **kwargs: Any) -> None:
         """Start drawing plot_report(*args, **kwargs); in place if there is no child."""
@@ -119,13 +136,13 @@ class PlotProcess:
             raise (OSError if is_os else RuntimeError)(f"the report plot failed: {why}")
 
     def close(self) -> None:
-        """End the child (at once if it is still drawing)."""
+        """End the child at once: nothing it may still be doing is wanted (a plot no one
+        waits for, or loading matplotlib for a run that ended early)."""
         if self._conn is not None:
             self._conn.close()
             self._conn = None
         if self._process is not None:
-            if self._pending:
-                self._process.terminate()
+            self._process.terminate()
             self._process.join(timeout=5.0)
             if self._process.is_alive():
                 self._process.kill()

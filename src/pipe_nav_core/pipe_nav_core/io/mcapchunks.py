@@ -4,17 +4,18 @@ records located as numpy arrays (:class:`MessageBatch`), so that payloads can be
 Messages are located from the chunk's MessageIndex records when present (fully vectorized),
 otherwise by a tight scan of the record headers. Everything here reads nothing but its
 arguments, so it is safe in any thread (the scanner's worker threads run :func:`unpack`);
-zstandard, lz4 and zlib's CRC release the GIL while they work.
+zstandard, lz4 and the CRC release the GIL while they work. The CRC is ISA-L's (python-isal):
+zlib's CRC-32, computed some three times faster (the chunks of a 10 km run: 0.18 -> 0.06 s).
 """
 
 from __future__ import annotations
 
 import os
-import zlib
 from collections.abc import Callable, Container
 from dataclasses import dataclass, field
 
 import numpy as np
+from isal.isal_zlib import crc32
 from mcap.records import ChunkIndex
 from numpy.typing import NDArray
 
@@ -226,7 +227,7 @@ def unpack_chunk(content: bytes) -> bytes:
     raw = _decompressor(comp)(content[c.pos : c.pos + rlen], usize)
     if len(raw) != usize:
         raise ValueError(f"size {len(raw)} != {usize}")
-    if crc and zlib.crc32(raw) != crc:
+    if crc and crc32(raw) != crc:
         raise ValueError("CRC mismatch")
     return raw
 
