@@ -149,3 +149,62 @@ def test_the_imu_read_from_a_file_changes_no_output(tmp_path, monkeypatch):
     monkeypatch.setattr(pipeline, "WELDS_BESIDE_BENDS_MAX", 0)  # the welds after the bends
     assert run(tmp_path / "after") == plain
     assert read == [True, True]  # mapped in both runs
+
+
+@pytest.mark.parametrize("warm", [True, False])
+def test_a_plot_child_not_warm_is_told_once_the_bag_is_read(tmp_path, warm):
+    """smooth_bag tells the plot's child to load matplotlib once the bag is read (the first
+    pass then goes on alone: a core to spare), unless it was told at its start."""
+    from pathlib import Path
+
+    from pipe_nav_core.app import pipeline
+    from pipe_nav_core.app.outputs import Outputs
+    from pipe_nav_core.app.plot_process import PlotProcess
+
+    said: list[str] = []
+
+    class Told(PlotProcess):
+        def warm(self) -> None:
+            said.append("warm again" if self._told else "warm")
+            super().warm()
+
+    class Stages:
+        def stage(self, text: str) -> None:
+            said.append(text)
+
+        def fraction(self, done: float) -> None:
+            pass
+
+    sample = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
+    out = Outputs(bag=str(tmp_path / "o.mcap"), plot=str(tmp_path / "o.png"))
+    with Told.start(warm) as plotter:
+        pipeline.smooth_bag(sample, out, config=NavConfig(), progress=Stages(), plotter=plotter)
+    assert (tmp_path / "o.png").stat().st_size > 0
+    told = said.index("warm again" if warm else "warm")
+    assert said.count("warm") == (0 if warm else 1)
+    assert said.index("reading bag") < told < said.index("bends and strain")
+
+
+def test_the_smooth_command_warms_the_plot_child_at_once_for_a_small_bag(tmp_path, monkeypatch):
+    """At once for the 2 MB sample; with the limit below its size, once it is read."""
+    from pathlib import Path
+
+    from pipe_nav_core.app import cli, commands
+    from pipe_nav_core.app.plot_process import PlotProcess
+
+    started: list[bool] = []
+    real = PlotProcess.start.__func__
+
+    def start(cls, warm=True):  # noqa: ANN001, ANN202
+        started.append(warm)
+        return real(cls, warm)
+
+    monkeypatch.setattr(PlotProcess, "start", classmethod(start))
+    sample = Path(__file__).resolve().parents[2] / "bags" / "sample.mcap"
+    assert cli.main(["smooth", str(sample), "--out", f"{tmp_path / 'a'}/", "--quiet"]) == 0
+    monkeypatch.setattr(commands, "PLOT_WARM_AT_ONCE_MAX_BYTES", sample.stat().st_size - 1)
+    assert cli.main(["smooth", str(sample), "--out", f"{tmp_path / 'b'}/", "--quiet"]) == 0
+    assert started == [True, False]
+    assert (tmp_path / "a" / "sample_report.png").read_bytes() == (
+        tmp_path / "b" / "sample_report.png"
+    ).read_bytes()

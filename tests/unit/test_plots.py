@@ -106,7 +106,7 @@ def maps_matplotlib(pid):
     with open(f"/proc/{pid}/maps", encoding="utf-8") as f:
         return "ft2font" in f.read()  # matplotlib's font library, loaded with it
 
-with PlotProcess.start() as plotter:
+with PlotProcess.start(warm=False) as plotter:
     pid = plotter._process.pid
     time.sleep(1.5)  # more than it takes to import matplotlib
     before = maps_matplotlib(pid)
@@ -118,23 +118,29 @@ with PlotProcess.start() as plotter:
     from test_io_support import DATUM, make_traj
     plotter.submit(sys.argv[1], make_traj(n=2001, seconds=200.0), DATUM, title="r")
     plotter.wait()
-print(json.dumps({"before": before, "after": after,
+with PlotProcess.start() as plotter:  # at once
+    pid = plotter._process.pid
+    deadline = time.monotonic() + 60.0
+    while not maps_matplotlib(pid) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    at_once = maps_matplotlib(pid)
+print(json.dumps({"before": before, "after": after, "at_once": at_once,
                   "parent": "matplotlib" in sys.modules}))
 """
 
 
 @pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads /proc/PID/maps")
 def test_the_plot_process_loads_matplotlib_on_the_parents_word(tmp_path):
-    """The child waits with matplotlib until told (in a command, the parent reads the bag on
-    both cores meanwhile); warmed, it draws the same PNG as plot_report, and the parent never
-    imports matplotlib."""
+    """Started with warm=False, the child waits with matplotlib until told (in a command, the
+    parent reads a large bag on both cores meanwhile); warmed, it draws the same PNG as
+    plot_report. Started warm, it loads matplotlib at once. The parent never imports it."""
     inline, child = tmp_path / "inline.png", tmp_path / "child.png"
     plot_report(inline, make_traj(n=2001, seconds=200.0), DATUM, title="r")
     out = subprocess.run([sys.executable, "-c", WARM_WORD, str(child)], capture_output=True,
                          text=True, timeout=300, check=True,
                          env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})  # fmt: skip
     r = json.loads(out.stdout.strip().splitlines()[-1])
-    assert r == {"before": False, "after": True, "parent": False}
+    assert r == {"before": False, "after": True, "at_once": True, "parent": False}
     assert child.read_bytes() == inline.read_bytes()
 
 
@@ -143,7 +149,7 @@ def test_a_run_that_ends_early_does_not_wait_for_the_plot_process():
     ended there, not waited for."""
     from pipe_nav_core.app.plot_process import PlotProcess
 
-    with PlotProcess.start() as plotter:
+    with PlotProcess.start(warm=False) as plotter:
         process = plotter._process
         plotter.warm()
     assert process.exitcode == -signal.SIGTERM

@@ -172,6 +172,8 @@ def smooth_bag(
         map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
         trim_heap()  # what the reading freed (the decoded pieces, the checks' temporaries)
         require_markers(log, report, bag, topics)
+        if plotter is not None:  # (unless told at its start) the first pass goes on alone
+            plotter.warm()
         if plotter is not None:  # the first pass goes on alone: a core to spare
             plotter.warm()
 

@@ -3,11 +3,11 @@
 Importing matplotlib and rendering the report cost as much as smoothing a short run. A
 :class:`PlotProcess` is forked when a command starts; on the parent's word
 (:meth:`PlotProcess.warm`) it imports matplotlib and loads its fonts while the parent smooths
-the bag. The parent says it once the bag is read: reading and the first filter pass beside it
-keep both cores busy, the passes after it leave one core partly idle. The parent then hands it
-the finished centreline and writes its other products while the child draws. Where ``fork`` is
-not available (or the child died) the plot is drawn in the calling process, as
-:func:`plots.plot_report` always was.
+the bag: at once for a small bag (the parent's start-up leaves a core idle), for a large one
+once it is read (reading it and the first filter pass beside it keep both cores busy, the
+passes after it leave one core partly idle). The parent then hands it the finished centreline
+and writes its other products while the child draws. Where ``fork`` is not available (or the
+child died) the plot is drawn in the calling process, as :func:`plots.plot_report` always was.
 
 The child ignores Ctrl-C (the parent, in the same process group, handles it and cleans up), and
 exits when the parent closes the pipe or dies.
@@ -46,18 +46,22 @@ def _warm() -> None:
     prepare_figure()  # the report's empty figure, before the data arrives
 
 
-def _serve(conn: Connection, parent_end: Connection) -> None:
+def _serve(conn: Connection, parent_end: Connection, warm: bool) -> None:
     parent_end.close()  # else the parent closing its end would not reach this one as EOF
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
+        if warm:
+            _warm()
         while True:
             try:
                 request = conn.recv()
             except (EOFError, OSError):
                 return
             if request == _WARM:
-                _warm()
+                if not warm:
+                    _warm()
+                    warm = True
                 continue
             args, kwargs = request
             try:
@@ -74,35 +78,40 @@ def _serve(conn: Connection, parent_end: Connection) -> None:
 class PlotProcess:
     """A child process that draws report PNGs (:func:`plots.plot_report`) on request.
 
-    ``with PlotProcess.start() as plotter:``, ``plotter.warm()`` when a core is to spare, then
+    ``with PlotProcess.start(warm=False) as plotter:``, ``plotter.warm()`` when a core is to
+    spare (``start()``: at once), then
     ``plotter.submit(path, traj, ...)`` (the arguments of plot_report) and, before the PNG is
     needed, ``plotter.wait()``, which raises OSError (a file system error) or RuntimeError (any
     other) if drawing failed. Without a child (no fork on this platform) submit draws in place.
     """
 
-    def __init__(self, process: Any | None, conn: Connection | None) -> None:
+    def __init__(self, process: Any | None, conn: Connection | None, told: bool = False) -> None:
         self._process = process
         self._conn = conn
         self._pending = False
+        self._told = told  # to warm (warm() tells it once)
 
     @classmethod
-    def start(cls) -> PlotProcess:
-        """Fork the child now, so that it warms up while the caller works."""
+    def start(cls, warm: bool = True) -> PlotProcess:
+        """Fork the child now, so that it warms up while the caller works: at once, or with
+        ``warm=False`` when told (:meth:`warm`)."""
         if "fork" not in mp.get_all_start_methods() or os.environ.get("PIPE_NAV_PLOT_INLINE"):
             return cls(None, None)
         ctx = mp.get_context("fork")
         parent, child = ctx.Pipe()
         process = ctx.Process(
-            target=_serve, args=(child, parent), daemon=True, name="pipe-nav-plot"
+            target=_serve, args=(child, parent, warm), daemon=True, name="pipe-nav-plot"
         )
         process.start()
         child.close()
-        return cls(process, parent)
+        return cls(process, parent, told=warm)
 
     def warm(self) -> None:
         """Have the child import matplotlib and draw the report's empty figure now, while the
-        caller leaves a core to spare; a plot submitted without it loads them first."""
-        if self._conn is not None:
+        caller leaves a core to spare (unless it was told already); a plot submitted without it
+        loads them first."""
+        if self._conn is not None and not self._told:
+            self._told = True
             try:
                 self._conn.send(_WARM)
             except (OSError, ValueError):
