@@ -174,8 +174,6 @@ def smooth_bag(
         require_markers(log, report, bag, topics)
         if plotter is not None:  # (unless told at its start) the first pass goes on alone
             plotter.warm()
-        if plotter is not None:  # the first pass goes on alone: a core to spare
-            plotter.warm()
 
         # the IMU's part of the weld search on the other core while the run is smoothed (when the
         # welds are found beside the bends: their working set is small then)

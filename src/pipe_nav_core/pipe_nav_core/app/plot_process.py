@@ -79,10 +79,10 @@ class PlotProcess:
     """A child process that draws report PNGs (:func:`plots.plot_report`) on request.
 
     ``with PlotProcess.start(warm=False) as plotter:``, ``plotter.warm()`` when a core is to
-    spare (``start()``: at once), then
-    ``plotter.submit(path, traj, ...)`` (the arguments of plot_report) and, before the PNG is
-    needed, ``plotter.wait()``, which raises OSError (a file system error) or RuntimeError (any
-    other) if drawing failed. Without a child (no fork on this platform) submit draws in place.
+    spare (``start()``: at once), then ``plotter.submit(path, traj, ...)`` (the arguments of
+    plot_report) and, before the PNG is needed, ``plotter.wait()``, which raises OSError (a
+    file system error) or RuntimeError (any other) if drawing failed. Without a child (no fork
+    on this platform) submit draws in place.
     """
 
     def __init__(self, process: Any | None, conn: Connection | None, told: bool = False) -> None:
