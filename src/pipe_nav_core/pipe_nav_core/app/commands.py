@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
 from pathlib import Path
@@ -164,19 +165,19 @@ def cmd_smooth(args: argparse.Namespace) -> int:
     # forked first, before the numeric imports: it loads matplotlib while this one smooths
     # (a large bag's once it is read: pipeline.smooth_bag tells it)
     wants_plot = bool(args.plot) or out_is_dir(args.out)
-    warm = _bag_bytes(args.input) <= PLOT_WARM_AT_ONCE_MAX_BYTES
+    try:
+        warm = bag_bytes(args.input) <= PLOT_WARM_AT_ONCE_MAX_BYTES
+    except OSError:  # the reading names why
+        warm = True
     with PlotProcess.start(warm) if wants_plot else PlotProcess(None, None) as plotter:
         return _smooth(args, plotter)
 
 
-def _bag_bytes(path: str) -> int:
-    """The bytes of a bag file or of the files in a rosbag2 folder (0 where unreadable: the
-    reading names why)."""
-    try:
-        p = Path(path)
-        return sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
-    except OSError:
-        return 0
+def bag_bytes(path: str | os.PathLike[str]) -> int:
+    """The bytes of a bag file, or of every file in a rosbag2 folder (OSError where it cannot
+    be read). Here, not in io, whose import the plot's child is forked before."""
+    p = Path(path)
+    return sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
 
 
 def out_is_dir(out: str) -> bool:

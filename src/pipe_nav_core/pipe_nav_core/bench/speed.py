@@ -23,6 +23,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from pipe_nav_core.app.commands import bag_bytes
 from pipe_nav_core.app.outputs import Outputs, write_products
 from pipe_nav_core.app.replay import replay_log
 from pipe_nav_core.bench.rosbag2_forms import rewrite
@@ -158,10 +159,6 @@ def field_bags(
     return {f: p for f, (p, _) in paths.items()}, float(imu.end - imu.start)
 
 
-def _bag_bytes(bag: Path) -> int:
-    return sum(f.stat().st_size for f in bag.iterdir()) if bag.is_dir() else bag.stat().st_size
-
-
 def read_seconds(bag: Path, workers: int, repeat: int = 2) -> tuple[float, float]:
     """Best wall time (s) of ``repeat`` reads (read + decode + checks) of a bag with
     ``read_bag(workers=workers)``, and the calling thread's CPU time (s) in that read: what
@@ -198,7 +195,7 @@ def form_figures(
         "chunk_size": float(form.chunk_size),
         "mag": form.mag,
         "directory": form.directory,
-        "size_mb": _bag_bytes(bag) / 2**20,
+        "size_mb": bag_bytes(bag) / 2**20,
         "messages": float(info.message_count),
         "duration_s": duration,
         "read_workers": float(workers),
