@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pipe_nav_core.io import cdr, rosmsg
 from pipe_nav_core.io.rosmsg import jazzy_typestore
 from pipe_nav_core.io.stamps import sec_to_ns
+from rosbags.serde import SerdeError
 
 TS = jazzy_typestore()
 T = TS.types
@@ -222,6 +225,65 @@ def test_decode_refuses_big_endian_and_short_payloads():
     # the big-endian one is still readable by the generic fallback
     ref = TS.deserialize_cdr(be, "sensor_msgs/msg/MagneticField")
     assert ref.magnetic_field.x == m.magnetic_field.x
+
+
+def _same(got, want) -> bool:
+    """A decoded value against rosbags' (floats bit for bit, strings and integers equal)."""
+    if isinstance(want, str):
+        return got == want
+    if isinstance(want, float) or np.asarray(want).dtype.kind == "f":
+        return np.asarray(got, "<f8").tobytes() == np.asarray(want, "<f8").tobytes()
+    return int(got) == int(want)
+
+
+_DAMAGE = st.sampled_from(["none", "none", "cut", "length", "big", "header", "byte"])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    case=st.sampled_from(CASES),
+    plan=st.lists(st.tuples(st.integers(0, 12), _DAMAGE, st.integers(0, 10**6)), max_size=12),
+)
+def test_decode_batch_keeps_what_rosbags_reads_in_a_damaged_batch(case, plan):
+    """Messages of mixed frame-id lengths (the compiled decoder's plan changes with them), some
+    cut short, with an absurd string length, big-endian, a wrong header or a byte flipped:
+    every undamaged one is decoded, and every one decoded equals rosbags' reading of its
+    bytes where rosbags reads them (it refuses a frame id that lost its NUL or is not UTF-8,
+    which the decoder keeps: the samples are good)."""
+    layout, make = case
+    buf = bytearray(b"\xee" * 5)
+    starts, raws, intact = [], [], []
+    for k, damage, r in plan:
+        raw = bytearray(TS.serialize_cdr(make(k), layout.typename, little_endian=damage != "big"))
+        if damage == "cut":
+            raw = raw[: r % len(raw)]
+        elif damage == "length":
+            raw[12:16] = (len(raw) + 1 + r).to_bytes(4, "little")  # the frame id's length word
+        elif damage == "header":
+            raw[1] = 7
+        elif damage == "byte":
+            raw[r % len(raw)] ^= 0xFF
+        starts.append(len(buf))
+        raws.append(bytes(raw))
+        intact.append(damage == "none")
+        buf += raw + b"\xff" * (r % 9)
+    vals, ok = cdr.decode_batch(
+        layout,
+        np.frombuffer(bytes(buf), np.uint8),
+        np.array(starts, dtype=np.int64),
+        np.array([len(r) for r in raws], dtype=np.int64),
+    )
+    assert ok.shape == (len(raws),)
+    assert all(ok[i] for i in range(len(raws)) if intact[i])
+    for row, i in enumerate(np.flatnonzero(ok)):
+        try:
+            msg = TS.deserialize_cdr(raws[i], layout.typename)
+        except SerdeError:
+            assert not intact[i]
+            continue
+        want = _values(layout.typename, msg)
+        for name, w in want.items():
+            assert _same(vals[name][row], w), (i, name)
 
 
 @pytest.mark.parametrize("n", [0, 1, 2, 7])

@@ -85,7 +85,9 @@ def _check_source(spec: dict[str, Any], expr: str) -> str:
 
 _CHECK_GLOBALS = {
     "_nd": np.ndarray,
-    "_dt": {name: np.dtype(name) for name in ("float64", "float32", "int64", "int32", "bool")},
+    "_dt": {
+        name: np.dtype(name) for name in ("float64", "float32", "int64", "int32", "uint8", "bool")
+    },
     "_floats": (float, np.float64),
     "_ints": (int, np.int64),
     "_bools": (bool, np.bool_),

@@ -24,8 +24,9 @@ from pipe_nav_core.types import SensorLog
 _SPAN_S = 70.0
 # what the warm-up runs (its kernels' argument types are what the AOT module exports): a new
 # number builds the module again where an older warm-up made it (3: the running windows too;
-# 4: the trajectory interpolation; 5: the transitions made on the other core)
-WARM_UP = 5
+# 4: the trajectory interpolation; 5: the transitions made on the other core; 6: the bag
+# reader's CDR decoding)
+WARM_UP = 6
 
 
 @lru_cache(maxsize=1)
@@ -56,6 +57,21 @@ def warm_smoothers() -> float:
     log, config = _warmup_run()
     for method in ("rts", "two-filter", "forward", "graph"):
         smooth_log(log, config, method=method, iterations=2)
+    return time.perf_counter() - t0
+
+
+def warm_reading() -> float:
+    """Write the warm-up run as an MCAP bag and read it back, as ``pipe-nav smooth`` reads
+    (s of wall time taken)."""
+    import tempfile
+
+    from pipe_nav_core.io.bagread import read_bag
+    from pipe_nav_core.io.bagwrite import write_sensor_bag
+
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        write_sensor_bag(f"{tmp}/warm.mcap", _warmup_run()[0])
+        read_bag(f"{tmp}/warm.mcap")
     return time.perf_counter() - t0
 
 
@@ -118,6 +134,7 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     warm_live()
     warm_smoothers()
     warm_products()
+    warm_reading()
     aot = "not built (PIPE_NAV_KERNELS=jit)" if jit.FORCED_JIT else _build_aot(jit, tell)
     try:
         marker = _marker()

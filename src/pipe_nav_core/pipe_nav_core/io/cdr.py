@@ -7,8 +7,8 @@ counts the terminating NUL, then the bytes and the NUL. sensor_msgs/Imu, nav_msg
 sensor_msgs/MagneticField and sensor_msgs/NavSatFix are fixed layouts except for their frame id
 strings, so the offset of every field is a small arithmetic function of the string lengths.
 
-Decoding gathers the needed bytes of thousands of messages at once from a chunk buffer with
-numpy fancy indexing (no Python object per message); encoding builds a numpy structured array
+Decoding walks thousands of messages of a chunk buffer in one compiled call
+(:mod:`.cdr_decode`; no Python object per message); encoding builds a numpy structured array
 whose rows are the serialized messages (optionally preceded by a fixed record prefix, used by
 the MCAP writer for the Message record header). Messages that do not fit (big-endian, odd
 lengths) are reported so that the caller can fall back to a generic deserializer.
@@ -18,9 +18,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
+
+from pipe_nav_core.io.cdr_decode import KIND_CODES, decode_k
 
 _SIZE = {"i1": 1, "u1": 1, "u2": 2, "i4": 4, "u4": 4, "f8": 8}
 _DTYPE = {"i1": "<i1", "u1": "<u1", "u2": "<u2", "i4": "<i4", "u4": "<u4", "f8": "<f8"}
@@ -147,6 +150,45 @@ def gather(buf: NDArray[np.uint8], pos: NDArray[np.int64], nbytes: int) -> NDArr
     return items[pos].view(np.uint8).reshape(len(pos), nbytes)
 
 
+@dataclass(frozen=True)
+class _Plan:
+    """What :func:`.cdr_decode.decode_k` is told for some fields of a layout: per field of the
+    layout its kind code, count and column (-1: not wanted); the widths of the two matrices;
+    per wanted name (matrix "f" or "i", first column, count)."""
+
+    kinds: NDArray[np.int64]
+    counts: NDArray[np.int64]
+    cols: NDArray[np.int64]
+    n_floats: int
+    n_ints: int
+    where: dict[str, tuple[str, int, int]]
+
+
+@lru_cache(maxsize=64)
+def _plan(layout: MessageLayout, names: tuple[str, ...]) -> _Plan:
+    cols, where = [], {}
+    nf = ni = 0
+    for f in layout.fields:
+        if f.name not in names:
+            cols.append(-1)
+        elif f.kind == "f8":
+            cols.append(nf)
+            where[f.name] = ("f", nf, f.count)
+            nf += f.count
+        else:
+            cols.append(ni)
+            where[f.name] = ("i", ni, f.count)
+            ni += 2 if f.kind == "str" else f.count
+    return _Plan(
+        np.array([KIND_CODES[f.kind] for f in layout.fields], dtype=np.int64),
+        np.array([f.count for f in layout.fields], dtype=np.int64),
+        np.array(cols, dtype=np.int64),
+        nf,
+        ni,
+        where,
+    )
+
+
 def decode_batch(
     layout: MessageLayout,
     buf: NDArray[np.uint8],
@@ -154,7 +196,8 @@ def decode_batch(
     sizes: NDArray[np.int64],
     fields: Sequence[str] | None = None,
 ) -> tuple[dict[str, object], NDArray[np.bool_]]:
-    """Decode many CDR messages of one type that lie in ``buf``.
+    """Decode many CDR messages of one type that lie in ``buf`` (compiled, without the GIL:
+    :func:`.cdr_decode.decode_k`).
 
     buf: uint8 array holding the messages; starts, sizes: payload offset (at the encapsulation
     header) and payload length of each message. fields: the field names to decode (default: all;
@@ -162,72 +205,34 @@ def decode_batch(
 
     Returns (values, ok): ``ok`` flags the messages that were decoded (little-endian, long enough,
     sane string lengths); values[name] has one row per ok message, in input order: shape (k,)
-    for scalars and (k, count) for arrays. Messages that are not ok should go to a generic
-    deserializer (big-endian) or be counted as bad.
+    for scalars and (k, count) for arrays, C-contiguous, of the field's dtype. Messages that are
+    not ok should go to a generic deserializer (big-endian) or be counted as bad.
     """
-    starts = np.asarray(starts, dtype=np.int64)
-    sizes = np.asarray(sizes, dtype=np.int64)
+    names = tuple(f.name for f in layout.fields) if fields is None else tuple(fields)
+    plan = _plan(layout, names)
+    starts = np.ascontiguousarray(starts, dtype=np.int64)
+    sizes = np.ascontiguousarray(sizes, dtype=np.int64)
     n = len(starts)
-    names = [f.name for f in layout.fields] if fields is None else list(fields)
-    if n == 0:
-        return {name: _empty(layout.field(name)) for name in names}, np.zeros(0, dtype=bool)
-    last = len(buf) - 1
-    ok = sizes >= 4 + 12
-    safe = np.where(ok, starts, 0)
-    ok &= (buf[np.minimum(safe, last)] == 0) & (buf[np.minimum(safe + 1, last)] == 1)
-    base = safe + 4  # first byte after the encapsulation header
-
-    # Walk the layout once, reading string lengths where needed (per-message offsets; one
-    # offset for all when every message has the same string lengths, as usual: fewer steps).
-    lengths: dict[str, NDArray[np.int64]] = {}
-    walk: dict[str, object] = {}
-    pos: object = 0
-    for f in layout.fields:
-        if f.kind == "str":
-            pos = _align(pos, 4)
-            need = base + pos + 4 <= starts + sizes
-            ok &= need
-            rd = np.where(ok, base + pos, 0)
-            ln = gather(buf, rd, 4).view("<u4").reshape(n).astype(np.int64)
-            ln = np.where(ok, ln, 1)
-            ok &= (ln >= 1) & (ln <= sizes)
-            ln = np.where(ok, ln, 1)
-            lengths[f.name] = ln
-            first = int(ln[0])
-            walk[f.name] = first if ln.min() == first == ln.max() else ln
-            pos = pos + 4 + walk[f.name]
-        else:
-            pos = _align(pos, _SIZE[f.kind]) + _SIZE[f.kind] * f.count
-    offsets, end = layout_offsets(layout, walk)
-    ok &= 4 + np.asarray(end) <= sizes
-
-    idx = np.flatnonzero(ok)
-    b = base[idx]
+    view = np.ascontiguousarray(buf, dtype=np.uint8).view()
+    view.flags.writeable = False  # one argument type for the compiled kernel, whatever buf is
+    floats = np.empty((n, plan.n_floats))
+    ints = np.empty((n, plan.n_ints), dtype=np.int64)
+    ok = np.empty(n, dtype=np.bool_)
+    k = decode_k(view, starts, sizes, plan.kinds, plan.counts, plan.cols, floats, ints, ok)
     out: dict[str, object] = {}
     for name in names:
-        f = layout.field(name)
-        off = offsets[name]
-        off_k = off[idx] if isinstance(off, np.ndarray) else off
-        if f.kind == "str":
-            ln_k = lengths[name][idx]
+        kind = layout.field(name).kind
+        matrix, c, count = plan.where[name]
+        if kind == "str":
             out[name] = [
-                buf[p + 4 : p + 3 + int(m)].tobytes().decode("utf-8", "replace")
-                for p, m in zip(
-                    np.broadcast_to(b + off_k, idx.shape).tolist(), ln_k.tolist(), strict=True
-                )
+                view[p : p + m].tobytes().decode("utf-8", "replace")
+                for p, m in ints[:k, c : c + 2].tolist()
             ]
             continue
-        nbytes = _SIZE[f.kind] * f.count
-        vals = gather(buf, b + off_k, nbytes).view(_DTYPE[f.kind])
-        out[name] = vals.reshape(len(idx)) if f.count == 1 else vals.reshape(len(idx), f.count)
+        vals = (floats if matrix == "f" else ints)[:k, c : c + count]
+        vals = vals.astype(_DTYPE[kind])  # a C-contiguous copy
+        out[name] = vals.reshape(k) if count == 1 else vals
     return out, ok
-
-
-def _empty(f: Field) -> object:
-    if f.kind == "str":
-        return []
-    shape = (0,) if f.count == 1 else (0, f.count)
-    return np.zeros(shape, dtype=_DTYPE[f.kind])
 
 
 def record_dtype(
