@@ -37,6 +37,15 @@ def test_quaternion_chain_matches_scipy():
     np.testing.assert_allclose(att.rotvec_from_quat(att.quat_from_rotvec(rv)), rv, atol=1e-12)
 
 
+def test_the_body_x_axis_is_the_matrixs_first_column_bit_for_bit():
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(200, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    x = att.body_x_axis(q)
+    assert x.tobytes() == np.ascontiguousarray(att.dcm_from_quat(q)[:, :, 0]).tobytes()
+    assert att.body_x_axis(q[7]).tobytes() == att.dcm_from_quat(q[7])[:, 0].tobytes()
+
+
 def test_quaternion_of_a_matrix_equals_scipys_bit_for_bit():
     from scipy.spatial.transform import Rotation
 

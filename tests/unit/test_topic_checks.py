@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 from pipe_nav_core.filter.stream import ReorderBuffer
 from pipe_nav_core.io.bagdecode import Pieces
 from pipe_nav_core.io.stamps import NS_PER_S
@@ -74,3 +76,38 @@ def test_not_the_live_reorder_buffer():
     released = buf.release(flush=True)["odometer"][0]
     assert len(kept) == 3
     assert len(released) == 4
+
+
+_FAULT = st.sampled_from(["ok", "ok", "ok", "swap", "back", "repeat", "jump"])
+
+
+@settings(max_examples=80, deadline=None)
+@given(faults=st.lists(_FAULT, min_size=1, max_size=60), cuts=st.lists(st.integers(1, 60)))
+@example(faults=["ok", "ok", "jump", "ok"], cuts=[3])  # a glitch that ends a batch
+@example(faults=["ok", "ok", "ok", "back", "ok"], cuts=[3])  # one that begins one
+def test_the_checks_keep_the_same_samples_however_the_batches_are_cut(faults, cuts):
+    """The reader gathers a few chunks' samples before the checks (bagread.CHECK_MESSAGES):
+    the kept samples, their order and the counts do not depend on where batches end."""
+    t = [1.0 + 0.01 * i for i in range(len(faults))]
+    for i, fault in enumerate(faults):
+        if fault == "swap" and i:
+            t[i - 1], t[i] = t[i], t[i - 1]
+        elif fault == "back":
+            t[i] -= 2 * REORDER_WINDOW_S
+        elif fault == "repeat" and i:
+            t[i] = t[i - 1]
+        elif fault == "jump":
+            t[i] += 5.0
+    whole = _state()
+    whole.ingest(_odo(t))
+    whole.flush_pending()
+    want = whole.emit(None)
+    cut = _state()
+    edges = sorted({0, len(t), *(c % (len(t) + 1) for c in cuts)})
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        cut.ingest(_odo(t[a:b]))
+    cut.flush_pending()
+    got = cut.emit(None)
+    assert got.ns.tolist() == want.ns.tolist()
+    assert got.values["distance"].tolist() == want.values["distance"].tolist()
+    assert cut.report.skipped_by_topic == whole.report.skipped_by_topic

@@ -135,6 +135,15 @@ def dcm_from_quat(q: ArrayLike) -> Array:
     )
 
 
+def body_x_axis(q: ArrayLike) -> Array:
+    """The body x axis (base_link's, along the pipe) in the navigation frame (ENU) of unit
+    quaternions q (..., 4): the first column of :func:`dcm_from_quat`, the same arithmetic,
+    without the other two (shape (..., 3))."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=-1)
+
+
 def quat_from_dcm(c: ArrayLike) -> Array:
     """Unit quaternion of a rotation matrix, shape (..., 4) (robust for any angle: each
     matrix's quaternion from its largest of trace and diagonal, as scipy's

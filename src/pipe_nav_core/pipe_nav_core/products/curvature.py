@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core import batched
-from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.geo.attitude import body_x_axis
 from pipe_nav_core.geo.earth import radii, unwrapped_lon
 from pipe_nav_core.io.centreline import chainage_times, interpolate_trajectory
 from pipe_nav_core.model.sensors import ImuSpec
@@ -106,7 +106,7 @@ def axis_track(traj: Trajectory, step: float = TRACK_STEP_M) -> AxisTrack:
         s = slice(b, b + batched.BATCH)
         p = interpolate_trajectory(traj, times[s])
         t[s], distance[s], lat[s], lon[s], h[s] = p.t, p.distance, p.lat, p.lon, p.h
-        a = dcm_from_quat(np.asarray(p.quat_nb).reshape(-1, 4))[:, :, 0]
+        a = body_x_axis(np.asarray(p.quat_nb).reshape(-1, 4))
         axis[s] = a / np.linalg.norm(a, axis=1, keepdims=True)
         sig = (np.full((len(a), 3), np.nan) if p.sigma_enu is None
                else np.asarray(p.sigma_enu, dtype=np.float64).reshape(-1, 3))  # fmt: skip

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.geo.attitude import body_x_axis
 from pipe_nav_core.io.centreline import interpolate_trajectory
 from pipe_nav_core.io.tally_csv import Tally, TallyRow
 from pipe_nav_core.products.joints import align_sequences
@@ -133,7 +133,7 @@ def locate_tally(
     n = len(t)
     sig = np.zeros((n, 3)) if at.sigma_enu is None else np.asarray(at.sigma_enu).reshape(n, 3)
     sig = np.nan_to_num(sig.astype(np.float64))
-    axis = dcm_from_quat(at.quat_nb)[:, :, 0]
+    axis = body_x_axis(at.quat_nb)
     horiz = np.hypot(axis[:, 0], axis[:, 1])
     sigma_h = np.sqrt(sig[:, 0] ** 2 + sig[:, 1] ** 2 + (sig_d * horiz) ** 2)
     sigma_v = np.sqrt(sig[:, 2] ** 2 + (sig_d * axis[:, 2]) ** 2)

@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pipe_nav_core import batched
-from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.geo.attitude import body_x_axis, dcm_from_quat
 from pipe_nav_core.io.centreline import interpolate_trajectory
 from pipe_nav_core.memory import file_array, let_go
 from pipe_nav_core.products.windows import correlate, running_maximum, running_median
@@ -423,7 +423,7 @@ def _axis_turn(centreline: Trajectory, t_c: FloatArray, d_c: FloatArray, dist: F
     """Angle (rad) the pipe axis turns between dist - half and dist + half (m)."""
     ends = [interpolate_trajectory(centreline, np.interp(dist + k * half, d_c, t_c))
             for k in (-1.0, 1.0)]  # fmt: skip
-    a, b = (dcm_from_quat(e.quat_nb)[:, :, 0] for e in ends)
+    a, b = (body_x_axis(e.quat_nb) for e in ends)
     return np.arccos(np.clip(np.sum(a * b, axis=1), -1.0, 1.0))
 
 
@@ -443,7 +443,7 @@ def _welds_of(
     n = len(cands)
     sig = np.zeros((n, 3)) if at.sigma_enu is None else np.asarray(at.sigma_enu).reshape(n, 3)
     sig = np.nan_to_num(sig.astype(np.float64))
-    axis = dcm_from_quat(at.quat_nb)[:, :, 0]  # base_link x (along the pipe) in ENU
+    axis = body_x_axis(at.quat_nb)  # base_link x (along the pipe) in ENU
     along = np.sqrt(np.sum((axis * sig) ** 2, axis=1))
     turn = _axis_turn(centreline, t_c, d_c, dist, width)
     loc = np.hypot([c.sigma_loc for c in cands], width * turn)
