@@ -131,17 +131,37 @@ def test_a_reading_that_fails_stops_the_thread(monkeypatch):
     real = pipeline.read_bag
     told = []
 
-    def failing(bag, topics, pieces=None):
+    def failing(bag, topics, pieces=None, workers=None):
         def some(piece, report):
             if len(told) == 2:
                 raise OSError("the disk went away")
             told.append(piece)
             pieces(piece, report)
 
-        return real(bag, topics, pieces=some)
+        return real(bag, topics, pieces=some, workers=workers)
 
     monkeypatch.setattr(pipeline, "read_bag", failing)
     with pytest.raises(OSError, match="the disk went away"):
         pipeline.smooth_bag(SAMPLE, Outputs(), config=NavConfig())
     assert len(told) == 2
     assert no_thread_left()
+
+
+@pytest.mark.parametrize("cores", [2, 4])
+def test_the_reading_leaves_a_core_to_the_first_pass(monkeypatch, cores):
+    """On two cores the chunks are unpacked in the reading thread (a worker thread would take
+    CPU from the pass beside it, which the run waits for); with more, by one worker. Without
+    the pass, the reading's own default."""
+    monkeypatch.delenv("PIPE_NAV_READ_WORKERS", raising=False)
+    monkeypatch.setattr(pipeline.os, "cpu_count", lambda: cores)
+    real, asked = pipeline.read_bag, []
+
+    def spy(bag, topics, pieces=None, workers=None):
+        asked.append(workers)
+        return real(bag, topics, pieces=pieces, workers=workers)
+
+    monkeypatch.setattr(pipeline, "read_bag", spy)
+    with FirstPassAhead(NavConfig(), "rts") as ahead:
+        pipeline.load_log(SAMPLE, ahead=ahead)
+    pipeline.load_log(SAMPLE)
+    assert asked == [0 if cores == 2 else 1, None]

@@ -282,8 +282,17 @@ def test_read_workers_from_the_argument_or_the_environment(monkeypatch):
     monkeypatch.delenv(READ_WORKERS_ENV, raising=False)
     assert read_workers(0) == 0 and read_workers(3) == 3
     assert read_workers() == (1 if (os.cpu_count() or 1) >= 2 else 0)
+    # with a busy thread beside the reading (the first pass), only where a core is left
+    for cores, want in ((1, 0), (2, 0), (3, 1), (8, 1)):
+        monkeypatch.setattr(os, "cpu_count", lambda n=cores: n)
+        assert read_workers(beside=1) == want, cores
+        assert read_workers() == min(cores - 1, 1), cores
+    monkeypatch.undo()
     monkeypatch.setenv(READ_WORKERS_ENV, "0")
     assert read_workers() == 0
+    monkeypatch.setenv(READ_WORKERS_ENV, "2")
+    assert read_workers(beside=1) == 2  # the environment wins
+    monkeypatch.setenv(READ_WORKERS_ENV, "0")
     assert read_workers(2) == 2  # the argument wins
     monkeypatch.setenv(READ_WORKERS_ENV, "two")
     with pytest.raises(ValueError, match=f"^{READ_WORKERS_ENV}='two': not a whole number") as ei:

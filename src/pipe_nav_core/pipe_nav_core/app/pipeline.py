@@ -40,6 +40,7 @@ from pipe_nav_core.io import (
 )
 from pipe_nav_core.io.atomic import all_or_none
 from pipe_nav_core.io.baginfo import message_count
+from pipe_nav_core.io.bagread import read_workers
 from pipe_nav_core.io.centreline import read_centreline_csv
 from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
 from pipe_nav_core.memory import trim_heap
@@ -82,7 +83,9 @@ def load_log(
     (odometer_faults), merge the marker CSV. ``repair=False``: the data as recorded (what
     ekf_node would see; the live guard checks it then). ``ahead``: told the bag's time chunks
     as they are read, and the log read."""
-    log, report = read_bag(bag, topics, pieces=ahead)  # failing: the ahead's context stops it
+    # failing: the ahead's context stops it; its pass is one busy thread beside the reading
+    workers = read_workers(beside=1) if ahead is not None else None
+    log, report = read_bag(bag, topics, pieces=ahead, workers=workers)
     if ahead is not None:
         ahead.finish(log)
     if not repair:

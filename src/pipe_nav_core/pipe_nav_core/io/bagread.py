@@ -67,17 +67,19 @@ _MISSING_HINT = {
 }
 
 
-def read_workers(workers: int | None = None) -> int:
+def read_workers(workers: int | None = None, *, beside: int = 0) -> int:
     """Threads that unpack the chunks (decompress, CRC check, locate the messages) ahead
     of the decoding and the checks: ``workers`` when given (0: none, all in the calling
-    thread), else the environment variable ``PIPE_NAV_READ_WORKERS``, else one when there are
-    two cores or more (more do not pay: the decoding and the checks hold the GIL, and they are
-    what is left to the calling thread). InputError (a ValueError) for a negative or
-    non-integer count."""
+    thread), else the environment variable ``PIPE_NAV_READ_WORKERS``, else one where a core is
+    left for it: the cores outnumber the reading thread and the ``beside`` threads the caller
+    keeps busy meanwhile (the first filter pass: on two cores a third thread only takes CPU
+    from it, and the pass is what the run waits for). More do not pay: the checks hold the
+    GIL, and they are what is left to the calling thread. InputError (a ValueError) for a
+    negative or non-integer count."""
     if workers is None:
         env = os.environ.get(READ_WORKERS_ENV, "").strip()
         if not env:
-            return 1 if (os.cpu_count() or 1) >= 2 else 0
+            return 1 if (os.cpu_count() or 1) >= 2 + beside else 0
         try:
             workers = int(env)
         except ValueError:
