@@ -151,7 +151,7 @@ def gather(buf: NDArray[np.uint8], pos: NDArray[np.int64], nbytes: int) -> NDArr
 
 
 @dataclass(frozen=True)
-class _Plan:
+class _Columns:
     """What :func:`.cdr_decode.decode_k` is told for some fields of a layout: per field of the
     layout its kind code, count and column (-1: not wanted); the widths of the two matrices;
     per wanted name (matrix "f" or "i", first column, count)."""
@@ -165,7 +165,7 @@ class _Plan:
 
 
 @lru_cache(maxsize=64)
-def _plan(layout: MessageLayout, names: tuple[str, ...]) -> _Plan:
+def _columns(layout: MessageLayout, names: tuple[str, ...]) -> _Columns:
     cols, where = [], {}
     nf = ni = 0
     for f in layout.fields:
@@ -179,7 +179,7 @@ def _plan(layout: MessageLayout, names: tuple[str, ...]) -> _Plan:
             cols.append(ni)
             where[f.name] = ("i", ni, f.count)
             ni += 2 if f.kind == "str" else f.count
-    return _Plan(
+    return _Columns(
         np.array([KIND_CODES[f.kind] for f in layout.fields], dtype=np.int64),
         np.array([f.count for f in layout.fields], dtype=np.int64),
         np.array(cols, dtype=np.int64),
@@ -209,20 +209,20 @@ def decode_batch(
     not ok should go to a generic deserializer (big-endian) or be counted as bad.
     """
     names = tuple(f.name for f in layout.fields) if fields is None else tuple(fields)
-    plan = _plan(layout, names)
+    columns = _columns(layout, names)
     starts = np.ascontiguousarray(starts, dtype=np.int64)
     sizes = np.ascontiguousarray(sizes, dtype=np.int64)
     n = len(starts)
     view = np.ascontiguousarray(buf, dtype=np.uint8).view()
     view.flags.writeable = False  # one argument type for the compiled kernel, whatever buf is
-    floats = np.empty((n, plan.n_floats))
-    ints = np.empty((n, plan.n_ints), dtype=np.int64)
+    floats = np.empty((n, columns.n_floats))
+    ints = np.empty((n, columns.n_ints), dtype=np.int64)
     ok = np.empty(n, dtype=np.bool_)
-    k = decode_k(view, starts, sizes, plan.kinds, plan.counts, plan.cols, floats, ints, ok)
+    k = decode_k(view, starts, sizes, columns.kinds, columns.counts, columns.cols, floats, ints, ok)
     out: dict[str, object] = {}
     for name in names:
         kind = layout.field(name).kind
-        matrix, c, count = plan.where[name]
+        matrix, c, count = columns.where[name]
         if kind == "str":
             out[name] = [
                 view[p : p + m].tobytes().decode("utf-8", "replace")
