@@ -25,7 +25,7 @@ from mcap.reader import make_reader
 from pipe_nav_core.app.cli import main
 from pipe_nav_core.bench.rosbag2_forms import COMPRESSIONS, STORAGES, rewrite
 from pipe_nav_core.errors import BagError
-from pipe_nav_core.io import bag_info, read_bag
+from pipe_nav_core.io import bag_info, bagforms, read_bag
 from pipe_nav_core.io.baginfo import message_count
 from pipe_nav_core.io.topics import DEFAULT_TOPICS
 
@@ -133,7 +133,9 @@ def test_a_damaged_sqlite3_file_gives_what_was_read_before(plain, forms, tmp_pat
     assert any("unreadable past some message" in w for w in report.warnings)
 
 
-def test_a_payload_that_does_not_decompress_is_dropped_and_counted(plain, forms, tmp_path):
+def test_a_payload_that_does_not_decompress_is_dropped_and_counted(
+    plain, forms, tmp_path, monkeypatch
+):
     bag = tmp_path / "bad_frame"
     shutil.copytree(forms[("sqlite3", "message")], bag)
     db = sqlite3.connect(bag / "sqlite3_message.db3")
@@ -144,9 +146,28 @@ def test_a_payload_that_does_not_decompress_is_dropped_and_counted(plain, forms,
     db.execute("UPDATE messages SET data = ? WHERE id = ?", (data[:4] + b"\0" * 8, mid))
     db.commit()
     db.close()
+    one_by_one = _frames_one_by_one(monkeypatch)
     log, report = read_bag(bag)
     assert len(log.imu) == len(plain[0].imu) - 1
     assert sum(report.skipped_by_topic[DEFAULT_TOPICS.imu].values()) == 1
+    assert one_by_one  # the batch holding the bad frame, frame by frame
+    one_by_one.clear()
+    assert_same_log(read_bag(forms[("sqlite3", "message")])[0], plain[0])
+    assert not one_by_one  # every batch of good frames at once
+
+
+def _frames_one_by_one(monkeypatch) -> list[int]:
+    """The frames bagforms.unpacked decompresses one at a time (after it has tried the
+    batch's frames at once), as they are taken."""
+    taken: list[int] = []
+    frame = bagforms._frame
+
+    def spy(d, error, p):
+        taken.append(len(p))
+        return frame(d, error, p)
+
+    monkeypatch.setattr(bagforms, "_frame", spy)
+    return taken
 
 
 @pytest.mark.parametrize(
