@@ -35,6 +35,17 @@ def test_trimming_the_heap_keeps_live_arrays():
     assert all(np.all(a == k) for k, a in enumerate(keep))
 
 
+def test_a_short_runs_heap_is_not_trimmed(monkeypatch):
+    """trim_heap(samples): a full collection and malloc_trim for a long run only."""
+    collected: list[int] = []
+    monkeypatch.setattr(memory.gc, "collect", lambda: collected.append(1) or 0)
+    memory.trim_heap(memory.TRIM_MIN_SAMPLES - 1)
+    assert not collected
+    memory.trim_heap(memory.TRIM_MIN_SAMPLES)
+    memory.trim_heap()
+    assert len(collected) == 2
+
+
 def test_limiting_the_arenas_before_threads_start_keeps_allocating():
     """limit_arenas (glibc M_ARENA_MAX, what the command line sets first) leaves numpy
     allocating and freeing as before, from threads too."""

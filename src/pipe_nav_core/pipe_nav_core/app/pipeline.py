@@ -173,7 +173,7 @@ def smooth_bag(
         log, report = load_log(bag, topics=topics, markers_csv=markers_csv, ahead=ahead)
         require_imu(log, report, bag, topics)
         map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
-        trim_heap()  # what the reading freed (the decoded pieces, the checks' temporaries)
+        trim_heap(len(log.imu))  # what a long run's reading freed (pieces, temporaries)
         require_markers(log, report, bag, topics)
         if plotter is not None:  # (unless told at its start) the first pass goes on alone
             plotter.warm()
@@ -194,7 +194,7 @@ def smooth_bag(
             result = _smooth_segments(log, report, config, smooth, say)
         finally:
             drop_spare()  # the recordings' chunk arrays kept for the next pass
-            trim_heap()  # and what the passes freed: the products do not have it on top of theirs
+            trim_heap(len(log.imu))  # and what the passes freed, not under the products' own
     report.warnings += result.summary.get("warnings", [])  # type: ignore[operator]
     report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
     failures = [f"{d}: the centreline does not fit its markers"
@@ -216,7 +216,7 @@ def smooth_bag(
     def find_welds() -> None:
         if len(log.mag.t):
             say("girth welds")
-            trim_heap()  # what the bends and the writing freed
+            trim_heap(len(log.imu))  # what the bends and the writing freed
             found = welds.result() if welds is not None else run_welds(log, result, cfg)
             result.welds = found
             result.summary["welds"] = weld_summary(found)

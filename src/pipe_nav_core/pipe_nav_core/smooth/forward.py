@@ -99,7 +99,7 @@ def feed(
     if nav.recording is not None:
         nav.recording.trim()
     if release:  # a whole-run pass: what it freed (its batches, the log's slices) goes back
-        trim_heap()  # (not after the short passes of the heading search: the live node runs
+        trim_heap(len(log.imu))  # (not after the heading search's short passes: the live node runs
         # them at its re-anchoring, where a collection would stall it)
 
 

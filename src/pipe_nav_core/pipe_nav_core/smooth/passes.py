@@ -128,7 +128,7 @@ def smooth_log(
         cfg, nav = taken
         say("forward filter (run while the bag was read)")
         let_go(log.imu)  # as after run_forward's own pass: nothing of the log is in memory
-        trim_heap()  # for it, and what the pass freed
+        trim_heap(len(log.imu))  # for it, and what the pass freed
     else:
         if method != "forward":
             cfg = smoothing_config(log, cfg, progress, reverse=reverse)
