@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -246,6 +247,24 @@ def test_kml_parses_with_absolute_altitudes(tmp_path):
     names = [e.text for e in root.findall(".//k:Placemark/k:name", ns)]
     assert names == ["c", "launch", "agm_01", "receive"]
     assert "ellipsoid" in root.find(".//k:description", ns).text
+
+
+def test_kml_names_with_markup_characters_survive(tmp_path):
+    """Marker names with &, < and > are escaped as xml.sax.saxutils escapes them, and parse
+    back to themselves."""
+    from xml.sax.saxutils import escape
+
+    from pipe_nav_core.io import gis
+
+    odd = "a&b <c> d&amp;"
+    assert gis._escape(odd) == escape(odd)
+    traj = make_traj(n=11, seconds=1.0)
+    mk = [dataclasses.replace(MK[0], name=odd), *MK[1:]]
+    p = tmp_path / "odd.kml"
+    write_kml(p, traj, mk)
+    ns = {"k": "http://www.opengis.net/kml/2.2"}
+    names = [e.text for e in ET.parse(p).getroot().findall(".//k:Placemark/k:name", ns)]
+    assert odd in names
 
 
 # ----------------------------------------------------------------------------- atomic

@@ -18,7 +18,6 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
-from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -31,6 +30,12 @@ if TYPE_CHECKING:
     from pipe_nav_core.products.bends import PipeBend
     from pipe_nav_core.products.strain import StrainFeature
     from pipe_nav_core.products.welds import Weld
+
+
+def _escape(text: str) -> str:
+    """``text`` as XML character data: &, < and > as entities (what xml.sax.saxutils.escape
+    does, without its import of urllib and email: 16-34 ms of every command's start)."""
+    return text.replace("&", "&amp;").replace(">", "&gt;").replace("<", "&lt;")
 
 
 def centreline_coords(traj: Trajectory) -> list[list[float]]:
@@ -280,14 +285,14 @@ def _kml_point(
 ) -> list[str]:  # fmt: skip
     """A Point Placemark with the GeoJSON properties as ExtendedData."""
     data = [
-        f'<Data name="{escape(k)}"><value>{escape(_kml_value(v))}</value></Data>'
+        f'<Data name="{_escape(k)}"><value>{_escape(_kml_value(v))}</value></Data>'
         for k, v in props.items()
         if k not in ("name", "kind")
     ]
     return [
         "<Placemark>",
-        f"<name>{escape(name)}</name>",
-        f"<description>{escape(description)}</description>",
+        f"<name>{_escape(name)}</name>",
+        f"<description>{_escape(description)}</description>",
         f"<styleUrl>#{style}</styleUrl>",
         "<ExtendedData>",
         *data,
@@ -349,7 +354,7 @@ def to_kml(
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<kml xmlns="http://www.opengis.net/kml/2.2">',
         "<Document>",
-        f"<name>{escape(name)}</name>",
+        f"<name>{_escape(name)}</name>",
         "<description>Pipe centreline from PipeNav. Altitudes are heights above the WGS84 "
         "ellipsoid in metres (not above mean sea level).</description>",
         '<Style id="centreline"><LineStyle><color>ff0000ff</color><width>3</width>'
@@ -365,7 +370,7 @@ def to_kml(
         parts.append('<Style id="weld"><IconStyle><color>ff808080</color></IconStyle></Style>')
     parts += [
         "<Placemark>",
-        f"<name>{escape(name)}</name>",
+        f"<name>{_escape(name)}</name>",
         "<styleUrl>#centreline</styleUrl>",
         "<LineString>",
         "<tessellate>0</tessellate>",
@@ -377,7 +382,7 @@ def to_kml(
     for m in markers:
         parts += [
             "<Placemark>",
-            f"<name>{escape(m.name)}</name>",
+            f"<name>{_escape(m.name)}</name>",
             f"<description>marker passage at t = {m.t:.3f} s; survey sigma E/N/U "
             f"{m.sigma_enu[0]:.3f}/{m.sigma_enu[1]:.3f}/{m.sigma_enu[2]:.3f} m</description>",
             "<Point>",
