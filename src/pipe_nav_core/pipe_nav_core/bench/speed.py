@@ -199,6 +199,7 @@ def form_figures(
         "messages": float(info.message_count),
         "duration_s": duration,
         "read_workers": float(workers),
+        "smooth_read_workers": float(read_workers(beside=1)),  # what pipe-nav smooth reads with
         "read_serial_s": serial,
         "read_pooled_s": pooled,
         "read_pooled_thread_cpu_s": pooled_cpu,
@@ -330,7 +331,8 @@ def run(
     stages["peak_rss_mb"] = rows[0]["peak_rss_mb"]
     stages["cli_wall_s"] = rows[0]["cli_wall_s"]
     if not quick:  # the process with the chunk workers it does not have by default, or none
-        other = 1 if read_workers(beside=1) == 0 else 0
+        stages["smooth_read_workers"] = rows[0]["smooth_read_workers"]
+        other = 1 if stages["smooth_read_workers"] == 0 else 0
         _, wall = peak_memory_mb(bag, {READ_WORKERS_ENV: str(other)})
         stages["cli_wall_other_workers_s"], stages["other_workers"] = wall, float(other)
     online = online_cost()
@@ -374,7 +376,7 @@ def markdown(res: dict, command: str) -> str:
         lines += [
             "",
             f"Whole `pipe-nav smooth` process with the chunks unpacked {how} "
-            f"({READ_WORKERS_ENV}={k}; by default {read_workers(beside=1)} beside the first "
+            f"({READ_WORKERS_ENV}={k}; by default {int(f['smooth_read_workers'])} beside the first "
             f"pass on {os.cpu_count()} cores): "
             f"{dur / f['cli_wall_other_workers_s']:.0f} x real time.",
         ]
@@ -397,6 +399,7 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
     and its peak memory."""
     r0 = rows[0]
     workers = int(r0["read_workers"])
+    smooth = int(r0["smooth_read_workers"])
     plural = "" if workers == 1 else "s"
     chunk = f"{r0['chunk_size'] / 2**20:g} MiB"
     runs = int(r0["cli_runs"])
@@ -413,9 +416,8 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
         f"of {runs} run{'' if runs == 1 else 's'}; smooth / read: the "
         "process's best time over the default read's; reading thread: its CPU time in the "
         "default read, the read's time when the workers have cores of their own; reads: the "
-        "best of two. `pipe-nav smooth` unpacks the chunks with "
-        f"{read_workers(beside=1)} worker thread{'' if read_workers(beside=1) == 1 else 's'}: "
-        "the first filter pass runs beside its reading.",
+        f"best of two. `pipe-nav smooth` unpacks the chunks with {smooth} worker "
+        f"thread{'' if smooth == 1 else 's'}: the first filter pass runs beside its reading.",
         "",
         "| bag form | MB | messages | read + decode, 1 thread: x real time "
         f"| read + decode, {workers} worker{plural}: x real time "

@@ -36,7 +36,7 @@ import numpy as np
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.kalman import chi2_threshold
-from pipe_nav_core.geo.attitude import dcm_from_quat
+from pipe_nav_core.geo.attitude import body_x_axis
 from pipe_nav_core.smooth.centreline import SmoothResult, marker_residuals
 from pipe_nav_core.types import Marker, SensorLog
 
@@ -75,7 +75,7 @@ def marker_covariance(
     along the smoothed axis (the smoothed velocity itself bends when a marker is wrong)."""
     c = result.centreline
     i = int(np.clip(np.searchsorted(c.t, marker.t), 0, len(c.t) - 1))
-    axis = dcm_from_quat(np.asarray(c.quat_nb[i], dtype=np.float64))[:, 0]
+    axis = body_x_axis(c.quat_nb[i])
     odo = log.odometer
     speed = float(np.interp(marker.t, odo.t, odo.speed)) if len(odo.t) else 0.0
     v = speed * axis

@@ -73,11 +73,11 @@ def complementary_trajectory(
         qs[-1] = q
         quats[i:j] = qs
         i = j
-    c = att.dcm_from_quat(quats)
+    axis = att.body_x_axis(quats)
     step = np.diff(dist, prepend=dist[0])
-    enu = np.cumsum(c[:, :, 0] * step[:, None], axis=0)
+    enu = np.cumsum(axis * step[:, None], axis=0)
     lat, lon, h = earth.enu_to_geodetic(enu, first.lat, first.lon, first.alt)
-    vel = c[:, :, 0] * speed[:, None]
+    vel = axis * speed[:, None]
     return Trajectory(t, lat, lon, h, vel, quats, dist - dist[0])
 
 
