@@ -5,7 +5,7 @@ wrote): MCAP or sqlite3 storage, each plain, zstd-compressed as whole files and 
 message by message. Each must read into the same log and report as the sample itself, give
 ``pipe-nav info`` the same facts, and smooth into the same bytes. Where ROS 2 is installed,
 rosbag2 itself (``ros2 bag convert``) writes the forms too. Damaged forms: a compressed file cut
-short gives the part before the cut, a damaged sqlite3 file what was read before the damage,
+short gives the part before the cut, a damaged sqlite3 file what is readable around the damage,
 a payload that does not decompress is dropped and counted, and a file that is not what its
 name says is refused in one line.
 """
@@ -119,18 +119,48 @@ def test_a_compressed_file_cut_short_gives_what_came_before(plain, forms, tmp_pa
     assert any("end early or are damaged" in w for w in report.warnings)
 
 
-def test_a_damaged_sqlite3_file_gives_what_was_read_before(plain, forms, tmp_path):
+def test_a_damaged_sqlite3_file_gives_what_is_readable_around_the_damage(plain, forms, tmp_path):
+    """A damaged page loses the messages on it, not the rest of the file: the batches
+    before it and after it are read, and the one holding it up to the damage."""
     bag = tmp_path / "damaged"
     shutil.copytree(forms[("sqlite3", "")], bag)
     f = bag / "sqlite3_plain.db3"
     data = bytearray(f.read_bytes())
-    page = int(0.9 * len(data)) // 4096 * 4096  # a page of messages near the end
+    page = int(0.5 * len(data)) // 4096 * 4096  # a page of messages in the middle
     data[page : page + 4096] = b"\xa5" * 4096
     f.write_bytes(bytes(data))
     log, report = read_bag(bag)
-    assert 0 < len(log.imu) < len(plain[0].imu)
+    t, want = log.imu.t, plain[0].imu.t
+    lost = len(want) - len(t)
+    assert 0 < lost < 30  # a 4 KiB page holds about ten of the sample's messages
+    gap = int(np.argmax(t != want[: len(t)]))  # the first sample after the damage
+    assert gap > 0 and t[gap - 1] == want[gap - 1]
+    np.testing.assert_array_equal(t[gap:], want[gap + lost :])  # the rest, to the end
     assert report.truncated
-    assert any("unreadable past some message" in w for w in report.warnings)
+    (warning,) = [w for w in report.warnings if "are unreadable" in w]
+    assert str(f) in warning and "the rest was read" in warning
+
+
+def test_a_payload_stored_as_text_reads_as_its_bytes(plain, forms, tmp_path, monkeypatch):
+    """SQLite's concatenation counts a text value's characters, not its bytes: the batch
+    holding one is read row by row, and the log is the plain bag's."""
+    bag = tmp_path / "text"
+    shutil.copytree(forms[("sqlite3", "")], bag)
+    db = sqlite3.connect(bag / "sqlite3_plain.db3")
+    db.execute("UPDATE messages SET data = CAST(data AS TEXT) WHERE id = 700")
+    db.commit()
+    db.close()
+    by_rows: list[int] = []
+    rows = bagforms.Db3Scanner._rows
+
+    def spy(self, first, last):
+        by_rows.append(first)
+        return rows(self, first, last)
+
+    monkeypatch.setattr(bagforms.Db3Scanner, "_rows", spy)
+    log, report = read_bag(bag)
+    assert_same_log(log, plain[0])
+    assert by_rows == [1]  # the first batch only (ids 1 to DB3_BATCH_ROWS)
 
 
 def test_a_payload_that_does_not_decompress_is_dropped_and_counted(

@@ -2,7 +2,8 @@
 
 - sqlite3 storage (``.db3``, rosbag2's default before Iron): :class:`Db3Scanner` reads its
   ``messages`` table in recording order, the topics the reader asks for only (a camera's
-  images in the same bag are not read), through Python's own sqlite3.
+  images in the same bag are not read), through Python's own sqlite3, SQLite concatenating
+  each batch's payloads.
 - zstd compression of whole files (``compression_mode: file``, ``x.mcap.zstd``):
   :func:`open_scanner` decompresses the file into a temporary one, scans that and removes it;
   a compressed stream cut short gives the part before the cut (a warning says so), which the
@@ -41,7 +42,8 @@ from pipe_nav_core.io.mcapread import (
 )
 
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # the first bytes of a zstd frame (a CDR payload starts 00 0x)
-DB3_BATCH_ROWS = 8192  # messages per batch of a sqlite3 file (those of a damaged one are lost)
+DB3_BATCH_ROWS = 8192  # message ids per batch of a sqlite3 file
+_DB3_COLUMNS = "id, topic_id, timestamp, data"  # a row as Db3Scanner reads it
 _PAD = bytes(MESSAGE_HEADER_SIZE)  # where a Message record's header would be
 _COPY_BYTES = 1 << 22  # bytes per step of a file's decompression
 
@@ -132,7 +134,13 @@ class Db3Scanner:
     """Reader of one rosbag2 sqlite3 file with McapScanner's interface; ``topics``: the
     topic names whose messages are read (None: all). Channel and schema ids are the file's
     topic ids; the schemas carry the type names (no definitions: the reader knows its types
-    by name)."""
+    by name).
+
+    The messages are read a range of DB3_BATCH_ROWS ids at a time, each range's payloads,
+    lengths, topics and stamps concatenated by SQLite itself (``group_concat``) in one step
+    that lets go of the GIL, without a Python object per message. A range that does not
+    read so (a damaged page, a payload that is not a blob) is read row by row, the rows
+    after a damaged page too."""
 
     def __init__(
         self,
@@ -151,6 +159,7 @@ class Db3Scanner:
             rows = self._db.execute(
                 "SELECT id, name, type, serialization_format FROM topics"
             ).fetchall()
+            (text_encoding,) = self._db.execute("PRAGMA encoding").fetchone()
         except sqlite3.Error as exc:
             raise BagFormatError(f"not a readable rosbag2 sqlite3 file ({exc})") from None
         for tid, name, typename, encoding in rows:
@@ -158,28 +167,114 @@ class Db3Scanner:
             self.channels[tid] = ChannelRecord(tid, tid, str(name), str(encoding), {})
         self._wanted = [c.id for c in self.channels.values()
                         if topics is None or c.topic in topics]  # fmt: skip
+        self._all = len(self._wanted) == len(self.channels)  # no topic to leave out
+        self._db.text_factory = bytes  # group_concat's text is the payloads' bytes
+        self._concat = text_encoding == "UTF-8"  # else SQLite would translate the bytes
 
     def batches(self, workers: int = 0) -> Iterator[MessageBatch]:
-        """The messages of the wanted topics in recording order (the table's), in batches of
-        DB3_BATCH_ROWS; ``workers`` is not used (sqlite reads in this thread)."""
+        """The messages of the wanted topics in recording order (the table's ids), in
+        batches of at most DB3_BATCH_ROWS; ``workers`` is not used (SQLite reads in this
+        thread, without the GIL)."""
         del workers
-        marks = ",".join("?" * len(self._wanted))
         try:
             if not self._wanted:
                 return
-            cur = self._db.execute(
-                f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) "
-                "ORDER BY id",
-                self._wanted,
-            )
-            while rows := cur.fetchmany(DB3_BATCH_ROWS):
-                tid, stamp, data = zip(*rows, strict=True)
-                yield payload_batch(list(data), np.array(tid), np.array(stamp))
-        except sqlite3.Error as exc:  # a damaged file: what was read before stays read
-            self.truncated = True
-            self.warn(f"{self.path}: unreadable past some message ({exc}); the rest was skipped")
+            try:
+                lo, hi = self._db.execute("SELECT min(id), max(id) FROM messages").fetchone()
+            except sqlite3.Error as exc:
+                self.truncated = True
+                self.warn(f"{self.path}: no message could be read ({exc})")
+                return
+            if lo is None:
+                return
+            for first in range(lo, hi + 1, DB3_BATCH_ROWS):
+                last = first + DB3_BATCH_ROWS - 1
+                batch = self._concatenated(first, last) if self._concat else None
+                if batch is None:
+                    yield from self._rows(first, last)
+                elif len(batch):
+                    yield batch
         finally:
             self._db.close()
+
+    def _query(self, columns: str, first: int, last: int, order: str = "ORDER BY id") -> Any:
+        """``columns`` of the wanted messages with ids first..last (a sqlite3 cursor)."""
+        where = "" if self._all else f"AND topic_id IN ({','.join(map(str, self._wanted))})"
+        return self._db.execute(
+            f"SELECT {columns} FROM messages WHERE id BETWEEN ? AND ? {where} {order}",
+            (first, last),
+        )
+
+    def _concatenated(self, first: int, last: int) -> MessageBatch | None:
+        """The messages with ids first..last in one batch, concatenated by SQLite (an
+        aggregate over a rowid range, in id order); None when they do not read so (then
+        :meth:`_rows` reads them)."""
+        columns = "group_concat(data, x''), group_concat(length(data)), " \
+                  "group_concat(topic_id), group_concat(timestamp)"  # fmt: skip
+        try:
+            values = self._query(columns, first, last, order="").fetchone()
+        except sqlite3.Error:
+            return None
+        if values[0] is None:  # no message in the range
+            return payload_batch([], np.zeros(0), np.zeros(0))
+        if not all(isinstance(v, bytes) for v in values):
+            return None
+        data = values[0]
+        size, tid, stamp = (np.fromstring(v, dtype=np.int64, sep=",") for v in values[1:])
+        if not (len(size) == len(tid) == len(stamp) and size.sum() == len(data)):
+            return None  # a payload that is not a blob (text, counted in characters)
+        rec = np.zeros(len(size), dtype=np.int64)
+        np.cumsum(size[:-1], out=rec[1:])
+        buf = np.frombuffer(_PAD + data, dtype=np.uint8)  # payload i at rec[i] + the header
+        return MessageBatch(buf, rec, tid, stamp, size)
+
+    def _rows(self, first: int, last: int) -> Iterator[MessageBatch]:
+        """The messages with ids first..last read row by row; where a row does not read,
+        the reading goes on from the next id that does, and a warning names the ids lost."""
+        rows: list[Any] = []
+        lost: list[str] = []
+        why = ""
+        at = first  # the first id not read yet
+        while at <= last:
+            try:
+                cur = self._query(_DB3_COLUMNS, at, last)
+                while row := cur.fetchone():
+                    rows.append(row)
+                    at = row[0] + 1
+                break
+            except sqlite3.Error as exc:
+                why = str(exc)
+            nxt = self._next_readable(at, last)
+            lost.append(f"{at} to {nxt - 1}")
+            at = nxt
+        if lost:
+            self.truncated = True
+            self.warn(f"{self.path}: the messages with ids {', '.join(lost)} are unreadable "
+                      f"({why}); the rest was read")  # fmt: skip
+        if rows:
+            _, tid, stamp, data = zip(*rows, strict=True)
+            payloads = [d if isinstance(d, bytes) else b"" for d in data]
+            yield payload_batch(payloads, np.array(tid), np.array(stamp))
+
+    def _next_readable(self, bad: int, last: int) -> int:
+        """The smallest id after ``bad`` (an id whose row does not read) from which the rows
+        read again (last + 1 if none): steps of 1, 2, 4 ... then halving back."""
+        step = 1
+        while bad + step <= last and not self._readable(bad + step, last):
+            step *= 2
+        lo, hi = bad + step // 2, min(bad + step, last + 1)  # lo does not read, hi does
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if self._readable(mid, last) else (mid, hi)
+        return hi
+
+    def _readable(self, first: int, last: int) -> bool:
+        """Whether the first wanted message with an id in first..last reads (or none is)."""
+        try:
+            self._query(_DB3_COLUMNS, first, last).fetchone()
+        except sqlite3.Error:
+            return False
+        return True
 
 
 @contextmanager
