@@ -263,7 +263,7 @@ def test_a_full_temporary_folder_is_named(forms, tmp_path, monkeypatch, capsys):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(bagforms, "_copy_frames", full)
-    bag = forms[("mcap", "file")] / "mcap_file.mcap.zstd"
+    bag = forms[("sqlite3", "file")] / "sqlite3_file.db3.zstd"  # an MCAP one is streamed
     with pytest.raises(BagError, match=r"cannot decompress it into .*No space left on device"):
         read_bag(bag)
     assert main(["smooth", str(bag), "--out", f"{tmp_path}/o/", "--quiet"]) == 2

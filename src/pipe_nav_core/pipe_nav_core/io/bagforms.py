@@ -5,9 +5,10 @@
   images in the same bag are not read), through Python's own sqlite3, SQLite concatenating
   each batch's payloads.
 - zstd compression of whole files (``compression_mode: file``, ``x.mcap.zstd``):
-  :func:`open_scanner` decompresses the file into a temporary one, scans that and removes it;
-  a compressed stream cut short gives the part before the cut (a warning says so), which the
-  scanners read as they read a file cut short.
+  :func:`open_scanner` scans an MCAP file as it decompresses (:class:`ZstdStream`), and
+  decompresses a sqlite3 file into a temporary one, scans that and removes it; a compressed
+  stream cut short gives the part before the cut (a warning says so), which the scanners
+  read as they read a file cut short.
 - zstd compression of each message (``compression_mode: message``): :func:`unpacked` finds
   the payloads that are zstd frames (their magic number, where CDR starts with its
   encapsulation header) and decompresses them (a batch's frames in one call where every
@@ -45,7 +46,8 @@ ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # the first bytes of a zstd frame (a CDR paylo
 DB3_BATCH_ROWS = 8192  # message ids per batch of a sqlite3 file
 _DB3_COLUMNS = "id, topic_id, timestamp, data"  # a row as Db3Scanner reads it
 _PAD = bytes(MESSAGE_HEADER_SIZE)  # where a Message record's header would be
-_COPY_BYTES = 1 << 22  # bytes per step of a file's decompression
+_COPY_BYTES = 1 << 22  # bytes per write of a file decompressed into a temporary one
+_STREAM_BYTES = 1 << 20  # compressed bytes per step of a file's decompression
 
 
 class Scanner(Protocol):
@@ -282,12 +284,22 @@ def open_scanner(
     f: BagFile, warn: Callable[[str], None], topics: Collection[str] | None = None
 ) -> Iterator[Scanner]:
     """A scanner of one bag file whatever its form (raises BagFormatError or OSError when
-    it cannot be read at all); ``topics``: the topics a sqlite3 file is asked for."""
+    it cannot be read at all); ``topics``: the topics a sqlite3 file is asked for. A
+    zstd-compressed MCAP file is scanned as it decompresses; a compressed sqlite3 file is
+    decompressed into a temporary file first (SQLite reads files only)."""
     if not f.compressed:
         yield _scanner(f.path, f.storage, warn, topics)
         return
-    with _decompressed(f.path, warn) as plain:
-        yield _scanner(plain, f.storage, warn, topics)
+    with open(f.path, "rb") as src:
+        if src.read(4) != ZSTD_MAGIC:
+            raise BagFormatError("not a zstd-compressed file (bad magic)")
+        src.seek(0)
+        stream = ZstdStream(src, f.path, warn)
+        if f.storage == "sqlite3":
+            with _decompressed(f.path, stream) as plain:
+                yield _scanner(plain, f.storage, warn, topics)
+        else:
+            yield McapScanner(f.path, warn, stream=stream.read)
 
 
 def _scanner(
@@ -298,46 +310,72 @@ def _scanner(
     return McapScanner(path, warn)
 
 
-@contextmanager
-def _decompressed(path: Path, warn: Callable[[str], None]) -> Iterator[Path]:
-    """A zstd-compressed file decompressed into a temporary file (removed after), as much of
-    it as decompresses (a warning when that is not all)."""
-    with open(path, "rb") as src:
-        if src.read(4) != ZSTD_MAGIC:
-            raise BagFormatError("not a zstd-compressed file (bad magic)")
-        src.seek(0)
-        inner = path.with_suffix("").suffix or ".mcap"
-        with tempfile.TemporaryDirectory(prefix="pipe_nav_bag_") as tmp:
-            plain = Path(tmp) / f"decompressed{inner}"
-            try:
-                with open(plain, "wb") as out:
-                    why = _copy_frames(src, out)
-            except OSError as exc:  # a full temporary folder: name it
-                why = f"cannot decompress it into {tmp} ({exc.strerror})"
-                raise OSError(exc.errno, why) from None
-            if why:
-                warn(f"{path}: the compressed data end early or are damaged ({why}); "
-                     "what decompressed before that was read")  # fmt: skip
-            yield plain
+class ZstdStream:
+    """The decompressed bytes of a zstd-compressed file (``src``, named ``path``), read
+    forward by :meth:`read`, frame after frame. Where the compressed data end inside a frame
+    or are damaged, what decompressed before is read and ``warn`` is told once."""
 
+    def __init__(self, src: BinaryIO, path: Path, warn: Callable[[str], None]) -> None:
+        import zstandard
 
-def _copy_frames(src: BinaryIO, out: BinaryIO) -> str:
-    """Decompress the zstd frames of ``src`` into ``out``: "" when they all ended, else why
-    not (what decompressed before is written)."""
-    import zstandard
+        self._src, self._path, self._warn = src, path, warn
+        self._d = zstandard.ZstdDecompressor()
+        self._obj = self._d.decompressobj()
+        self._error = zstandard.ZstdError
+        self._out = bytearray()  # decompressed, not read yet
+        self._ended = True  # the data so far end where a frame ends
+        self._done = False  # nothing more decompresses
 
-    d = zstandard.ZstdDecompressor()
-    obj = d.decompressobj()
-    ended = False  # the data so far end where a frame ends
-    try:
-        while data := src.read(_COPY_BYTES):
+    def read(self, n: int) -> bytes:
+        """The next ``n`` bytes (fewer only at the end of what decompresses)."""
+        while len(self._out) < n and not self._done:
+            self._more()
+        with memoryview(self._out) as mv:
+            part = bytes(mv[:n])
+        del self._out[:n]
+        return part
+
+    def _more(self) -> None:
+        """The next block of the file decompressed onto what is not read yet; at its end, or
+        where it does not decompress, no more."""
+        data = self._src.read(_STREAM_BYTES)
+        if not data:
+            self._finish("" if self._ended else "the last frame is cut off")
+            return
+        try:
             while data:
-                out.write(obj.decompress(data))
-                ended = obj.eof
-                if not ended:  # all of data taken, the frame goes on
+                self._out += self._obj.decompress(data)
+                self._ended = self._obj.eof
+                if not self._ended:  # all of data taken, the frame goes on
                     break
-                data = obj.unused_data  # the next frame (rosbag2 writes one, others more)
-                obj = d.decompressobj()
-    except zstandard.ZstdError as exc:
-        return str(exc)
-    return "" if ended else "the last frame is cut off"
+                data = self._obj.unused_data  # the next frame (rosbag2 writes one, others more)
+                self._obj = self._d.decompressobj()
+        except self._error as exc:
+            self._finish(str(exc))
+
+    def _finish(self, why: str) -> None:
+        self._done = True
+        if why:
+            self._warn(f"{self._path}: the compressed data end early or are damaged ({why}); "
+                       "what decompressed before that was read")  # fmt: skip
+
+
+@contextmanager
+def _decompressed(path: Path, stream: ZstdStream) -> Iterator[Path]:
+    """A compressed file's ``stream`` written into a temporary file (removed after)."""
+    inner = path.with_suffix("").suffix or ".mcap"
+    with tempfile.TemporaryDirectory(prefix="pipe_nav_bag_") as tmp:
+        plain = Path(tmp) / f"decompressed{inner}"
+        try:
+            with open(plain, "wb") as out:
+                _copy_frames(stream, out)
+        except OSError as exc:  # a full temporary folder: name it
+            why = f"cannot decompress it into {tmp} ({exc.strerror})"
+            raise OSError(exc.errno, why) from None
+        yield plain
+
+
+def _copy_frames(stream: ZstdStream, out: BinaryIO) -> None:
+    """Everything ``stream`` decompresses, written into ``out``."""
+    while data := stream.read(_COPY_BYTES):
+        out.write(data)

@@ -93,6 +93,8 @@ _LOOSE_BATCH_BYTES = 4 << 20
 # in the consumer's thread (in a worker they would only take turns with it)
 POOLED_COMPRESSIONS = frozenset({"zstd", "lz4", ""})
 AHEAD_BYTES = 64 << 20  # compressed chunk bytes a pooled scanner reads ahead of its consumer
+STREAMED_RECORD_BYTES = 256 << 20  # the longest record read from a stream (chunks: ~1 MiB)
+_DRAIN_BYTES = 16 << 20  # bytes per read of what a stream holds after an unreadable record
 
 # ----------------------------------------------------------------------------- scanner
 
@@ -105,10 +107,18 @@ class McapScanner:
     so that channels are known even for chunks without inline channel records).
     ``truncated`` tells whether the file ended early or had unreadable parts;
     ``corrupt_messages`` counts messages of chunks that had to be skipped, per channel id
-    (when the chunk's message index tells), else under key -1.
+    (when the chunk's message index tells), else under key -1. ``stream``: the file's bytes
+    read forward instead of mapped (n -> at most n bytes, fewer only at the end), as a
+    compressed file decompresses; a stream has no summary read first, and ``size`` counts
+    the bytes read.
     """
 
-    def __init__(self, path: str | os.PathLike[str], warn: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        warn: Callable[[str], None],
+        stream: Callable[[int], bytes] | None = None,
+    ) -> None:
         self.path = os.fspath(path)
         self.warn = warn
         self.schemas: dict[int, SchemaRecord] = {}
@@ -116,19 +126,25 @@ class McapScanner:
         self.truncated = False
         self.corrupt_messages: dict[int, int] = {}
         self.summary: Summary | None = None
-        self.size = os.path.getsize(self.path)
+        self._stream = stream
         self._ended = False
         self._map: _MappedFile | None = None
-        with open(self.path, "rb") as f:
-            magic = f.read(8)
+        if stream is None:
+            self.size = os.path.getsize(self.path)
+            with open(self.path, "rb") as f:
+                magic = f.read(8)
+        else:  # the file's bytes as they are read (a decompressing stream: no summary)
+            magic = stream(8)
+            self.size = len(magic)
         if len(magic) < 8 or magic != MAGIC:
             if self.size == 0:
                 raise McapFormatError("empty file")
             raise McapFormatError("not an MCAP file (bad magic)")
-        try:
-            self.summary = read_summary(self.path)
-        except Exception:
-            self.summary = None
+        if stream is None:
+            try:
+                self.summary = read_summary(self.path)
+            except Exception:
+                self.summary = None
         if self.summary is not None:
             self.schemas.update(self.summary.schemas)
             self.channels.update(self.summary.channels)
@@ -214,6 +230,8 @@ class McapScanner:
             yield from self._pipelined(workers)
         if not self._ended:
             self.truncated = True
+            while self._stream is not None and (rest := self._stream(_DRAIN_BYTES)):
+                self.size += len(rest)  # where the streamed file ends
             self.warn(
                 f"file ends at byte {self.size} before the end of its data section "
                 "(truncated recording?); everything before that point was read"
@@ -289,21 +307,20 @@ class McapScanner:
         offset) for a complete Chunk record, ("batch", MessageBatch) for a run of un-chunked
         Message records, ("partial", content, offset) for a Chunk record cut off by the end of
         the file, ("schema" | "channel", content) for those records outside chunks. Sets
-        ``_ended`` when the data section ends properly. Contents are views of the mapped file
-        (:class:`_MappedFile`): nothing is copied until a chunk is decompressed."""
-        self._map = mapped = _MappedFile(self.path, self.size)
-        data, size = mapped.view, len(mapped.view)
-        pos = 8
-        pending: tuple[memoryview, int] | None = None
-        indexes: list[memoryview] = []
+        ``_ended`` when the data section ends properly. A file's contents are views of the
+        mapped file (:class:`_MappedFile`): nothing is copied until a chunk is decompressed."""
+        if self._stream is None:
+            self._map = _MappedFile(self.path, self.size)
+            records = _mapped_records(self._map.view)
+        else:
+            records = self._streamed_records(self._stream)
+        pending: tuple[Any, int] | None = None
+        indexes: list[Any] = []
         loose = bytearray()
         loose_offs: list[int] = []
-        while pos + 9 <= size:
-            op, length = REC.unpack_from(data, pos)
-            body, end = pos + 9, pos + 9 + length
-            if op == OP_MESSAGE_INDEX and pending is not None and end <= size:
-                indexes.append(data[body:end])
-                pos = end
+        for op, pos, rec, whole in records:
+            if op == OP_MESSAGE_INDEX and pending is not None and whole:
+                indexes.append(rec[9:])
                 continue
             if pending is not None:
                 yield ("chunk", pending[0], indexes, pending[1])
@@ -311,32 +328,57 @@ class McapScanner:
             if op in (OP_DATA_END, OP_FOOTER):
                 self._ended = True
                 break
-            if op == 0 or end > size:
-                # cut off (or garbage where a record should start)
-                if op == OP_CHUNK and length > 0:
+            if op == 0 or not whole:  # cut off (or garbage where a record should start)
+                if op == OP_CHUNK:
                     if loose_offs:
                         yield ("batch", loose_batch(loose, loose_offs))
                         loose, loose_offs = bytearray(), []
-                    yield ("partial", data[body:size], pos)
+                    yield ("partial", rec[9:], pos)
                 break
             if op == OP_CHUNK:
                 if loose_offs:
                     yield ("batch", loose_batch(loose, loose_offs))
                     loose, loose_offs = bytearray(), []
-                pending = (data[body:end], pos)
+                pending = (rec[9:], pos)
             elif op == OP_MESSAGE:
                 loose_offs.append(len(loose))
-                loose += data[pos:end]
+                loose += rec
                 if len(loose) > _LOOSE_BATCH_BYTES:
                     yield ("batch", loose_batch(loose, loose_offs))
                     loose, loose_offs = bytearray(), []
             elif op in (OP_SCHEMA, OP_CHANNEL):
-                yield ("schema" if op == OP_SCHEMA else "channel", bytes(data[body:end]))
-            pos = end
+                yield ("schema" if op == OP_SCHEMA else "channel", bytes(rec[9:]))
         if pending is not None:
             yield ("chunk", pending[0], indexes, pending[1])
         if loose_offs:
             yield ("batch", loose_batch(loose, loose_offs))
+
+    def _streamed_records(self, read: Callable[[int], bytes]) -> Iterator[_Record]:
+        """:func:`_mapped_records` of a file read forward by ``read`` (n -> at most n bytes,
+        fewer only at its end); ``size`` counts the bytes read. A record said to be longer
+        than STREAMED_RECORD_BYTES (a damaged length, as a rule) is read that far and taken
+        as cut off there."""
+        while len(head := read(9)) == 9:
+            op, length = REC.unpack(head)
+            body = read(min(length, STREAMED_RECORD_BYTES)) if op else b""
+            pos, self.size = self.size, self.size + 9 + len(body)
+            yield op, pos, memoryview(head + body), len(body) == length
+            if len(body) < length:
+                return
+        self.size += len(head)
+
+
+def _mapped_records(data: memoryview) -> Iterator[_Record]:
+    """The records of a mapped MCAP file after its magic: (opcode, offset, the record with its
+    opcode and length, whether it is whole); the last one may be cut off by the file's end."""
+    size, pos = len(data), 8
+    while pos + 9 <= size:
+        op, length = REC.unpack_from(data, pos)
+        end = pos + 9 + length
+        yield op, pos, data[pos : min(end, size)], end <= size
+        if end > size:
+            return
+        pos = end
 
 
 class _MappedFile:
@@ -370,3 +412,5 @@ class _MappedFile:
 
 # One item of the data section (see McapScanner._items).
 _Item = tuple[Any, ...]
+# One record of an MCAP file: opcode, offset, the record's bytes, whether whole.
+_Record = tuple[int, int, Any, bool]
