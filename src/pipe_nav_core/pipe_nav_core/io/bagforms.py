@@ -25,6 +25,7 @@ import os
 import sqlite3
 import tempfile
 from collections.abc import Callable, Collection, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
@@ -157,7 +158,9 @@ class Db3Scanner:
         self.schemas: dict[int, SchemaRecord] = {}
         self.channels: dict[int, ChannelRecord] = {}
         try:
-            self._db = sqlite3.connect(f"file:{Path(self.path).resolve()}?mode=ro", uri=True)
+            # used by one thread at a time: this one, or the batches' read-ahead thread
+            self._db = sqlite3.connect(f"file:{Path(self.path).resolve()}?mode=ro", uri=True,
+                                       check_same_thread=False)  # fmt: skip
             rows = self._db.execute(
                 "SELECT id, name, type, serialization_format FROM topics"
             ).fetchall()
@@ -175,8 +178,9 @@ class Db3Scanner:
 
     def batches(self, workers: int = 0) -> Iterator[MessageBatch]:
         """The messages of the wanted topics in recording order (the table's ids), in
-        batches of at most DB3_BATCH_ROWS; ``workers`` is not used (SQLite reads in this
-        thread, without the GIL)."""
+        batches of at most DB3_BATCH_ROWS; ``workers`` is not used: a thread of its own asks
+        SQLite for the next range while this one decodes the last (SQLite's step, most of
+        the reading, lets go of the GIL)."""
         del workers
         try:
             if not self._wanted:
@@ -189,13 +193,19 @@ class Db3Scanner:
                 return
             if lo is None:
                 return
-            for first in range(lo, hi + 1, DB3_BATCH_ROWS):
-                last = first + DB3_BATCH_ROWS - 1
-                batch = self._concatenated(first, last) if self._concat else None
-                if batch is None:
-                    yield from self._rows(first, last)
-                elif len(batch):
-                    yield batch
+            firsts = range(lo, hi + 1, DB3_BATCH_ROWS)
+            with ThreadPoolExecutor(1, thread_name_prefix="db3-read") as ahead:
+                fetch = ahead.submit(self._concatenated, firsts[0])
+                for k, first in enumerate(firsts):
+                    values = fetch.result()  # no query in flight from here
+                    nxt = firsts[k + 1] if k + 1 < len(firsts) else None
+                    batch = None if values is None else _concatenated_batch(values)
+                    if batch is None:  # read row by row before the next range is asked for
+                        yield from self._rows(first, first + DB3_BATCH_ROWS - 1)
+                    if nxt is not None:
+                        fetch = ahead.submit(self._concatenated, nxt)
+                    if batch is not None and len(batch):
+                        yield batch
         finally:
             self._db.close()
 
@@ -207,28 +217,19 @@ class Db3Scanner:
             (first, last),
         )
 
-    def _concatenated(self, first: int, last: int) -> MessageBatch | None:
-        """The messages with ids first..last in one batch, concatenated by SQLite (an
-        aggregate over a rowid range, in id order); None when they do not read so (then
-        :meth:`_rows` reads them)."""
+    def _concatenated(self, first: int) -> tuple[Any, ...] | None:
+        """The payloads, lengths, topic ids and stamps of the wanted messages with ids
+        first..first + DB3_BATCH_ROWS - 1, each concatenated by SQLite (an aggregate over a
+        rowid range, in id order); None where they do not read so. Run by the read-ahead
+        thread of :meth:`batches` while no other query runs."""
+        if not self._concat:
+            return None
         columns = "group_concat(data, x''), group_concat(length(data)), " \
                   "group_concat(topic_id), group_concat(timestamp)"  # fmt: skip
         try:
-            values = self._query(columns, first, last, order="").fetchone()
+            return tuple(self._query(columns, first, first + DB3_BATCH_ROWS - 1, "").fetchone())
         except sqlite3.Error:
             return None
-        if values[0] is None:  # no message in the range
-            return payload_batch([], np.zeros(0), np.zeros(0))
-        if not all(isinstance(v, bytes) for v in values):
-            return None
-        data = values[0]
-        size, tid, stamp = (np.fromstring(v, dtype=np.int64, sep=",") for v in values[1:])
-        if not (len(size) == len(tid) == len(stamp) and size.sum() == len(data)):
-            return None  # a payload that is not a blob (text, counted in characters)
-        rec = np.zeros(len(size), dtype=np.int64)
-        np.cumsum(size[:-1], out=rec[1:])
-        buf = np.frombuffer(_PAD + data, dtype=np.uint8)  # payload i at rec[i] + the header
-        return MessageBatch(buf, rec, tid, stamp, size)
 
     def _rows(self, first: int, last: int) -> Iterator[MessageBatch]:
         """The messages with ids first..last read row by row; where a row does not read,
@@ -277,6 +278,24 @@ class Db3Scanner:
         except sqlite3.Error:
             return False
         return True
+
+
+def _concatenated_batch(values: tuple[Any, ...]) -> MessageBatch | None:
+    """The batch of what :meth:`Db3Scanner._concatenated` read (the payloads one after
+    another, then the lengths, topic ids and stamps as comma-separated integers); None when
+    they do not agree (a payload that is not a blob: text is counted in characters)."""
+    data, *columns = values
+    if data is None:  # no message in the range
+        return payload_batch([], np.zeros(0), np.zeros(0))
+    if not all(isinstance(v, bytes) for v in values):
+        return None
+    size, tid, stamp = (np.fromstring(v, dtype=np.int64, sep=",") for v in columns)
+    if not (len(size) == len(tid) == len(stamp) and size.sum() == len(data)):
+        return None
+    rec = np.zeros(len(size), dtype=np.int64)
+    np.cumsum(size[:-1], out=rec[1:])
+    buf = np.frombuffer(_PAD + data, dtype=np.uint8)  # payload i at rec[i] + the header
+    return MessageBatch(buf, rec, tid, stamp, size)
 
 
 @contextmanager
