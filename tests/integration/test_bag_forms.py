@@ -17,6 +17,7 @@ import os
 import shutil
 import sqlite3
 import subprocess
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -161,6 +162,16 @@ def test_a_payload_stored_as_text_reads_as_its_bytes(plain, forms, tmp_path, mon
     log, report = read_bag(bag)
     assert_same_log(log, plain[0])
     assert by_rows == [1]  # the first batch only (ids 1 to DB3_BATCH_ROWS)
+
+
+def test_a_sqlite3_read_left_early_lets_its_read_ahead_thread_go(forms):
+    sc = bagforms.Db3Scanner(forms[("sqlite3", "")] / "sqlite3_plain.db3", print)
+    batches = sc.batches()
+    first = next(batches)  # the next range is being read ahead now
+    assert 0 < len(first) <= bagforms.DB3_BATCH_ROWS
+    assert any(t.name.startswith("db3-read") for t in threading.enumerate())
+    batches.close()
+    assert not any(t.name.startswith("db3-read") for t in threading.enumerate())
 
 
 def test_a_payload_that_does_not_decompress_is_dropped_and_counted(
