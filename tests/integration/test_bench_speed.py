@@ -135,10 +135,23 @@ def test_markdown_has_a_row_per_bag_form():
 
 
 def test_a_bag_form_is_smoothed_several_times_best_and_worst_kept(monkeypatch):
-    walls = iter([5.0, 4.0, 6.0])
-    peaks = iter([400.0, 450.0, 420.0])
-    monkeypatch.setattr(speed, "peak_memory_mb", lambda bag: (next(peaks), next(walls)))
     monkeypatch.setattr(speed, "read_seconds", lambda bag, workers, repeat: (1.0, 0.5))
-    row = speed.form_figures(SAMPLE, speed.FORMS[0], 100.0, smooth_repeat=3)
+    runs = [(400.0, 5.0), (450.0, 4.0), (420.0, 6.0)]
+    row = speed.form_figures(SAMPLE, speed.FORMS[0], 100.0, runs)
     assert (row["cli_wall_s"], row["cli_wall_worst_s"], row["cli_runs"]) == (4.0, 6.0, 3.0)
     assert row["peak_rss_mb"] == 450.0
+
+
+def test_the_smooth_processes_go_round_the_forms(monkeypatch):
+    """One process of every form per round, so that a slow spell of the machine does not
+    fall on the runs of one form only."""
+    order: list[str] = []
+
+    def run(bag):
+        order.append(bag.name)
+        return 100.0, float(len(order))
+
+    monkeypatch.setattr(speed, "peak_memory_mb", run)
+    runs = speed.smooth_rounds([Path("a.mcap"), Path("b.mcap"), Path("c.mcap")], 2)
+    assert order == ["a.mcap", "b.mcap", "c.mcap"] * 2
+    assert [w for _, w in runs[1]] == [2.0, 5.0]

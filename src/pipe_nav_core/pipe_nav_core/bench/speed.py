@@ -61,7 +61,7 @@ def _rosbags_read_seconds(bag: Path, limit: int = 200_000) -> tuple[float, int]:
 
 
 ROSBAG2_CHUNK_SIZE = 1 << 20  # bytes of records per chunk (rosbag2's MCAP storage: zstd, 1 MiB)
-SMOOTH_REPEAT = 3  # whole smooth processes per bag form (the best and the worst reported)
+SMOOTH_REPEAT = 3  # rounds of smooth processes of every bag form (best and worst reported)
 FIELD_MAG_RATE_HZ = 50.0  # Hz: the magnetometer of the field bags (the others' bag of issue 21)
 
 
@@ -175,18 +175,21 @@ def read_seconds(bag: Path, workers: int, repeat: int = 2) -> tuple[float, float
 
 
 def form_figures(
-    bag: Path, form: BagForm, duration: float, repeat: int = 2, smooth_repeat: int = SMOOTH_REPEAT
+    bag: Path,
+    form: BagForm,
+    duration: float,
+    runs: Sequence[tuple[float, float]],
+    repeat: int = 2,
 ) -> dict:
     """One row of the bag-form table: size, messages, read + decode time serially and with
     the pool (s, the best of ``repeat``; with the pool also the reading thread's CPU time),
-    and the whole ``pipe-nav smooth`` process run ``smooth_repeat`` times: its best and worst
-    wall time (s; the best, like the read's, is what the machine's other load did not slow)
-    and its largest peak memory (MB)."""
+    and of the whole ``pipe-nav smooth`` processes ``runs`` ((peak MB, wall s) each, from
+    :func:`smooth_rounds`) the best and worst wall time (s; the best, like the read's, is
+    what the machine's other load did not slow) and the largest peak memory (MB)."""
     workers = read_workers()
     info = bag_info(bag)
     serial, _ = read_seconds(bag, 0, repeat)
     pooled, pooled_cpu = read_seconds(bag, workers, repeat) if workers else (serial, serial)
-    runs = [peak_memory_mb(bag) for _ in range(max(1, smooth_repeat))]
     peak = max(p for p, _ in runs)
     walls = [w for _, w in runs]
     return {
@@ -208,6 +211,18 @@ def form_figures(
         "cli_runs": float(len(walls)),
         "peak_rss_mb": peak,
     }
+
+
+def smooth_rounds(bags: Sequence[Path], rounds: int) -> list[list[tuple[float, float]]]:
+    """(peak MB, wall s) of ``rounds`` whole ``pipe-nav smooth`` processes of each bag, a
+    round being one process of every bag in turn: a slow spell of the machine (whose speed
+    drifts by a third within minutes) falls on all of the forms, not on the one measured
+    then."""
+    runs: list[list[tuple[float, float]]] = [[] for _ in bags]
+    for _ in range(max(1, rounds)):
+        for got, bag in zip(runs, bags, strict=True):
+            got.append(peak_memory_mb(bag))
+    return runs
 
 
 def smooth_stages(bag: Path, duration: float) -> dict[str, float]:
@@ -323,11 +338,12 @@ def run(
     total_msgs = rb_n
     stages["rosbags_read_s_extrapolated"] = rb_s * (total_msgs / min(total_msgs, 200_000))
     stages["length_km"] = length_km
+    print("pipe-nav bench: speed, the smooth processes of every form", file=sys.stderr)
+    runs = smooth_rounds([bags[f] for f in forms], 1 if quick else SMOOTH_REPEAT)
     rows = []
-    for f in forms:
+    for f, form_runs in zip(forms, runs, strict=True):
         print(f"pipe-nav bench: speed, {f.name}", file=sys.stderr, flush=True)
-        rows.append(form_figures(bags[f], f, duration, repeat=1 if quick else 2,
-                                 smooth_repeat=1 if quick else SMOOTH_REPEAT))  # fmt: skip
+        rows.append(form_figures(bags[f], f, duration, form_runs, repeat=1 if quick else 2))
     stages["peak_rss_mb"] = rows[0]["peak_rss_mb"]
     stages["cli_wall_s"] = rows[0]["cli_wall_s"]
     if not quick:  # the process with the chunk workers it does not have by default, or none
@@ -413,7 +429,8 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
         f"(`workers=0`) and as by default, with {workers} worker thread{plural} decompressing "
         f"and CRC-checking the chunks ahead ({os.cpu_count()} cores); smooth: the whole "
         "`pipe-nav smooth` process (imports and outputs included), the best and the worst "
-        f"of {runs} run{'' if runs == 1 else 's'}; smooth / read: the "
+        f"of {runs} run{'' if runs == 1 else 's'} (one of every form in turn); smooth / "
+        "read: the "
         "process's best time over the default read's; reading thread: its CPU time in the "
         "default read, the read's time when the workers have cores of their own; reads: the "
         f"best of two. `pipe-nav smooth` unpacks the chunks with {smooth} worker "
