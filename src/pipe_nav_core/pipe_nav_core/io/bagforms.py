@@ -176,8 +176,9 @@ class Db3Scanner:
                         if topics is None or c.topic in topics]  # fmt: skip
         self._all = len(self._wanted) == len(self.channels)  # no topic to leave out
         self._db.text_factory = bytes  # group_concat's text is the payloads' bytes
-        self._concat = text_encoding == "UTF-8"  # else SQLite would translate the bytes
-        self._by_rowid = keys == [("id", "INTEGER")]  # id INTEGER PRIMARY KEY: the rowid
+        # the aggregates where the bytes are not translated and the rows are walked in id
+        # order: ids that are the rowids (rosbag2's id INTEGER PRIMARY KEY); else rows
+        self._concat = text_encoding == "UTF-8" and keys == [("id", "INTEGER")]
 
     def batches(self, workers: int = 0) -> Iterator[MessageBatch]:
         """The messages of the wanted topics in recording order (the table's ids), in
@@ -196,6 +197,9 @@ class Db3Scanner:
                 return
             if lo is None:
                 return
+            if not self._concat:
+                yield from self._rows(lo, hi)
+                return
             firsts = range(lo, hi + 1, DB3_BATCH_ROWS)
             with ThreadPoolExecutor(1, thread_name_prefix="db3-read") as ahead:
                 fetch = ahead.submit(self._concatenated, firsts[0])
@@ -213,11 +217,11 @@ class Db3Scanner:
             self._db.close()
 
     def _query(self, columns: str, first: int, last: int, order: str = "ORDER BY id") -> Any:
-        """``columns`` of the wanted messages with ids first..last (a sqlite3 cursor). Where
-        the ids are the rowids (rosbag2's table), it is walked by them only (NOT INDEXED:
-        never by the stamps' index), so an aggregate sees the rows in id order."""
+        """``columns`` of the wanted messages with ids first..last (a sqlite3 cursor). For
+        the aggregates (``order`` ""), the table is walked by its rowids only (NOT INDEXED:
+        never by the stamps' index), so that they see the rows in id order."""
         where = "" if self._all else f"AND topic_id IN ({','.join(map(str, self._wanted))})"
-        table = "messages NOT INDEXED" if self._by_rowid else "messages"
+        table = "messages" if order else "messages NOT INDEXED"
         return self._db.execute(
             f"SELECT {columns} FROM {table} WHERE id BETWEEN ? AND ? {where} {order}",
             (first, last),
@@ -238,8 +242,9 @@ class Db3Scanner:
             return None
 
     def _rows(self, first: int, last: int) -> Iterator[MessageBatch]:
-        """The messages with ids first..last read row by row; where a row does not read,
-        the reading goes on from the next id that does, and a warning names the ids lost."""
+        """The messages with ids first..last read row by row (in batches of at most
+        DB3_BATCH_ROWS); where a row does not read, the reading goes on from the next id
+        that does, and a warning names the ids lost."""
         rows: list[Any] = []
         lost: list[str] = []
         why = ""
@@ -247,9 +252,12 @@ class Db3Scanner:
         while at <= last:
             try:
                 cur = self._query(_DB3_COLUMNS, at, last)
-                while row := cur.fetchone():
+                while row := cur.fetchone():  # one by one: a row that fails loses no other
                     rows.append(row)
                     at = row[0] + 1
+                    if len(rows) == DB3_BATCH_ROWS:
+                        yield _rows_batch(rows)
+                        rows = []
                 break
             except sqlite3.Error as exc:
                 why = str(exc)
@@ -261,9 +269,7 @@ class Db3Scanner:
             self.warn(f"{self.path}: the messages with ids {', '.join(lost)} are unreadable "
                       f"({why}); the rest was read")  # fmt: skip
         if rows:
-            _, tid, stamp, data = zip(*rows, strict=True)
-            payloads = [d if isinstance(d, bytes) else b"" for d in data]
-            yield payload_batch(payloads, np.array(tid), np.array(stamp))
+            yield _rows_batch(rows)
 
     def _next_readable(self, bad: int, last: int) -> int:
         """The smallest id after ``bad`` (an id whose row does not read) from which the rows
@@ -284,6 +290,14 @@ class Db3Scanner:
         except sqlite3.Error:
             return False
         return True
+
+
+def _rows_batch(rows: Sequence[Any]) -> MessageBatch:
+    """The batch of rows (id, topic id, stamp, payload) as :meth:`Db3Scanner._rows` reads
+    them (a payload that is not bytes is empty: its decoding fails and counts it)."""
+    _, tid, stamp, data = zip(*rows, strict=True)
+    payloads = [d if isinstance(d, bytes) else b"" for d in data]
+    return payload_batch(payloads, np.array(tid), np.array(stamp))
 
 
 def _concatenated_batch(values: tuple[Any, ...]) -> MessageBatch | None:
