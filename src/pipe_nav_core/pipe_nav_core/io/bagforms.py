@@ -143,7 +143,7 @@ class Db3Scanner:
     lengths, topics and stamps concatenated by SQLite itself (``group_concat``) in one step
     that lets go of the GIL, without a Python object per message. A range that does not
     read so (a damaged page, a payload that is not a blob) is read row by row, the rows
-    after a damaged page too."""
+    after a damaged page too; so is a table whose ids are not its rowids (not rosbag2's)."""
 
     def __init__(
         self,
