@@ -430,10 +430,9 @@ def forms_markdown(rows: Sequence[Mapping]) -> list[str]:
         f"and CRC-checking the chunks ahead ({os.cpu_count()} cores); smooth: the whole "
         "`pipe-nav smooth` process (imports and outputs included), the best and the worst "
         f"of {runs} run{'' if runs == 1 else 's'} (one of every form in turn); smooth / "
-        "read: the "
-        "process's best time over the default read's; reading thread: its CPU time in the "
-        "default read, the read's time when the workers have cores of their own; reads: the "
-        f"best of two. `pipe-nav smooth` unpacks the chunks with {smooth} worker "
+        "read: the process's best time over the default read's; reading thread: its CPU time "
+        "in the default read, the read's time when the workers have cores of their own; reads: "
+        f"the best of two. `pipe-nav smooth` unpacks the chunks with {smooth} worker "
         f"thread{'' if smooth == 1 else 's'}: the first filter pass runs beside its reading.",
         "",
         "| bag form | MB | messages | read + decode, 1 thread: x real time "

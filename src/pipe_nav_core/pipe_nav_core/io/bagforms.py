@@ -232,8 +232,6 @@ class Db3Scanner:
         first..first + DB3_BATCH_ROWS - 1, each concatenated by SQLite (an aggregate over a
         rowid range, in id order); None where they do not read so. Run by the read-ahead
         thread of :meth:`batches` while no other query runs."""
-        if not self._concat:
-            return None
         columns = "group_concat(data, x''), group_concat(length(data)), " \
                   "group_concat(topic_id), group_concat(timestamp)"  # fmt: skip
         try:
