@@ -287,10 +287,10 @@ def test_the_forms_rosbag2_itself_writes(plain, tmp_path):
 def test_a_full_temporary_folder_is_named(forms, tmp_path, monkeypatch, capsys):
     from pipe_nav_core.io import bagforms
 
-    def full(src, out):
+    def full(src, out, length):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(bagforms, "_copy_frames", full)
+    monkeypatch.setattr(bagforms.shutil, "copyfileobj", full)
     bag = forms[("sqlite3", "file")] / "sqlite3_file.db3.zstd"  # an MCAP one is streamed
     with pytest.raises(BagError, match=r"cannot decompress it into .*No space left on device"):
         read_bag(bag)

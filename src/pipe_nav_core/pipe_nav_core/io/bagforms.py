@@ -22,6 +22,7 @@ Every scanner has :class:`.mcapread.McapScanner`'s interface: ``batches(workers)
 from __future__ import annotations
 
 import os
+import shutil
 import sqlite3
 import tempfile
 from collections.abc import Callable, Collection, Iterator, Sequence
@@ -405,14 +406,8 @@ def _decompressed(path: Path, stream: ZstdStream) -> Iterator[Path]:
         plain = Path(tmp) / f"decompressed{inner}"
         try:
             with open(plain, "wb") as out:
-                _copy_frames(stream, out)
+                shutil.copyfileobj(stream, out, _COPY_BYTES)
         except OSError as exc:  # a full temporary folder: name it
             why = f"cannot decompress it into {tmp} ({exc.strerror})"
             raise OSError(exc.errno, why) from None
         yield plain
-
-
-def _copy_frames(stream: ZstdStream, out: BinaryIO) -> None:
-    """Everything ``stream`` decompresses, written into ``out``."""
-    while data := stream.read(_COPY_BYTES):
-        out.write(data)
