@@ -284,6 +284,19 @@ class NavConfig:
     zupt_sigma: float = _field(0.002, POSITIVE, "zero-velocity update noise, m/s")
     zaru_sigma: float = _field(1e-4, POSITIVE, "zero-angular-rate update noise, rad/s")
 
+    # Straight pipe between bends (smoothing passes about a reference only)
+    straight_pipe_sigma: float = _field(
+        0.0,
+        NON_NEGATIVE,
+        "straight-pipe update noise (the path's turn rate outside bends), rad/s; 0 = off",
+    )
+    straight_pipe_curvature: float = _field(
+        1e-3, POSITIVE, "largest curvature of the previous pass's path taken as straight, 1/m"
+    )
+    straight_pipe_margin: float = _field(
+        1.5, NON_NEGATIVE, "length of pipe left out at each end of a bend, m"
+    )
+
     # Gravity tilt (seed 001 eq. 11-13; tilt_gate is eq. 13's threshold xi_g)
     tilt_update: str = _field(
         "auto",

@@ -48,6 +48,7 @@ from pipe_nav_core.filter.kalman import chi2_threshold, predict_k
 from pipe_nav_core.jit import kernel, literal_unroll
 from pipe_nav_core.model.measurements import C_EPOCHS, COUNTERS, KINDS, UPDATES
 from pipe_nav_core.model.measurements.context import Context, Settings
+from pipe_nav_core.model.measurements.straight_pipe import NO_SECTIONS
 from pipe_nav_core.model.mechanization import dr_step_k, ins_step_k
 from pipe_nav_core.model.process import discretize_k, imu_noise, process_noise_k, system_matrix_k
 from pipe_nav_core.model.sensors import ImuSpec
@@ -106,9 +107,11 @@ def parameters(
     lever_arm: Array,
     earth_sign: float,
     mag_ref: tuple[float, float] | None,
+    straight: tuple[Array, Array] = (NO_SECTIONS, NO_SECTIONS),
 ) -> Settings:
     """The settings of the kernels (every number a float, every flag a bool: one compiled
-    specialization whatever types the configuration holds)."""
+    specialization whatever types the configuration holds); straight: the chainage intervals
+    (K, 2; m) straight in plan and in the vertical plane (:func:`straight_pipe.sections`)."""
     c, f = config, float
     ref, dip = (0.0, 0.0) if mag_ref is None else (f(mag_ref[0]), f(mag_ref[1]))
     return Settings(
@@ -123,7 +126,9 @@ def parameters(
         mag_sigma=f(c.mag_heading_sigma), mag_ref=ref, mag_dip=dip,
         mag_ref_ok=mag_ref is not None, scale_rw=f(c.odometer_scale_rw),
         dr_along=f(c.odometer_distance_sigma), dr_lateral=f(c.dr_lateral_sigma),
-        marker_time=f(c.marker_time_sigma),
+        marker_time=f(c.marker_time_sigma), straight_sigma=f(c.straight_pipe_sigma),
+        straight_h=np.asarray(straight[0], np.float64).reshape(-1, 2),
+        straight_v=np.asarray(straight[1], np.float64).reshape(-1, 2),
         chi2=np.array([chi2_threshold(c.gate_probability, m) for m in (1, 2, 3)]),
         imu=np.array(imu_noise(imu), dtype=np.float64),
     )  # fmt: skip

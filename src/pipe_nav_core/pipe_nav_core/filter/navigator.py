@@ -53,6 +53,7 @@ from pipe_nav_core.filter.odometer_resolution import OdometerResolution
 from pipe_nav_core.filter.planner import BatchPool, Ends, epoch_inputs, plan, tally
 from pipe_nav_core.model import imu_noise as imu_model
 from pipe_nav_core.model.measurements.marker import marker_vector
+from pipe_nav_core.model.measurements.straight_pipe import NO_SECTIONS, sections
 from pipe_nav_core.model.state import SV_SIZE, SV_T, NavState, layout_for
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.types import Datum, Marker, SensorLog, markers_sorted
@@ -81,7 +82,9 @@ class PassOptions:
     own estimate; the prior stays the static alignment's and the filter carries its mean
     error relative to the reference. Smoothing such a pass and feeding the result back as the
     next reference is one Gauss-Newton step of the batch problem (iterated smoother,
-    :mod:`pipe_nav_core.smooth.passes`); the epoch ends are then the reference's times.
+    :mod:`pipe_nav_core.smooth.passes`); the epoch ends are then the reference's times, and
+    the straight-pipe update (NavConfig.straight_pipe_sigma) takes its straight sections from
+    it (:func:`~pipe_nav_core.model.measurements.straight_pipe.sections`).
     initial_azimuth: rad, replaces the initial heading of the configured source (the
     smoother iterates the re-anchoring at the second marker with it); free_heading: keep the
     initial heading's prior outside the filter until the next marker after the first
@@ -338,8 +341,12 @@ class Navigator:
         self._dyn_i = np.zeros(D_INT_SIZE, dtype=np.int64)
         self._dyn_i[D_FREE] = not self.anchor.anchored
         earth_sign = self.options.earth_sign
+        straight = (NO_SECTIONS, NO_SECTIONS)
+        if self.reference is not None and cfg.straight_pipe_sigma > 0:
+            straight = sections(self.reference, cfg.straight_pipe_curvature,
+                                cfg.straight_pipe_margin)  # fmt: skip
         self._prm = parameters(cfg, self.imu_spec, np.asarray(cfg.odometer_lever_arm, float),
-                               earth_sign, a.mag_ref)  # fmt: skip
+                               earth_sign, a.mag_ref, straight)  # fmt: skip
         self._counts["aligned_at_ms"] = int(round(s.t * 1000))
         ib.drop_before(s.t)
         self.report.alignment(self._sv, self.kf, self.anchor.free_heading)

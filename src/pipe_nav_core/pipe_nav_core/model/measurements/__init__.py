@@ -33,13 +33,22 @@ from pipe_nav_core.model.measurements import (
     magnetic_heading,
     marker,
     odometer,
+    straight_pipe,
     zero_rate,
     zero_velocity,
 )
 from pipe_nav_core.model.measurements.context import Context, Factor, Measurement, Settings
 
 # the measurements, in the order the epoch applies them
-MEASUREMENTS = (odometer, zero_velocity, zero_rate, gravity_tilt, magnetic_heading, marker)
+MEASUREMENTS = (
+    odometer,
+    zero_velocity,
+    zero_rate,
+    straight_pipe,
+    gravity_tilt,
+    magnetic_heading,
+    marker,
+)
 
 KINDS = tuple(k for m in MEASUREMENTS for k in m.KINDS)  # rows of the update statistics
 C_EPOCHS = 0  # the epoch's own counter, then the measurements' events

@@ -37,7 +37,9 @@ class Settings(NamedTuple):
     mag_dip_gate (rad), mag_decl (rad), mag_sigma (rad), mag_ref (T) / mag_dip (rad) the
     reference field and mag_ref_ok whether it is known: the magnetic heading update;
     scale_rw, dr_along, dr_lateral: process noise of the odometer scale and of dead reckoning;
-    marker_time (s): the marker passages' time noise; chi2 (3,): the innovation gates for 1,
+    marker_time (s): the marker passages' time noise; straight_sigma (rad/s, 0: off),
+    straight_h / straight_v (K, 2): the straight-pipe update's noise and the chainage
+    intervals (m) straight in plan and in the vertical plane; chi2 (3,): the innovation gates for 1,
     2 and 3 rows; imu (6,): process_noise_k's IMU densities (imu[0]: the gyro's angle random
     walk, rad/sqrt(s))."""
 
@@ -66,6 +68,9 @@ class Settings(NamedTuple):
     dr_along: float
     dr_lateral: float
     marker_time: float
+    straight_sigma: float
+    straight_h: Array
+    straight_v: Array
     chi2: Array
     imu: Array
 

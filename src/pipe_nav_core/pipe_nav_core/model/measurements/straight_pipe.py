@@ -1,0 +1,191 @@
+"""Straight pipe between bends: where the previous pass's smoothed path runs straight, the pig's
+path does not turn, so the body turns neither about the pipe's horizontal normal nor about
+the normal in its vertical plane. Between markers this is the information that binds the
+gyro's bias and error matrix while the pig moves, as the zero-rate update does at stops; with
+a consumer-grade gyro and markers only at the pipe's ends it halves the horizontal error
+(BENCHMARKS.md, "The straight-pipe update").
+
+The two rows (rad/s) are the body's rate relative to the ground, omega_nb = (I + E)^-1
+(gyro_mean - b_g) - C_nb^T w_ie (base_link; E the gyro error matrix where the layout has it),
+about two axes across the bore (base_link x): the one that turns the pipe's axis t in plan,
+u = t x n, and the one that turns it in its vertical plane, n = (up x t) / |up x t| (both in
+ENU at the linearization point, held in base_link). Rolling about the axis turns neither.
+Each row applies where the path is straight in its plane: the chainage intervals
+:func:`sections` finds in the pass's reference trajectory (so only passes linearized about
+a reference have the update), leaving out ``straight_pipe_margin`` at each end of a bend. Its
+noise is the gyro's angle random walk over the epoch with ``straight_pipe_sigma`` added: the
+pig's wobble and the pipe's own waviness.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.geo import earth
+from pipe_nav_core.jit import kernel
+from pipe_nav_core.model.measurements.context import Context, factor, update
+from pipe_nav_core.model.state import (
+    I_BG,
+    I_GM,
+    I_Q,
+    L_ATT,
+    L_BG,
+    L_GM,
+    L_N,
+    SV_DIST,
+    SV_LAT,
+    c_nb_k,
+)
+
+if TYPE_CHECKING:
+    from pipe_nav_core.filter.epoch import EpochOutputs
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+
+KINDS, EVENTS = ("straight",), ()  # its update (statistics), the events it counts
+NO_SECTIONS = np.zeros((0, 2))  # (K, 2) chainage intervals: none
+WINDOW_M = 2.0  # m of path over which sections() measures the curvature
+GRID_M = 0.25  # m: the chainage step sections() measures at
+OTHER_CURVATURE = 0.02  # 1/m: the other plane's curvature up to which a plane's row applies
+
+
+@kernel
+def axes_k(sv: Array) -> Array:
+    """(2, 3) the base_link directions across the bore (x) about which a rate turns the
+    pipe's axis in plan (row 0: u = t x n in ENU) and in its vertical plane (row 1: n = up x
+    t, horizontal), t the axis in ENU; zeros where the axis is vertical."""
+    c = c_nb_k(sv)
+    te, tn, tu = c[0, 0], c[1, 0], c[2, 0]
+    h = np.hypot(te, tn)
+    enu = np.zeros((2, 3))
+    if h > 1e-6:
+        enu[0, 0], enu[0, 1], enu[0, 2] = -tu * te / h, -tu * tn / h, h
+        enu[1, 0], enu[1, 1] = -tn / h, te / h
+    return enu @ c
+
+
+@kernel
+def straight_pipe_k(
+    sv: Array, L: Index, gyro_mean: Array, sigma: float, earth_sign: float, axes: Array
+) -> Model:
+    """The components along ``axes`` (m, 3; base_link, across the bore) of the body's rate
+    relative to the ground, omega_nb (rad/s), zero on a straight pipe: residual, H and R
+    (sigma rad/s on each row). The axes are inputs (the policy's, from the linearization
+    point: :func:`axes_k`), so that both planes' rows turn with the body as the bore does."""
+    c = c_nb_k(sv)
+    w_ie = earth.earth_rate_k(sv[SV_LAT], earth_sign)
+    gm = L[L_GM]
+    inv = np.eye(3)
+    if gm >= 0:
+        inv = att.inv3(np.eye(3) + sv[I_GM : I_GM + 9].copy().reshape(3, 3))
+    w_ib = inv @ (gyro_mean - sv[I_BG : I_BG + 3])
+    mi = axes @ inv  # d(rows)/d(raw rate)
+    m = axes.shape[0]
+    H = np.zeros((m, L[L_N]))
+    H[:, L[L_BG] : L[L_BG] + 3] = -mi
+    if gm >= 0:
+        for r in range(3):
+            for j in range(3):
+                H[:, gm + 3 * r + j] = -mi[:, r] * w_ib[j]
+    a = L[L_ATT]
+    H[:, a : a + 3] = -(axes @ c.T @ att.skew_k(w_ie))
+    return -(axes @ (w_ib - c.T @ w_ie)), H, np.eye(m) * sigma**2
+
+
+def straight_pipe(
+    s: Array, L: Index, *, gyro_mean: Array, sigma: float, earth_sign: float = 1.0
+) -> tuple[Array, Array, Array]:
+    """Both rows on a flat state s (SV_SIZE,) and layout index L, the axes taken at s (for
+    tests; gyro_mean rad/s base_link, sigma rad/s)."""
+    return straight_pipe_k(s, L, np.asarray(gyro_mean, float), float(sigma), float(earth_sign),
+                           axes_k(s))  # fmt: skip
+
+
+@kernel
+def _inside(sections: Array, d: float) -> bool:
+    """Whether chainage d (m) is inside one of the sorted, disjoint intervals (K, 2)."""
+    i = np.searchsorted(sections[:, 0], d, side="right") - 1
+    return i >= 0 and d <= sections[i, 1]
+
+
+@kernel
+def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, Array]]:
+    """Whether the epoch has the update (moving, on a straight section in plan or in its
+    vertical plane) and straight_pipe_k's inputs after sv, L (the rows of the planes it is
+    straight in)."""
+    prm = c.prm
+    sigma = np.sqrt(prm.imu[0] ** 2 / c.T + prm.straight_sigma**2)
+    axes = axes_k(c.s)
+    lo, hi = 0, 0
+    if prm.straight_sigma > 0.0 and not c.stopped and c.T > 0.0:
+        d = c.s[SV_DIST]
+        flat, level = _inside(prm.straight_h, d), _inside(prm.straight_v, d)
+        lo, hi = (0 if flat else 1), (2 if level else 1)
+        if axes[1, 0] == 0.0 and axes[1, 1] == 0.0:
+            hi = lo  # a vertical axis: neither plane is defined
+    return hi > lo, (c.gyro_mean, sigma, prm.earth_sign, axes[lo:hi].copy())
+
+
+@kernel
+def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+    """The update where :func:`inputs_k` says so, counted under kind."""
+    on, args = inputs_k(c)
+    if on:
+        r, H, R = straight_pipe_k(c.s, c.L, *args)
+        update(kind, r, H, R, x, P, c.prm, out)
+
+
+def factors(c: Context) -> list[Factor]:
+    """The update :func:`apply` makes at this context, as a model of the state."""
+    on, args = inputs_k(c)
+    return [factor(KINDS[0], straight_pipe_k, *args)] if on else []
+
+
+def sections(reference: Array, max_curvature: float, margin: float) -> tuple[Array, Array]:
+    """The chainage intervals (K, 2; m, sorted, disjoint) where the path of flat states
+    ``reference`` (K, SV_SIZE; a pass's smoothed trajectory) runs straight in plan and in its
+    vertical plane: the axis (base_link x) turns by less than ``max_curvature`` (1/m) over
+    every WINDOW_M of chainage, and no bend is nearer than ``margin`` (m)."""
+    d = reference[:, SV_DIST]
+    order = np.argsort(d, kind="stable")
+    d = d[order]
+    keep = np.r_[True, np.diff(d) > 1e-6]  # the first epoch at each chainage (stops)
+    d, q = d[keep], reference[order][keep][:, I_Q : I_Q + 4]
+    if len(d) < 2 or d[-1] - d[0] < WINDOW_M:
+        return NO_SECTIONS, NO_SECTIONS
+    x, y, z, w = q.T
+    t = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=1)
+    azimuth = np.unwrap(np.arctan2(t[:, 0], t[:, 1]))
+    pitch = np.arctan2(t[:, 2], np.hypot(t[:, 0], t[:, 1]))
+    grid = np.arange(d[0], d[-1] + GRID_M, GRID_M)
+    half = WINDOW_M / 2
+    lo, hi = np.clip(grid - half, d[0], d[-1]), np.clip(grid + half, d[0], d[-1])
+    span = np.maximum(hi - lo, GRID_M)
+    ends = (float(d[0]), float(d[-1]))
+
+    def turn(angle: Array) -> Array:
+        return np.abs(np.interp(hi, d, angle) - np.interp(lo, d, angle)) / span
+
+    plan = turn(azimuth) * np.cos(np.interp(grid, d, pitch))
+    vertical = turn(pitch)
+    # a plane's row is left out where the other plane turns faster than OTHER_CURVATURE too:
+    # there a milliradian of axis or gyro misalignment leaks the other plane's turn into it
+    reach = margin + half
+    return (
+        _straight(grid, (plan <= max_curvature) & (vertical <= OTHER_CURVATURE), reach, *ends),
+        _straight(grid, (vertical <= max_curvature) & (plan <= OTHER_CURVATURE), reach, *ends),
+    )
+
+
+def _straight(grid: Array, flat: Array, margin: float, start: float, end: float) -> Array:
+    """The intervals (K, 2) of [start, end] (m) further than margin from every grid point that
+    is not flat."""
+    bent = grid[~flat]
+    if len(bent) == 0:
+        return np.array([[start, end]])
+    edges = np.r_[start, np.c_[bent - margin, bent + margin].ravel(), end].reshape(-1, 2)
+    # between consecutive bent points' reaches (they may overlap: then no interval)
+    out = edges[edges[:, 1] - edges[:, 0] > 0]
+    return np.ascontiguousarray(out, dtype=np.float64).reshape(-1, 2)

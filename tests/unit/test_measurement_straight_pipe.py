@@ -1,0 +1,100 @@
+"""The straight-pipe model: its Jacobian, the planes its rows measure whatever the roll, and
+the straight sections it finds in a smoothed path."""
+
+import math
+
+import numpy as np
+import pytest
+from measurement_check import MODES, check_jacobian, random_state
+from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.model.measurements import straight_pipe as sp
+from pipe_nav_core.model.state import SV_DIST, SV_Q, SV_SIZE, Layout, NavState, c_nb_k
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("gyro_errors", [False, True])
+def test_straight_pipe_jacobian(seed, mode, gyro_errors):
+    rng = np.random.default_rng(seed)
+    s = random_state(rng)
+    s.gm = rng.normal(0, 1e-2, (3, 3))
+    w = rng.normal(0, 0.05, 3)  # rad/s: a body turning, so that the E columns are not zero
+    lay = Layout(mode, gyro_errors=gyro_errors)
+    L = lay.index
+    axes = sp.axes_k(s.vector())
+    r, H, R = sp.straight_pipe_k(s.vector(), L, w, 1e-3, 1.0, axes)
+    assert r.shape == (2,) and np.allclose(R, np.eye(2) * 1e-6)
+    if gyro_errors:
+        assert np.abs(H[:, lay.slices["gm"]]).max() > 1e-3
+
+    def residual(x: NavState) -> np.ndarray:
+        return sp.straight_pipe_k(x.vector(), L, w, 1e-3, 1.0, axes)[0]
+
+    check_jacobian(residual, s, lay, H)
+
+
+def _level_state(roll: float, azimuth: float) -> NavState:
+    s = random_state(np.random.default_rng(0))
+    s.q_nb = att.quat_from_euler(roll, 0.0, azimuth)
+    s.bg = np.zeros(3)
+    return s
+
+
+@pytest.mark.parametrize("roll", [0.0, 0.3, 2.0])
+def test_rows_are_the_plan_and_the_vertical_turn_whatever_the_roll(roll):
+    """In a level pipe a turn about the vertical is the plan row's alone and a turn about the
+    horizontal normal the vertical row's alone, however the pig has rolled about its axis."""
+    s = _level_state(roll, azimuth=1.0)
+    sv = s.vector()
+    c = c_nb_k(sv)
+    axes = sp.axes_k(sv)
+    assert np.allclose(axes @ np.array([1.0, 0.0, 0.0]), 0.0)  # both across the bore
+    L = Layout("ins").index
+    t = c[:, 0]
+    normal = np.cross([0.0, 0.0, 1.0], t)
+    for turn, row in ((np.array([0.0, 0.0, 0.01]), 0), (0.01 * normal, 1)):
+        gyro = c.T @ turn  # rad/s base_link; the Earth's rate taken out below
+        r, _, _ = sp.straight_pipe_k(sv, L, gyro, 1e-3, 0.0, axes)  # earth_sign 0: no Earth
+        assert abs(r[row]) == pytest.approx(0.01, rel=1e-9)
+        assert abs(r[1 - row]) < 1e-12
+
+
+def _path(ds: float = 0.1) -> np.ndarray:
+    """Flat states along 100 m of pipe: straight, a 90 deg plan bend of 10 m radius from
+    30 m, straight, and from 70 m a gentle vertical sag (curvature 5e-3 1/m) to the end."""
+    s = np.arange(0.0, 100.0, ds)
+    azimuth = np.clip((s - 30.0) / 10.0, 0.0, math.pi / 2)
+    pitch = np.where(s > 70.0, -5e-3 * (s - 70.0), 0.0)
+    out = np.zeros((len(s), SV_SIZE))
+    out[:, SV_DIST] = s
+    for k, (a, p) in enumerate(zip(azimuth, pitch, strict=True)):
+        # base_link x along (sin a cos p, cos a cos p, sin p) in ENU
+        out[k, SV_Q] = att.quat_from_euler(0.0, p, a)
+    return out
+
+
+def test_sections_leave_out_each_bend_and_its_margin():
+    ref = _path()
+    axis = c_nb_k(ref[350])[:, 0]  # 35 m, in the bend: azimuth 0.5 rad, level
+    assert np.allclose(axis, [math.sin(0.5), math.cos(0.5), 0.0])
+    plan, vertical = sp.sections(ref, 1e-3, 1.5)
+    bend_end = 30.0 + 10.0 * math.pi / 2
+    reach = 1.5 + sp.WINDOW_M  # the margin, and at most the window the curvature is seen over
+    # plan: straight before the bend and after it, the sag included (it does not turn in plan)
+    assert plan[0, 0] == 0.0 and 30.0 - reach <= plan[0, 1] <= 30.0 - 1.5
+    assert plan[-1, 1] == pytest.approx(ref[-1, SV_DIST])
+    assert bend_end + 1.5 <= plan[1, 0] <= bend_end + reach and len(plan) == 2
+    # vertical: the plan bend turns faster than OTHER_CURVATURE, so it is left out as well;
+    # the sag turns in its vertical plane at 5e-3 1/m, more than the 1e-3 taken as straight
+    assert len(vertical) == 2
+    assert 30.0 - reach <= vertical[0, 1] <= 30.0 - 1.5
+    assert bend_end + 1.5 <= vertical[1, 0] and 70.0 - reach <= vertical[1, 1] <= 70.0 - 1.5
+    for lo, hi in np.r_[plan, vertical]:
+        assert lo < hi
+
+
+def test_no_sections_on_a_short_or_standing_path():
+    ref = _path()[:10]  # 1 m
+    assert all(len(x) == 0 for x in sp.sections(ref, 1e-3, 1.5))
+    standing = np.repeat(_path()[:1], 50, axis=0)
+    assert all(len(x) == 0 for x in sp.sections(standing, 1e-3, 1.5))
