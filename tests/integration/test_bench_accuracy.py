@@ -126,3 +126,27 @@ def test_every_method_row_has_its_time_and_memory():
     assert "| memory [MB] |" in md
     line = next(x for x in md.splitlines() if "| graph |" in x)
     assert line.rstrip(" |").split("|")[-1].strip().isdigit()
+
+
+def test_settings_given_on_the_command_line_reach_every_run():
+    """``--set KEY=VALUE``: each VALUE read as JSON (else text), checked as NavConfig checks a
+    settings file, the item named where it is refused; the settings change the runs."""
+    import pytest
+    from pipe_nav_core.errors import ConfigError
+
+    assert bench.setting_overrides(["straight_pipe_sigma=0.001", "heading_source=markers"]) == {
+        "straight_pipe_sigma": 0.001,
+        "heading_source": "markers",
+    }
+    for item, said in (("straight_pipe_sigma", "KEY=VALUE"), ("nope=1", "unknown setting"),
+                       ("straight_pipe_sigma=-1", ">= 0")):  # fmt: skip
+        with pytest.raises(ConfigError, match=said) as e:
+            bench.setting_overrides([item])
+        assert repr(item) in str(e.value)
+    case = next(c for c in bench.CASES if c.scenario == "drag180")
+    plain = {r["method"]: r for r in bench.run_case(case, 3, ["rts"])}
+    straight = bench.run_case(case, 3, ["rts"], settings={"straight_pipe_sigma": 1e-3})
+    straight = {r["method"]: r for r in straight}
+    assert abs(straight["rts"]["max_h"] - plain["rts"]["max_h"]) > 0.01  # m (12.6 -> 6.4 cm)
+    # the baseline (seed 002's complementary filter) takes none of them
+    assert straight[bench.BASELINE]["max_h"] == plain[bench.BASELINE]["max_h"]

@@ -258,6 +258,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         help="run through another pipe: marker surveys, weld anomalies, field bends drawn anew",
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an estimator setting for every run, as in a settings file (repeatable), "
+        "e.g. straight_pipe_sigma=0.001",
+    )
     p.set_defaults(func=cmd_bench)
     return ap
 

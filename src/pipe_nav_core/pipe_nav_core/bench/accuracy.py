@@ -19,7 +19,7 @@ import platform
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from pipe_nav_core.bench.evaluation import sag_depth, score
 from pipe_nav_core.bench.sources import MARKERS_ONLY, variant
 from pipe_nav_core.config import NavConfig
+from pipe_nav_core.errors import ConfigError
 from pipe_nav_core.filter.complementary import complementary_trajectory
 from pipe_nav_core.filter.ingest import mount_rotation
 from pipe_nav_core.geo import earth
@@ -176,16 +177,21 @@ class ResidentPeak:
 
 
 def run_case(
-    case: BenchCase, seed: int, methods: list[str], pipe_seed: int | None = None
+    case: BenchCase,
+    seed: int,
+    methods: list[str],
+    pipe_seed: int | None = None,
+    settings: Mapping[str, object] | None = None,
 ) -> list[dict[str, object]]:
     """Simulate one seed of a case and score each method, the seed 002 baseline and, for the
     test pipes, RTS with the markers surveyed exactly. pipe_seed: another pipe than the
-    scenario's own (its marker survey errors, weld anomalies and field bends)."""
+    scenario's own (its marker survey errors, weld anomalies and field bends); settings:
+    estimator settings (NavConfig keys) over the scenario's own, in every run."""
     scenario = get_scenario(case.scenario)
     if pipe_seed is not None:
         scenario = replace(scenario, pipe_seed=pipe_seed)
     run = simulate(scenario, seed=seed)
-    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    cfg = NavConfig.from_dict({**run.scenario.estimator_settings(), **(settings or {})})
     duration = float(run.log.imu.t[-1] - run.log.imu.t[0])
 
     def row(
@@ -524,6 +530,25 @@ def _limit_lines(results: dict[str, list[dict[str, object]]]) -> list[str]:
 TABLES = {"products": "products", "welds": "welds", "runs": "runs"}
 
 
+def setting_overrides(items: Sequence[str]) -> dict[str, object]:
+    """``--set KEY=VALUE`` items as estimator settings (each VALUE read as JSON, else as
+    text); ConfigError naming the item NavConfig refuses."""
+    out: dict[str, object] = {}
+    for item in items:
+        key, eq, text = item.partition("=")
+        if not eq or not key:
+            raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
+        try:
+            out[key] = json.loads(text)
+        except ValueError:
+            out[key] = text
+        try:
+            NavConfig.from_dict(out)
+        except ConfigError as e:
+            raise ConfigError(f"--set {item!r}: {e}") from None
+    return out
+
+
 def main(args: argparse.Namespace, before_runs: Callable[[], None] = lambda: None) -> int:
     """Entry of ``pipe-nav bench``; ``before_runs`` is called once the arguments and the
     output paths are checked (the command line compiles the kernels there, if it must)."""
@@ -536,6 +561,7 @@ def main(args: argparse.Namespace, before_runs: Callable[[], None] = lambda: Non
     unknown = set(names) - {c.scenario for c in CASES}
     if unknown:
         raise ValueError(f"unknown benchmark scenario(s): {', '.join(sorted(unknown))}")
+    settings = setting_overrides(getattr(args, "set", None) or [])
     for target in (args.out, args.json):  # before the runs: a bad path fails at once
         if target:
             Path(target).parent.mkdir(parents=True, exist_ok=True)
@@ -547,7 +573,7 @@ def main(args: argparse.Namespace, before_runs: Callable[[], None] = lambda: Non
         results[case.scenario] = []
         for seed in range(1, 1 + min(max_seeds, case.seeds)):
             print(f"pipe-nav bench: {case.scenario} seed {seed}", file=sys.stderr, flush=True)
-            results[case.scenario] += run_case(case, seed, methods, args.pipe_seed)
+            results[case.scenario] += run_case(case, seed, methods, args.pipe_seed, settings)
     md = markdown(results, command, max_seeds, args.pipe_seed) if results else "# Benchmarks\n\n"
     payload: dict[str, object] = {
         "cases": [asdict(c) for c in CASES if c.scenario in results],
