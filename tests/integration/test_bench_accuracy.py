@@ -128,7 +128,7 @@ def test_every_method_row_has_its_time_and_memory():
     assert line.rstrip(" |").split("|")[-1].strip().isdigit()
 
 
-def test_settings_given_on_the_command_line_reach_every_run():
+def test_settings_given_on_the_command_line_reach_every_run(tmp_path):
     """``--set KEY=VALUE``: each VALUE read as JSON (else text), checked as NavConfig checks a
     settings file, the item named where it is refused; the settings change the runs."""
     import pytest
@@ -143,10 +143,16 @@ def test_settings_given_on_the_command_line_reach_every_run():
         with pytest.raises(ConfigError, match=said) as e:
             bench.setting_overrides([item])
         assert repr(item) in str(e.value)
+    from pipe_nav_core.app.cli import main
+
+    out = ["--out", str(tmp_path / "B.md"), "--json", ""]
+    assert main(["bench", "--scenarios", "drag180", "--set", "nope=1", *out]) == 2
+    assert main(["bench", "--scenarios", "drag180", "--seeds", "0", *out]) == 2
+    assert not (tmp_path / "B.md").exists()
     case = next(c for c in bench.CASES if c.scenario == "drag180")
-    plain = {r["method"]: r for r in bench.run_case(case, 3, ["rts"])}
-    straight = bench.run_case(case, 3, ["rts"], settings={"straight_pipe_sigma": 1e-3})
-    straight = {r["method"]: r for r in straight}
+    straight = {r["method"]: r for r in bench.run_case(case, 3, ["rts"])}  # on by default
+    plain = bench.run_case(case, 3, ["rts"], settings={"straight_pipe_sigma": 0})
+    plain = {r["method"]: r for r in plain}
     assert abs(straight["rts"]["max_h"] - plain["rts"]["max_h"]) > 0.01  # m (12.6 -> 6.4 cm)
     # the baseline (seed 002's complementary filter) takes none of them
     assert straight[bench.BASELINE]["max_h"] == plain[bench.BASELINE]["max_h"]

@@ -40,11 +40,10 @@ from pipe_nav_core.types import SensorLog, markers_sorted
 
 @pytest.fixture(scope="module")
 def converged():
-    """sag104 seed 1 (industrial MEMS, 2 markers; the straight-pipe update on): the iterated
-    RTS smoother run to convergence by hand, as smooth_log does: (log, config, layout,
-    reference, slips)."""
+    """sag104 seed 1 (industrial MEMS, 2 markers): the iterated RTS smoother run to
+    convergence by hand, as smooth_log does: (log, config, layout, reference, slips)."""
     run = simulate("sag104", seed=1)
-    cfg = NavConfig.from_dict({**run.scenario.estimator_settings(), "straight_pipe_sigma": 1e-3})
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
     log = run.log
     cfg = smoothing_config(log, cfg)
     lay = layout_for(cfg)
@@ -211,7 +210,9 @@ def test_graph_is_as_accurate_as_rts_with_covering_sigmas(scenario: str, exact: 
     # weighs its factors on the smoothed residuals instead of the forward innovations)
     assert g.max_h <= 1.05 * rts.max_h + 0.002
     assert g.max_v <= 1.05 * rts.max_v + 0.002
-    assert g.max_h < 0.05 and g.max_v < 0.03  # m
+    # m; undulation90 seed 1: 6.1 cm h with the straight-pipe update, 3.8 cm without it (over
+    # seeds 1-12 its mean is 6.1 cm against 7.8: BENCHMARKS.md, "The straight-pipe update")
+    assert g.max_h < 0.07 and g.max_v < 0.03
     # its sigmas cover its errors
     assert g.inside_3sigma >= 0.99
     sig = res.centreline.sigma_enu

@@ -98,3 +98,19 @@ def test_no_sections_on_a_short_or_standing_path():
     assert all(len(x) == 0 for x in sp.sections(ref, 1e-3, 1.5))
     standing = np.repeat(_path()[:1], 50, axis=0)
     assert all(len(x) == 0 for x in sp.sections(standing, 1e-3, 1.5))
+
+
+def test_a_diverged_reference_gives_what_its_finite_epochs_say():
+    ref = _path()
+    bad = ref.copy()
+    bad[::7, SV_DIST] = np.nan
+    bad[3::11, SV_Q] = np.nan
+    plan, vertical = sp.sections(bad, 1e-3, 1.5)
+    want = sp.sections(ref, 1e-3, 1.5)
+    assert np.allclose(plan, want[0], atol=0.5) and np.allclose(vertical, want[1], atol=0.5)
+    nothing = ref.copy()
+    nothing[:, SV_DIST] = np.nan
+    assert all(len(x) == 0 for x in sp.sections(nothing, 1e-3, 1.5))
+    far = ref.copy()
+    far[-1, SV_DIST] = 1e9  # m: a pass that ran away; the grid stays a few times the epochs
+    assert len(sp.sections(far, 1e-3, 1.5)[0]) >= 1

@@ -286,7 +286,7 @@ class NavConfig:
 
     # Straight pipe between bends (smoothing passes about a reference only)
     straight_pipe_sigma: float = _field(
-        0.0,
+        1e-3,
         NON_NEGATIVE,
         "straight-pipe update noise (the path's turn rate outside bends), rad/s; 0 = off",
     )

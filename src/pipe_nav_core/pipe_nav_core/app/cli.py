@@ -259,6 +259,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="run through another pipe: marker surveys, weld anomalies, field bends drawn anew",
     )
     p.add_argument(
+        "--seeds",
+        type=int,
+        help="seeds 1 to N of every scenario (default 3, the 10 km lines 1; --quick 1)",
+    )
+    p.add_argument(
         "--set",
         action="append",
         default=[],

@@ -14,7 +14,8 @@ Each row applies where the path is straight in its plane: the chainage intervals
 :func:`sections` finds in the pass's reference trajectory (so only passes linearized about
 a reference have the update), leaving out ``straight_pipe_margin`` at each end of a bend. Its
 noise is the gyro's angle random walk over the epoch with ``straight_pipe_sigma`` added: the
-pig's wobble and the pipe's own waviness.
+pig's wobble and the pipe's own waviness (1e-3 rad/s by default: a curvature of 1e-3 1/m at
+1 m/s; 0 turns the update off).
 """
 
 from __future__ import annotations
@@ -147,22 +148,28 @@ def sections(reference: Array, max_curvature: float, margin: float) -> tuple[Arr
     """The chainage intervals (K, 2; m, sorted, disjoint) where the path of flat states
     ``reference`` (K, SV_SIZE; a pass's smoothed trajectory) runs straight in plan and in its
     vertical plane: the axis (base_link x) turns by less than ``max_curvature`` (1/m) over
-    every WINDOW_M of chainage, and no bend is nearer than ``margin`` (m)."""
-    d = reference[:, SV_DIST]
-    order = np.argsort(d, kind="stable")
-    d = d[order]
+    every WINDOW_M of chainage, and no bend is nearer than ``margin`` (m). Epochs whose
+    chainage or attitude is not finite (a pass that diverged) are left out."""
+    ok = np.isfinite(reference[:, SV_DIST]) & np.isfinite(reference[:, I_Q : I_Q + 4]).all(1)
+    ref = reference[ok]
+    order = np.argsort(ref[:, SV_DIST], kind="stable")
+    d = ref[order, SV_DIST]
+    if len(d) < 2:
+        return NO_SECTIONS, NO_SECTIONS
     keep = np.r_[True, np.diff(d) > 1e-6]  # the first epoch at each chainage (stops)
-    d, q = d[keep], reference[order][keep][:, I_Q : I_Q + 4]
+    d, q = d[keep], ref[order][keep][:, I_Q : I_Q + 4]
     if len(d) < 2 or d[-1] - d[0] < WINDOW_M:
         return NO_SECTIONS, NO_SECTIONS
     x, y, z, w = q.T
     t = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=1)
     azimuth = np.unwrap(np.arctan2(t[:, 0], t[:, 1]))
     pitch = np.arctan2(t[:, 2], np.hypot(t[:, 0], t[:, 1]))
-    grid = np.arange(d[0], d[-1] + GRID_M, GRID_M)
+    # GRID_M, or coarser where the epochs are further apart (a diverged pass's chainage)
+    step = max(GRID_M, (d[-1] - d[0]) / (4 * len(d)))
+    grid = np.arange(d[0], d[-1] + step, step)
     half = WINDOW_M / 2
     lo, hi = np.clip(grid - half, d[0], d[-1]), np.clip(grid + half, d[0], d[-1])
-    span = np.maximum(hi - lo, GRID_M)
+    span = np.maximum(hi - lo, step)
     ends = (float(d[0]), float(d[-1]))
 
     def turn(angle: Array) -> Array:
