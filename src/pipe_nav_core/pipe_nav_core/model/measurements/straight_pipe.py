@@ -95,15 +95,6 @@ def straight_pipe_k(
     return -(axes @ (w_ib - c.T @ w_ie)), H, np.eye(m) * sigma**2
 
 
-def straight_pipe(
-    s: Array, L: Index, *, gyro_mean: Array, sigma: float, earth_sign: float = 1.0
-) -> tuple[Array, Array, Array]:
-    """Both rows on a flat state s (SV_SIZE,) and layout index L, the axes taken at s (for
-    tests; gyro_mean rad/s base_link, sigma rad/s)."""
-    return straight_pipe_k(s, L, np.asarray(gyro_mean, float), float(sigma), float(earth_sign),
-                           axes_k(s))  # fmt: skip
-
-
 @kernel
 def _inside(sections: Array, d: float) -> bool:
     """Whether chainage d (m) is inside one of the sorted, disjoint intervals (K, 2)."""
@@ -117,15 +108,17 @@ def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, Array]]:
     vertical plane) and straight_pipe_k's inputs after sv, L (the rows of the planes it is
     straight in)."""
     prm = c.prm
-    sigma = np.sqrt(prm.imu[0] ** 2 / c.T + prm.straight_sigma**2)
-    axes = axes_k(c.s)
     lo, hi = 0, 0
     if prm.straight_sigma > 0.0 and not c.stopped and c.T > 0.0:
         d = c.s[SV_DIST]
         flat, level = _inside(prm.straight_h, d), _inside(prm.straight_v, d)
         lo, hi = (0 if flat else 1), (2 if level else 1)
-        if axes[1, 0] == 0.0 and axes[1, 1] == 0.0:
-            hi = lo  # a vertical axis: neither plane is defined
+    if hi == lo:  # the axes only where a row may apply: the live filter's epochs have none
+        return False, (c.gyro_mean, 0.0, prm.earth_sign, np.zeros((0, 3)))
+    axes = axes_k(c.s)
+    if axes[1, 0] == 0.0 and axes[1, 1] == 0.0:
+        hi = lo  # a vertical axis: neither plane is defined
+    sigma = np.sqrt(prm.imu[0] ** 2 / c.T + prm.straight_sigma**2)
     return hi > lo, (c.gyro_mean, sigma, prm.earth_sign, axes[lo:hi].copy())
 
 
@@ -156,14 +149,12 @@ def sections(reference: Array, max_curvature: float, margin: float) -> tuple[Arr
     d = ref[order, SV_DIST]
     if len(d) < 2:
         return NO_SECTIONS, NO_SECTIONS
-    keep = np.r_[True, np.diff(d) > 1e-6]  # the first epoch at each chainage (stops)
-    d, q = d[keep], ref[order][keep][:, I_Q : I_Q + 4]
+    keep = order[np.r_[True, np.diff(d) > 1e-6]]  # the first epoch at each chainage (stops)
+    d = ref[keep, SV_DIST]
     if len(d) < 2 or d[-1] - d[0] < WINDOW_M:
         return NO_SECTIONS, NO_SECTIONS
-    x, y, z, w = q.T
-    t = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=1)
-    azimuth = np.unwrap(np.arctan2(t[:, 0], t[:, 1]))
-    pitch = np.arctan2(t[:, 2], np.hypot(t[:, 0], t[:, 1]))
+    _, pitch, azimuth = att.euler_from_dcm(att.dcm_from_quat(ref[keep, I_Q : I_Q + 4]))
+    azimuth = np.unwrap(azimuth)
     # GRID_M, or coarser where the epochs are further apart (a diverged pass's chainage)
     step = max(GRID_M, (d[-1] - d[0]) / (4 * len(d)))
     grid = np.arange(d[0], d[-1] + step, step)
