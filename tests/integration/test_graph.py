@@ -72,7 +72,7 @@ def test_linear_problem_is_the_filters(converged) -> None:
     chain, fr = linearize(log, cfg, X, odometer_exclude=ex)
     assert len(rec) == chain.K
     kinds = {f.kind for f in chain.factors}
-    assert {"nhc", "odometer", "zupt", "zaru", "straight", "marker"} <= kinds
+    assert {"nhc", "odometer", "zupt", "zaru", "straight", "direction", "marker"} <= kinds
     # the filter applied as many updates of each kind as the graph has factors
     for kind in kinds:
         assert diag[f"accepted_{kind}"] == sum(f.kind == kind for f in chain.factors)
@@ -118,7 +118,7 @@ def test_factors_are_the_measurement_models(converged) -> None:
         lin = f.r - f.H @ d
         first = np.abs(f.H @ d).max()
         assert np.abs(r1 - lin).max() < 1e-3 * first + 1e-12, f.kind
-    assert {"nhc", "odometer", "zupt", "zaru", "straight", "marker"} <= seen
+    assert {"nhc", "odometer", "zupt", "zaru", "straight", "direction", "marker"} <= seen
 
 
 def test_streaming_solve_equals_the_batch_solve(converged) -> None:

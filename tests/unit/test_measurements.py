@@ -36,8 +36,8 @@ def test_the_registry_derives_the_epoch_updates_and_the_statistics():
     for (kind, event, _), m in zip(measurements.UPDATES, regs, strict=True):
         assert measurements.KINDS[kind : kind + len(m.KINDS)] == m.KINDS
         assert measurements.COUNTERS[event : event + len(m.EVENTS)] == m.EVENTS
-    assert measurements.KINDS == ("nhc", "odometer", "zupt", "zaru", "straight", "tilt", "mag",
-                                  "marker")  # fmt: skip
+    assert measurements.KINDS == ("nhc", "odometer", "zupt", "zaru", "straight", "direction",
+                                  "tilt", "mag", "marker")  # fmt: skip
     assert measurements.COUNTERS == ("epochs", "epochs_without_odometer", "odometer_excluded",
                                      "tilt_gated_motion", "mag_disturbed")  # fmt: skip
     assert measurements.COUNTERS[measurements.C_EPOCHS] == "epochs"

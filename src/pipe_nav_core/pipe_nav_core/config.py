@@ -296,6 +296,13 @@ class NavConfig:
     straight_pipe_margin: float = _field(
         1.5, NON_NEGATIVE, "length of pipe left out at each end of a bend, m"
     )
+    straight_pipe_wander: float = _field(
+        3e-4,
+        NON_NEGATIVE,
+        "how far a straight section's direction may turn, deg per sqrt(m) of pipe; 0 = no "
+        "section direction state",
+        angle=True,
+    )
 
     # Gravity tilt (seed 001 eq. 11-13; tilt_gate is eq. 13's threshold xi_g)
     tilt_update: str = _field(

@@ -26,6 +26,7 @@ from pipe_nav_core.filter.anchoring import FREE_HEADING_SIGMA, UNKNOWN_HEADING_V
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.geo import earth
 from pipe_nav_core.model import imu_noise as imu_model
+from pipe_nav_core.model.measurements.section_direction import RESTART_SIGMA
 from pipe_nav_core.model.sensors import ImuSpec
 from pipe_nav_core.model.state import Layout, NavState
 from pipe_nav_core.types import MagSamples, Marker, OdometerSamples
@@ -283,4 +284,6 @@ def initial_covariance(
         gm_var = np.full((3, 3), imu.gyro_misalignment**2)
         np.fill_diagonal(gm_var, imu.gyro_scale_factor**2)
         P[lay.gm, lay.gm] = np.diag(np.maximum(gm_var.reshape(9), 1e-12))
+    if lay.dir is not None:  # no section yet: free until the first one restarts it
+        P[lay.dir, lay.dir] = np.eye(2) * RESTART_SIGMA**2
     return P

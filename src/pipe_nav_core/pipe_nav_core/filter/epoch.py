@@ -48,6 +48,7 @@ from pipe_nav_core.filter.kalman import chi2_threshold, predict_k
 from pipe_nav_core.jit import kernel, literal_unroll
 from pipe_nav_core.model.measurements import C_EPOCHS, COUNTERS, KINDS, UPDATES
 from pipe_nav_core.model.measurements.context import Context, Settings
+from pipe_nav_core.model.measurements.section_direction import restart_k
 from pipe_nav_core.model.measurements.straight_pipe import NO_SECTIONS
 from pipe_nav_core.model.mechanization import dr_step_k, ins_step_k
 from pipe_nav_core.model.process import discretize_k, imu_noise, process_noise_k, system_matrix_k
@@ -129,6 +130,7 @@ def parameters(
         marker_time=f(c.marker_time_sigma), straight_sigma=f(c.straight_pipe_sigma),
         straight_h=np.asarray(straight[0], np.float64).reshape(-1, 2),
         straight_v=np.asarray(straight[1], np.float64).reshape(-1, 2),
+        straight_wander=f(c.straight_pipe_wander),
         chi2=np.array([chi2_threshold(c.gate_probability, m) for m in (1, 2, 3)]),
         imu=np.array(imu_noise(imu), dtype=np.float64),
     )  # fmt: skip
@@ -402,8 +404,12 @@ def _transition(
         prm.dr_lateral,
         bend_sigma,
         inp.resolution[e],
+        prm.straight_wander,
     )
     phi, qd = discretize_k(A, Q, L)
+    # a straight section entered: its direction starts afresh from the axis
+    d1 = s_lin[SV_DIST] if has_ref else s0[SV_DIST] + (1.0 + s0[SV_K]) * ds.sum()
+    restart_k(prm, L, s0[SV_DIST], d1, s1, phi, qd)
     out.phi[e] = phi
     out.tr_qd[row] = qd
     if has_ref:

@@ -25,6 +25,7 @@ from pipe_nav_core.model.state import (
     L_BA,
     L_BG,
     L_BORE,
+    L_DIR,
     L_GM,
     L_K,
     L_N,
@@ -134,6 +135,7 @@ def process_noise_k(
     dr_lateral_sigma: float,
     bend_sigma: float,
     odometer_resolution: float,
+    section_wander: float,
 ) -> Array:
     """Process noise accumulated over the block (n, n) before propagation through it.
 
@@ -142,7 +144,8 @@ def process_noise_k(
     DR mode: dr_along_sigma and dr_lateral_sigma m/sqrt(m) of path, bend_sigma m of extra
     along-track noise for wall-versus-centreline differences in bends (zero when the wheel
     lever arm is known); odometer_resolution m per count: the fresh reading error at the epoch
-    end is uniform over one count (variance resolution^2 / 12)."""
+    end is uniform over one count (variance resolution^2 / 12); section_wander rad/sqrt(m) of
+    path: how far a straight section's direction may turn (NavConfig.straight_pipe_wander)."""
     n = L[L_N]
     Q = np.zeros((n, n))
 
@@ -159,6 +162,7 @@ def process_noise_k(
     fill(L[L_BORE], 2, 1e-8**2 * T)
     fill(L[L_GM], 9, 1e-9**2 * T)
     fill(L[L_AM], 9, 1e-9**2 * T)
+    fill(L[L_DIR], 2, section_wander**2 * path)
     if L[L_ODOQ] >= 0:
         Q[L[L_ODOQ] + 1, L[L_ODOQ] + 1] = odometer_resolution**2 / 12.0
     if L[L_VEL] < 0:

@@ -18,6 +18,10 @@ Error state (truth minus estimate), navigation frame ENU:
 - ``am`` (9, optional): accelerometer scale-factor and misalignment matrix N, row-major, where
   the accelerometer measures (I + N) f + bias (with a consumer MEMS a 1 % scale factor turns
   gravity into tens of mg of apparent bias whenever the pig rolls).
+- ``dir`` (2, optional): the direction of the straight section the pig is in (azimuth from
+  north clockwise, pitch up; rad, ENU): a constant within each section, restarted at its
+  start, that the pig's axis keeps to
+  (:mod:`pipe_nav_core.model.measurements.section_direction`).
 """
 
 from __future__ import annotations
@@ -39,7 +43,13 @@ Array = NDArray[np.float64]
 class Layout:
     """Index slices of the error state for one mechanization mode ("ins" or "dr")."""
 
-    def __init__(self, mode: str, gyro_errors: bool = False, accel_errors: bool = False) -> None:
+    def __init__(
+        self,
+        mode: str,
+        gyro_errors: bool = False,
+        accel_errors: bool = False,
+        section_direction: bool = False,
+    ) -> None:
         self.mode = mode
         names = ["att", "vel", "pos", "bg", "ba", "k", "bore", "odoq"]
         if mode != "ins":
@@ -49,6 +59,8 @@ class Layout:
             names.append("gm")
         if accel_errors:
             names.append("am")
+        if section_direction:
+            names.append("dir")
         sizes = {
             "att": 3,
             "vel": 3,
@@ -60,6 +72,7 @@ class Layout:
             "odoq": 2,
             "gm": 9,
             "am": 9,
+            "dir": 2,
         }
         start = 0
         self.slices: dict[str, slice] = {}
@@ -77,6 +90,7 @@ class Layout:
         self.odoq = self.slices.get("odoq")
         self.gm = self.slices.get("gm")
         self.am = self.slices.get("am")
+        self.dir = self.slices.get("dir")
         # the layout for the compiled kernels: block starts in L_* order (-1: absent), then n
         starts = [self.slices[b].start if b in self.slices else -1 for b in _BLOCKS]
         self.index = np.array([*starts, self.n], dtype=np.int64)
@@ -101,16 +115,20 @@ SV_DIST = _sv()  # chainage m
 I_GM = _sv(9)  # gyro error matrix (row-major)
 I_ODOQ = _sv(2)  # odometer reading errors m (start, end of the epoch)
 I_AM = _sv(9)  # accelerometer error matrix (row-major)
+I_DIR = _sv(2)  # the straight section's direction rad (azimuth, pitch; ENU)
 SV_SIZE = _sv.size
 SV_VEL, SV_Q = slice(I_VEL, I_VEL + 3), slice(I_Q, I_Q + 4)
 SV_BG, SV_BA = slice(I_BG, I_BG + 3), slice(I_BA, I_BA + 3)
 SV_BORE, SV_GM = slice(I_BORE, I_BORE + 2), slice(I_GM, I_GM + 9)
 SV_ODOQ, SV_AM = slice(I_ODOQ, I_ODOQ + 2), slice(I_AM, I_AM + 9)
+SV_DIR = slice(I_DIR, I_DIR + 2)
 
 # The error-state layout as an int array for the kernels (Layout.index): the start of each
 # block, -1 where the layout has none, and n last.
-_BLOCKS = ("att", "vel", "pos", "bg", "ba", "k", "bore", "odoq", "gm", "am")
-L_ATT, L_VEL, L_POS, L_BG, L_BA, L_K, L_BORE, L_ODOQ, L_GM, L_AM, L_N = range(len(_BLOCKS) + 1)
+_BLOCKS = ("att", "vel", "pos", "bg", "ba", "k", "bore", "odoq", "gm", "am", "dir")
+L_ATT, L_VEL, L_POS, L_BG, L_BA, L_K, L_BORE, L_ODOQ, L_GM, L_AM, L_DIR, L_N = range(
+    len(_BLOCKS) + 1
+)
 
 
 @kernel
@@ -137,6 +155,7 @@ _ADDITIVE = (
     (L_ODOQ, I_ODOQ, 2),
     (L_GM, I_GM, 9),
     (L_AM, I_AM, 9),
+    (L_DIR, I_DIR, 2),
 )
 
 
@@ -202,7 +221,8 @@ class NavState:
     bore (2,) rad odometer boresight; distance m calibrated chainage; gm (3, 3) gyro
     scale-factor/misalignment matrix M (gyro = (I + M) omega + bg); odoq (2,) m odometer
     reading errors at the start and the end of the current epoch (INS mode); am (3, 3)
-    accelerometer scale-factor/misalignment matrix N (accel = (I + N) f + ba).
+    accelerometer scale-factor/misalignment matrix N (accel = (I + N) f + ba); dir (2,) rad
+    the straight section's direction (azimuth, pitch; ENU).
     """
 
     t: float
@@ -219,6 +239,7 @@ class NavState:
     gm: Array = None  # type: ignore[assignment]
     odoq: Array = None  # type: ignore[assignment]
     am: Array = None  # type: ignore[assignment]
+    dir: Array = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         if self.bore is None:
@@ -229,6 +250,8 @@ class NavState:
             self.odoq = np.zeros(2)
         if self.am is None:
             self.am = np.zeros((3, 3))
+        if self.dir is None:
+            self.dir = np.zeros(2)
 
     def copy(self) -> NavState:
         return NavState(
@@ -246,6 +269,7 @@ class NavState:
             gm=self.gm.copy(),
             odoq=self.odoq.copy(),
             am=self.am.copy(),
+            dir=self.dir.copy(),
         )
 
     def vector(self) -> Array:
@@ -255,6 +279,7 @@ class NavState:
         v[SV_VEL], v[SV_Q], v[SV_BG], v[SV_BA] = self.vel_n, self.q_nb, self.bg, self.ba
         v[SV_K], v[SV_BORE], v[SV_DIST] = self.k, self.bore, self.distance
         v[SV_GM], v[SV_ODOQ], v[SV_AM] = self.gm.reshape(9), self.odoq, self.am.reshape(9)
+        v[SV_DIR] = self.dir
         return v
 
     @classmethod
@@ -276,6 +301,7 @@ class NavState:
             gm=v[SV_GM].reshape(3, 3).copy(),
             odoq=v[SV_ODOQ].copy(),
             am=v[SV_AM].reshape(3, 3).copy(),
+            dir=v[SV_DIR].copy(),
         )
 
     @property
@@ -338,10 +364,17 @@ def _additive_blocks(layout: Layout) -> list[tuple[slice, slice]]:
         (layout.gm, SV_GM),
         (layout.odoq, SV_ODOQ),
         (layout.am, SV_AM),
+        (layout.dir, SV_DIR),
     ]
     return [(src, dst) for src, dst in pairs if src is not None]
 
 
 def layout_for(config: NavConfig) -> Layout:
-    """The error-state layout of a NavConfig (mode, gyro_error_states, accel_error_states)."""
-    return Layout(config.mode, config.gyro_error_states, config.accel_error_states)
+    """The error-state layout of a NavConfig (mode, gyro_error_states, accel_error_states, and
+    the section direction where straight_pipe_wander is set)."""
+    return Layout(
+        config.mode,
+        config.gyro_error_states,
+        config.accel_error_states,
+        config.straight_pipe_wander > 0,
+    )

@@ -39,10 +39,12 @@ SAMPLE_SPACING_S = 0.02
 def phi_rows(layout: Layout) -> Array:
     """The rows of the error-state transition that can differ from the identity: attitude,
     velocity and position (the only nonzero rows of the system matrix; process.discretize_k)
-    and the odometer reading errors (shifted each epoch)."""
+    the odometer reading errors (shifted each epoch) and the section direction (restarted
+    at each straight section's start)."""
     rows = np.arange(layout.pos.stop)
-    if layout.odoq is not None:
-        rows = np.r_[rows, np.arange(layout.odoq.start, layout.odoq.stop)]
+    for block in (layout.odoq, layout.dir):
+        if block is not None:
+            rows = np.r_[rows, np.arange(block.start, block.stop)]
     return rows
 
 

@@ -135,6 +135,11 @@ def fuse_passes(
         on = rb.t[js] < free.until
         g = free.direction(xb[:, SV_LAT], xb[:, SV_LON], xb[:, SV_H], xb[:, SV_VEL], layout)
         g *= np.sqrt(free.variance) * on[:, None]
+    # what the backward filter does not know: its odometer reading error at the start of a
+    # reversed epoch (a later reading's) and the section direction (it has no sections)
+    unknown = [] if layout.odoq is None else [layout.odoq.start]
+    if layout.dir is not None:
+        unknown += list(range(layout.dir.start, layout.dir.stop))
     e = np.zeros((len(t_f), layout.n))
     var = rec.variances() if cols is None else rec.variances()[:, cols]
     for b in range(0, len(ks), FUSE_BATCH):
@@ -144,9 +149,7 @@ def fuse_passes(
         if free is not None:
             P_b += g[sel, :, None] * g[sel, None, :]
         d_b = d[sel]
-        if layout.odoq is not None:
-            # its reading error at the start of a reversed epoch is a later reading's: unknown
-            q = layout.odoq.start
+        for q in unknown:
             P_b[:, q, :] = 0.0
             P_b[:, :, q] = 0.0
             P_b[:, q, q] = 1.0

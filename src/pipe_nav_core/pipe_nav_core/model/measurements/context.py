@@ -39,7 +39,8 @@ class Settings(NamedTuple):
     scale_rw, dr_along, dr_lateral: process noise of the odometer scale and of dead reckoning;
     marker_time (s): the marker passages' time noise; straight_sigma (rad/s, 0: off),
     straight_h / straight_v (K, 2): the straight-pipe update's noise and the chainage
-    intervals (m) straight in plan and in the vertical plane; chi2 (3,): the innovation gates for 1,
+    intervals (m) straight in plan and in the vertical plane; straight_wander (rad/sqrt(m), 0:
+    off): how far a straight section's direction may turn; chi2 (3,): the innovation gates for 1,
     2 and 3 rows; imu (6,): process_noise_k's IMU densities (imu[0]: the gyro's angle random
     walk, rad/sqrt(s))."""
 
@@ -71,6 +72,7 @@ class Settings(NamedTuple):
     straight_sigma: float
     straight_h: Array
     straight_v: Array
+    straight_wander: float
     chi2: Array
     imu: Array
 

@@ -96,10 +96,11 @@ def straight_pipe_k(
 
 
 @kernel
-def _inside(sections: Array, d: float) -> bool:
-    """Whether chainage d (m) is inside one of the sorted, disjoint intervals (K, 2)."""
+def section_of(sections: Array, d: float) -> int:
+    """The interval of the sorted, disjoint intervals (K, 2) that chainage d (m) is inside,
+    -1 if none."""
     i = np.searchsorted(sections[:, 0], d, side="right") - 1
-    return i >= 0 and d <= sections[i, 1]
+    return i if i >= 0 and d <= sections[i, 1] else -1
 
 
 @kernel
@@ -111,7 +112,7 @@ def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, Array]]:
     lo, hi = 0, 0
     if prm.straight_sigma > 0.0 and not c.stopped and c.T > 0.0:
         d = c.s[SV_DIST]
-        flat, level = _inside(prm.straight_h, d), _inside(prm.straight_v, d)
+        flat, level = section_of(prm.straight_h, d) >= 0, section_of(prm.straight_v, d) >= 0
         lo, hi = (0 if flat else 1), (2 if level else 1)
     if hi == lo:  # the axes only where a row may apply: the live filter's epochs have none
         return False, (c.gyro_mean, 0.0, prm.earth_sign, np.zeros((0, 3)))
