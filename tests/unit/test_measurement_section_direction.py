@@ -11,7 +11,7 @@ from pipe_nav_core.filter.epoch import parameters
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.model.measurements import section_direction as sd
 from pipe_nav_core.model.sensors import imu_grade
-from pipe_nav_core.model.state import SV_DIR, Layout
+from pipe_nav_core.model.state import SV_DIR, Layout, layout_for
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -73,9 +73,20 @@ def test_restart_only_where_a_section_starts():
                 assert phi[d + r, d + r] == 2.0 and sv[SV_DIR][r] == s.dir[r]
 
 
-def test_no_state_and_no_rows_when_turned_off():
+def test_the_layout_has_the_state_where_the_gyro_walks_more_than_the_section():
+    """Only where straight_pipe_wander is set and the gyro's angle random walk is at least a
+    tenth of it per sqrt(s) at 1 m/s: the consumer grade's 1.7e-4 rad/sqrt(s) against 3e-4
+    rad/sqrt(m) by default; not the industrial grade's 2.6e-5 nor the tactical 1.2e-5."""
     assert Layout("ins").dir is None
-    lay = NavConfig.from_dict({"straight_pipe_wander": 0.0})
-    from pipe_nav_core.model.state import layout_for
-
-    assert layout_for(lay).dir is None and layout_for(NavConfig()).dir is not None
+    for grade, wander, has in (
+        ("consumer", 3e-4, True),
+        ("consumer", 0.0, False),
+        ("industrial", 3e-4, False),
+        ("industrial", 2e-4, True),
+        ("tactical", 3e-4, False),
+    ):
+        cfg = NavConfig.from_dict({"imu_grade": grade, "straight_pipe_wander": wander})
+        lay = layout_for(cfg)
+        assert (lay.dir is not None) == has, (grade, wander)
+        if has:
+            assert lay.n == Layout("ins", True, True).n + 2 and lay.dir.stop == lay.n

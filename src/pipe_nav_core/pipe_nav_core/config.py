@@ -300,7 +300,8 @@ class NavConfig:
         3e-4,
         NON_NEGATIVE,
         "how far a straight section's direction may turn, deg per sqrt(m) of pipe; 0 = no "
-        "section direction state",
+        "section direction state (nor with a gyro whose angle random walk is under a tenth of "
+        "it per sqrt(s) at 1 m/s)",
         angle=True,
     )
 

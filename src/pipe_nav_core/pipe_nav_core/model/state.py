@@ -369,12 +369,21 @@ def _additive_blocks(layout: Layout) -> list[tuple[slice, slice]]:
     return [(src, dst) for src, dst in pairs if src is not None]
 
 
+# A gyro whose angle random walk (rad/sqrt(s)) is below this share of straight_pipe_wander
+# over a metre at 1 m/s holds a straight section's direction better than the section
+# direction state could (BENCHMARKS.md, "The section direction": the tactical 10 km line's
+# error the same to 0.1 mm, for 13 % of its time; industrial 0.4 %; consumer 11-17 %)
+DIRECTION_ARW_SHARE = 0.1
+
+
 def layout_for(config: NavConfig) -> Layout:
     """The error-state layout of a NavConfig (mode, gyro_error_states, accel_error_states, and
-    the section direction where straight_pipe_wander is set)."""
+    the section direction where straight_pipe_wander is set and the gyro's angle random walk
+    is at least DIRECTION_ARW_SHARE of it per sqrt(s) at 1 m/s)."""
+    wander = config.straight_pipe_wander
     return Layout(
         config.mode,
         config.gyro_error_states,
         config.accel_error_states,
-        config.straight_pipe_wander > 0,
+        wander > 0 and config.imu_spec().gyro_arw >= DIRECTION_ARW_SHARE * wander,
     )
