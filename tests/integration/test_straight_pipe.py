@@ -10,12 +10,13 @@ from dataclasses import replace
 import pytest
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
-from pipe_nav_core.model.state import layout_for
+from pipe_nav_core.model.state import SV_T, layout_for
 from pipe_nav_core.sim import simulate
 from pipe_nav_core.smooth.forward import run_forward
 from pipe_nav_core.smooth.heading import smoothing_config
 from pipe_nav_core.smooth.passes import smooth_log, smoothed_states
 from pipe_nav_core.smooth.rts import rts_packed
+from pipe_nav_core.smooth.two_filter import backward_pass, backward_sections, end_azimuth
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +44,15 @@ def test_only_passes_about_a_reference_apply_it(drag):
     # restarted at each section's start (the azimuth held to within milliradians of the axis)
     assert second["accepted_direction"] > 0.5 * epochs
     assert second.get("rejected_direction", 0) < 0.05 * second["accepted_direction"]
+    # two-filter's backward filter has no reference: it takes the forward's sections, in its
+    # own chainage (zero at the receive trap), and applies both updates as often
+    back = backward_pass(run.log, cfg, ref[:, SV_T], end_azimuth(ref[-1]),
+                         straight=backward_sections(ref, cfg)).diagnostics()  # fmt: skip
+    for kind in ("straight", "direction"):
+        assert back[f"accepted_{kind}"] > 0.9 * second[f"accepted_{kind}"], kind
+        assert back.get(f"rejected_{kind}", 0) < 0.05 * back[f"accepted_{kind}"], kind
+    assert "accepted_direction" not in backward_pass(run.log, cfg, ref[:, SV_T],
+                                                     end_azimuth(ref[-1])).diagnostics()
 
 
 def test_it_takes_the_horizontal_error_down(drag):

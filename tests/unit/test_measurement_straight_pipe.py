@@ -114,3 +114,19 @@ def test_a_diverged_reference_gives_what_its_finite_epochs_say():
     far = ref.copy()
     far[-1, SV_DIST] = 1e9  # m: a pass that ran away; the grid stays a few times the epochs
     assert len(sp.sections(far, 1e-3, 1.5)[0]) >= 1
+
+
+def test_backward_sections_are_the_forward_ones_from_the_receive_trap():
+    """Two-filter's backward filter counts its chainage from zero at the receive trap,
+    falling towards the launch: the forward pass's sections shifted by its last chainage."""
+    from pipe_nav_core.config import NavConfig
+    from pipe_nav_core.smooth.two_filter import backward_sections
+
+    ref = _path()
+    cfg = NavConfig()
+    plan, vertical = sp.sections(ref, cfg.straight_pipe_curvature, cfg.straight_pipe_margin)
+    back = backward_sections(ref, cfg)
+    end = ref[-1, SV_DIST]
+    assert np.array_equal(back[0], plan - end) and np.array_equal(back[1], vertical - end)
+    assert back[0][0, 0] == -end and back[0][-1, 1] == 0.0  # launch and receive trap
+    assert backward_sections(None, cfg) is None

@@ -85,6 +85,9 @@ class PassOptions:
     :mod:`pipe_nav_core.smooth.passes`); the epoch ends are then the reference's times, and
     the straight-pipe update (NavConfig.straight_pipe_sigma) takes its straight sections from
     it (:func:`~pipe_nav_core.model.measurements.straight_pipe.sections`).
+    straight: the chainage intervals (m; plan, vertical plane: (K, 2) each) straight in the
+    pipe, for a pass without a reference of its own (two-filter's backward filter, mapped
+    from its forward pass's reference); without them, a pass about a reference takes its own.
     initial_azimuth: rad, replaces the initial heading of the configured source (the
     smoother iterates the re-anchoring at the second marker with it); free_heading: keep the
     initial heading's prior outside the filter until the next marker after the first
@@ -100,6 +103,7 @@ class PassOptions:
     epoch_times: Array | None = None
     odometer_exclude: Array | None = None
     reference: Sequence[NavState] | Array | None = field(default=None, repr=False)
+    straight: tuple[Array, Array] | None = field(default=None, repr=False)
     initial_azimuth: float | None = None
     free_heading: bool | None = None
 
@@ -341,8 +345,8 @@ class Navigator:
         self._dyn_i = np.zeros(D_INT_SIZE, dtype=np.int64)
         self._dyn_i[D_FREE] = not self.anchor.anchored
         earth_sign = self.options.earth_sign
-        straight = (NO_SECTIONS, NO_SECTIONS)
-        if self.reference is not None and cfg.straight_pipe_sigma > 0:
+        straight = self.options.straight or (NO_SECTIONS, NO_SECTIONS)
+        if self.options.straight is None and self.reference is not None:
             straight = sections(self.reference, cfg.straight_pipe_curvature,
                                 cfg.straight_pipe_margin)  # fmt: skip
         self._prm = parameters(cfg, self.imu_spec, np.asarray(cfg.odometer_lever_arm, float),

@@ -39,6 +39,7 @@ def run_forward(
     initial_azimuth: float | None = None,
     record: bool = True,
     free_heading: bool | None = None,
+    straight: tuple[Array, Array] | None = None,
     progress: Progress = QUIET,
     release: bool = False,
 ) -> Navigator:
@@ -61,6 +62,7 @@ def run_forward(
             reference=reference,
             initial_azimuth=initial_azimuth,
             free_heading=free_heading,
+            straight=straight,
         ),
     )
     feed(nav, log, config, progress=progress, release=release)

@@ -60,7 +60,13 @@ from pipe_nav_core.smooth.methods import DEFAULT_METHOD, MAX_PASSES, METHODS
 from pipe_nav_core.smooth.recording import Recording
 from pipe_nav_core.smooth.rts import rts_packed
 from pipe_nav_core.smooth.slips import find_slips
-from pipe_nav_core.smooth.two_filter import backward_pass, end_azimuth, fuse_passes, two_filter
+from pipe_nav_core.smooth.two_filter import (
+    backward_pass,
+    backward_sections,
+    end_azimuth,
+    fuse_passes,
+    two_filter,
+)
 from pipe_nav_core.types import Datum, SensorLog, Trajectory, markers_sorted
 
 if TYPE_CHECKING:
@@ -184,7 +190,7 @@ def smooth_log(
             if method == "two-filter":  # its backward half on the other core
                 back = Background("pipe-nav backward filter", backward_pass, log, cfg,
                                   reference[:, SV_T].copy(), end_azimuth(reference[-1]),
-                                  exclude)  # fmt: skip
+                                  exclude, QUIET, backward_sections(reference, cfg))  # fmt: skip
             say(f"forward filter about the smoothed trajectory (pass {it + 1})"
                 + (", the backward filter beside it" if back else ""))  # fmt: skip
             nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude,

@@ -13,8 +13,10 @@ from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.geo import attitude as att
+from pipe_nav_core.model.measurements.straight_pipe import sections
 from pipe_nav_core.model.state import (
     SV_BG,
+    SV_DIST,
     SV_H,
     SV_LAT,
     SV_LON,
@@ -61,7 +63,9 @@ def two_filter(
     :func:`fuse_passes`). Returns the corrections (K, n) to the forward estimates and the
     variances (K, len(cols)) of the fused covariances at the states ``cols`` (every state when
     None); ``progress`` hears the backward pass."""
-    back = backward_pass(log, config, rec.t, end_azimuth(rec.states[-1]), exclude, progress)
+    straight = backward_sections(rec.lin if rec.linearized else None, config)
+    back = backward_pass(log, config, rec.t, end_azimuth(rec.states[-1]), exclude, progress,
+                         straight)  # fmt: skip
     return fuse_passes(rec, back, layout, cols)
 
 
@@ -72,6 +76,18 @@ def end_azimuth(state: Array) -> float:
     return float(az)
 
 
+def backward_sections(reference: Array | None, config: NavConfig) -> tuple[Array, Array] | None:
+    """The straight sections (:func:`.straight_pipe.sections`) of the forward pass's reference
+    trajectory (K, SV_SIZE) in the backward filter's chainage, which is zero at the receive
+    trap (the reference's last state: m) and falls towards the launch; None without one."""
+    if reference is None or len(reference) == 0:
+        return None
+    plan, vertical = sections(reference, config.straight_pipe_curvature,
+                              config.straight_pipe_margin)  # fmt: skip
+    end = float(reference[-1, SV_DIST])
+    return plan - end, vertical - end
+
+
 def backward_pass(
     log: SensorLog,
     config: NavConfig,
@@ -79,14 +95,16 @@ def backward_pass(
     azimuth: float,
     exclude: Array | None = None,
     progress: Progress = QUIET,
+    straight: tuple[Array, Array] | None = None,
 ) -> Navigator:
     """The backward filter: the forward engine run over the time-reversed log, with its epochs
     at the forward epochs' times ``t_f`` (s), from the receive trap with ``azimuth`` (rad) as
     its initial heading (with the configured sigma: a prior, not the forward's information),
     leaving out the same odometer epochs (``exclude``, (N, 2) s); its heading prior stays
     outside it until its second marker (:class:`~pipe_nav_core.filter.anchoring.FreeHeading`).
-    It needs no more of the forward pass than those epochs and that heading, so it can run
-    beside it (the GIL is let go in the compiled epochs)."""
+    It needs no more of the forward pass than those epochs and that heading (and the straight
+    sections ``straight`` of its reference, in the backward chainage: :func:`backward_sections`),
+    so it can run beside it (the GIL is let go in the compiled epochs)."""
     cfg_b = replace(config, heading_source="fixed", initial_azimuth=azimuth)
     ex_b = None if exclude is None else -np.asarray(exclude)[::-1, ::-1]
     return run_forward(
@@ -96,6 +114,7 @@ def backward_pass(
         epoch_times=-np.asarray(t_f)[::-1],
         odometer_exclude=ex_b,
         free_heading=True,
+        straight=straight,
         progress=progress,
     )
 
