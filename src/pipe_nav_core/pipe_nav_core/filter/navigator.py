@@ -83,8 +83,8 @@ class PassOptions:
     error relative to the reference. Smoothing such a pass and feeding the result back as the
     next reference is one Gauss-Newton step of the batch problem (iterated smoother,
     :mod:`pipe_nav_core.smooth.passes`); the epoch ends are then the reference's times, and
-    the straight-pipe update (NavConfig.straight_pipe_sigma) takes its straight sections from
-    it (:func:`~pipe_nav_core.model.measurements.straight_pipe.sections`).
+    the straight-pipe and section-direction updates take their straight sections from it
+    (:func:`~pipe_nav_core.model.measurements.straight_pipe.sections`).
     straight: the chainage intervals (m; plan, vertical plane: (K, 2) each) straight in the
     pipe, for a pass without a reference of its own (two-filter's backward filter, mapped
     from its forward pass's reference); without them, a pass about a reference takes its own.
