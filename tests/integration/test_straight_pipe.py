@@ -63,6 +63,7 @@ def test_it_takes_the_horizontal_error_down(drag):
         s = score(res.centreline, run.truth, run.log.markers, datum=res.datum)
         err[name] = (s.max_h, s.max_v, s.inside_3sigma)
         assert (res.summary["straight_pipe_updates"] > 500) == (name != "off")  # of 1428 epochs
+        assert (res.summary["section_direction_updates"] > 500) == (name == "on")
     # measured: 12.6 -> 6.4 -> 5.0 cm horizontal, 1.8 -> 1.7 -> 1.6 cm vertical
     assert err["rate_only"][0] < 0.67 * err["off"][0]
     assert err["on"][0] < 0.8 * err["rate_only"][0]

@@ -270,6 +270,8 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
     print("  rejected updates    " + (", ".join(f"{k} {v}" for k, v in rej.items()) or "none"))
     if s.get("straight_pipe_updates"):
         print(f"  straight pipe       {s['straight_pipe_updates']} updates")
+    if s.get("section_direction_updates"):
+        print(f"  section direction   {s['section_direction_updates']} updates")
     print(f"  odometer scale      {s['odometer_scale']:.5f}")
     print("  gyro bias           " + " ".join(f"{x:+.2f}" for x in s["gyro_bias_deg_h"]) + " deg/h")
     print("  accel bias          " + " ".join(f"{x:+.3f}" for x in s["accel_bias_mg"]) + " mg")

@@ -189,7 +189,7 @@ def marker_residuals(traj: Trajectory, markers: list[Marker]) -> dict[str, Array
 
 def summarize(result: SmoothResult, nav: Navigator) -> dict[str, object]:
     """Figures for people: distance, duration, markers, rejected updates, the straight-pipe
-    updates the taken pass applied, calibration; and
+    and section-direction updates the taken pass applied, calibration; and
     the markers whose passage inflated the filter's covariance (faults.markers tests them)."""
     c = result.centreline
     diag = nav.diagnostics()
@@ -212,6 +212,7 @@ def summarize(result: SmoothResult, nav: Navigator) -> dict[str, object]:
         "markers_rejected": int(diag.get("rejected_marker", 0)),
         "rejected_updates": {k[9:]: v for k, v in diag.items() if k.startswith("rejected_") and v},
         "straight_pipe_updates": int(diag.get("accepted_straight", 0)),
+        "section_direction_updates": int(diag.get("accepted_direction", 0)),
         "odometer_scale": float(1.0 + s.k) if s else 1.0,
         "gyro_bias_deg_h": [float(x) for x in np.degrees(s.bg) * 3600] if s else [],
         "accel_bias_mg": [float(x) for x in s.ba / 9.80665 * 1e3] if s else [],

@@ -196,7 +196,8 @@ def _joined(log: SensorLog, config: NavConfig, parts: list[SmoothResult]) -> Smo
         forward.append(p.forward)
     first = parts[0]
     summary = dict(first.summary)
-    for key in ("markers_used", "markers_rejected", "markers_total", "straight_pipe_updates"):
+    for key in ("markers_used", "markers_rejected", "markers_total", "straight_pipe_updates",
+                "section_direction_updates"):  # fmt: skip
         summary[key] = sum(int(p.summary.get(key, 0)) for p in parts)  # type: ignore[call-overload]
     for key in ("warnings", "marker_warnings", "marker_outliers"):
         summary[key] = [w for p in parts for w in p.summary.get(key, [])]  # type: ignore[attr-defined]
