@@ -345,10 +345,10 @@ class Navigator:
         self._dyn_i = np.zeros(D_INT_SIZE, dtype=np.int64)
         self._dyn_i[D_FREE] = not self.anchor.anchored
         earth_sign = self.options.earth_sign
-        straight = self.options.straight or (NO_SECTIONS, NO_SECTIONS)
-        if self.options.straight is None and self.reference is not None:
-            straight = sections(self.reference, cfg.straight_pipe_curvature,
-                                cfg.straight_pipe_margin)  # fmt: skip
+        straight = self.options.straight
+        if straight is None:
+            straight = (NO_SECTIONS, NO_SECTIONS) if self.reference is None else sections(
+                self.reference, cfg.straight_pipe_curvature, cfg.straight_pipe_margin)  # fmt: skip
         self._prm = parameters(cfg, self.imu_spec, np.asarray(cfg.odometer_lever_arm, float),
                                earth_sign, a.mag_ref, straight)  # fmt: skip
         self._counts["aligned_at_ms"] = int(round(s.t * 1000))

@@ -155,7 +155,8 @@ def fuse_passes(
         g = free.direction(xb[:, SV_LAT], xb[:, SV_LON], xb[:, SV_H], xb[:, SV_VEL], layout)
         g *= np.sqrt(free.variance) * on[:, None]
     # what the backward filter does not know: its odometer reading error at the start of a
-    # reversed epoch (a later reading's) and the section direction (it has no sections)
+    # reversed epoch (a later reading's), and the section direction (both filters restart it
+    # at a section's start, at opposite ends: between sections they hold different ones)
     unknown = [] if layout.odoq is None else [layout.odoq.start]
     if layout.dir is not None:
         unknown += list(range(layout.dir.start, layout.dir.stop))
