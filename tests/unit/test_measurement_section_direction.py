@@ -37,12 +37,35 @@ def test_rows_are_the_axis_angles_from_the_sections_whatever_the_roll(roll):
     """An axis 3 mrad right of and 2 mrad above its section's direction has the residuals
     -3 and -2 mrad (measurement zero minus the model), across the azimuth's wrap too."""
     s = random_state(np.random.default_rng(0))
+    s.bore = np.zeros(2)
     for azimuth in (0.4, math.pi - 1e-3):
         s.q_nb = att.quat_from_euler(roll, 0.1, azimuth)
         s.dir = np.array([azimuth - 3e-3, 0.1 - 2e-3])
         r, _, _ = sd.section_direction_k(s.vector(), Layout("ins", section_direction=True).index,
                                          True, True, 1e-3)  # fmt: skip
         assert r == pytest.approx([-3e-3, -2e-3], abs=1e-12)
+
+
+def test_a_pig_rolling_about_the_pipe_with_its_imu_askew_keeps_its_direction():
+    """The rows measure the direction of travel (the odometer's axis u(boresight)), not
+    base_link x: a pig whose IMU sits 4 mrad askew rolls about the pipe's axis, base_link x
+    cones about it by the boresight, and the residual stays zero at every roll."""
+    s = random_state(np.random.default_rng(1))
+    s.bore = np.array([4e-3, -3e-3])
+    q0 = att.quat_from_euler(0.3, 0.1, 0.4)
+    u = np.array([1.0, *s.bore]) / math.hypot(1.0, *s.bore)
+    t0 = att.dcm_from_quat(q0) @ u
+    s.dir = np.array([math.atan2(t0[0], t0[1]), math.atan2(t0[2], math.hypot(t0[0], t0[1]))])
+    lay = Layout("ins", section_direction=True)
+    azimuths = []
+    for roll in np.linspace(0.0, 2.0 * math.pi, 9):
+        s.q_nb = np.asarray(att.qmul(att.qrotvec(*(roll * t0)), tuple(q0)))
+        c = att.dcm_from_quat(s.q_nb)
+        assert c @ u == pytest.approx(t0, abs=1e-12)
+        azimuths.append(math.atan2(c[0, 0], c[1, 0]))
+        r, _, _ = sd.section_direction_k(s.vector(), lay.index, True, True, 1e-3)
+        assert r == pytest.approx([0.0, 0.0], abs=1e-12)
+    assert np.ptp(azimuths) > 6e-3  # base_link x's azimuth swings by twice the boresight
 
 
 def test_restart_only_where_a_section_starts():
@@ -52,7 +75,7 @@ def test_restart_only_where_a_section_starts():
     prm = parameters(cfg, imu_grade("consumer"), np.zeros(3), 1.0, None, (plan, level))
     lay = Layout("ins", section_direction=True)
     s = random_state(np.random.default_rng(3))
-    s.q_nb = att.quat_from_euler(0.2, 0.05, 1.2)
+    s.q_nb, s.bore = att.quat_from_euler(0.2, 0.05, 1.2), np.zeros(2)
     d = lay.dir.start
     for d0, d1, restarted in (
         (5.0, 5.1, ()),  # inside both

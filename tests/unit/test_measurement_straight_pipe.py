@@ -36,7 +36,7 @@ def test_straight_pipe_jacobian(seed, mode, gyro_errors):
 def _level_state(roll: float, azimuth: float) -> NavState:
     s = random_state(np.random.default_rng(0))
     s.q_nb = att.quat_from_euler(roll, 0.0, azimuth)
-    s.bg = np.zeros(3)
+    s.bg, s.bore = np.zeros(3), np.zeros(2)
     return s
 
 
@@ -57,6 +57,17 @@ def test_rows_are_the_plan_and_the_vertical_turn_whatever_the_roll(roll):
         r, _, _ = sp.straight_pipe_k(sv, L, gyro, 1e-3, 0.0, axes)  # earth_sign 0: no Earth
         assert abs(r[row]) == pytest.approx(0.01, rel=1e-9)
         assert abs(r[1 - row]) < 1e-12
+
+
+def test_the_rows_are_across_the_direction_of_travel():
+    """A pig rolls about the pipe's axis, its direction of travel (the odometer's axis
+    u(boresight)): with the IMU askew the rows' axes are across u, not base_link x."""
+    s = _level_state(0.7, azimuth=1.0)
+    s.bore = np.array([4e-3, -3e-3])
+    u = np.array([1.0, *s.bore]) / math.hypot(1.0, *s.bore)
+    axes = sp.axes_k(s.vector())
+    assert np.allclose(axes @ u, 0.0, atol=1e-12)
+    assert np.abs(axes @ np.array([1.0, 0.0, 0.0])).max() > 2e-3
 
 
 def _path(ds: float = 0.1) -> np.ndarray:

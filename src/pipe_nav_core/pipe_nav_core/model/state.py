@@ -168,6 +168,16 @@ def c_nb_k(sv: Array) -> Array:
 
 
 @kernel
+def travel_axis_k(sv: Array) -> tuple[Array, Array]:
+    """The direction of travel in ENU (unit; the odometer's axis u(boresight) of base_link:
+    the pipe's axis, which a pig with its IMU mounted askew cones about as it rolls) and its
+    derivative by the boresight (yaw, pitch) rad, (3, 2)."""
+    c = c_nb_k(sv)
+    u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
+    return c @ u, c @ du
+
+
+@kernel
 def inject_k(sv: Array, dx: Array, L: NDArray[np.int64]) -> Array:
     """Flat state sv (SV_SIZE,) corrected by the error state dx (n,) of layout L (Layout.index):
     truth = estimate (+) dx (NavState.inject)."""

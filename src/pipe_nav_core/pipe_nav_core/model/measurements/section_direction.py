@@ -1,8 +1,11 @@
 """Section direction: a straight pipe keeps one direction from bend to bend, so the pig's
-axis (base_link x) does too. The straight-pipe update (:mod:`.straight_pipe`) holds the body's
+direction of travel does too (the odometer's axis u(boresight) in base_link: where the IMU
+sits askew in the pig, base_link x cones about the pipe's axis as the pig rolls, and the
+boresight is seen by that). The straight-pipe update (:mod:`.straight_pipe`) holds the body's
 turn rate to zero, which binds the gyro's bias but not the heading the gyro's angle random
-walk has already turned; this update holds the axis to a direction state that every epoch of
-the section shares, so that the smoother averages that walk away over the whole section.
+walk has already turned; this update holds the direction of travel to a state that every
+epoch of the section shares, so that the smoother averages that walk away over the whole
+section.
 
 The state is the layout's ``dir`` block (:mod:`pipe_nav_core.model.state`): the section's
 azimuth (from north, clockwise) and pitch (up), rad, ENU. It starts afresh (:func:`restart_k`:
@@ -11,10 +14,10 @@ epoch whose chainage enters a straight interval of :func:`.straight_pipe.section
 within the section wanders by ``straight_pipe_wander`` (rad per sqrt(m) of path: the pipe's
 joints are straight, not their welds' small angles; :func:`.process.process_noise_k`).
 
-The rows (rad) are the axis's azimuth minus the section's where the pipe is straight in plan,
-and the axis's pitch minus the section's where it is straight in its vertical plane. Their
-noise is the pig's wobble about the pipe's axis: as far as the section may turn over
-WOBBLE_M of pipe, drawn once per WOBBLE_M (longer epochs see it averaged; shorter ones
+The rows (rad) are the travel direction's azimuth minus the section's where the pipe is
+straight in plan, and its pitch minus the section's where it is straight in its vertical
+plane. Their noise is the pig's wobble about the pipe's axis: as far as the section may turn
+over WOBBLE_M of pipe, drawn once per WOBBLE_M (longer epochs see it averaged; shorter ones
 share it).
 """
 
@@ -27,7 +30,15 @@ import numpy as np
 from pipe_nav_core.jit import kernel
 from pipe_nav_core.model.measurements.context import Context, factor, update
 from pipe_nav_core.model.measurements.straight_pipe import section_of
-from pipe_nav_core.model.state import I_DIR, L_ATT, L_DIR, L_N, SV_DIST, c_nb_k
+from pipe_nav_core.model.state import (
+    I_DIR,
+    L_ATT,
+    L_BORE,
+    L_DIR,
+    L_N,
+    SV_DIST,
+    travel_axis_k,
+)
 
 if TYPE_CHECKING:
     from pipe_nav_core.filter.epoch import EpochOutputs
@@ -40,34 +51,41 @@ WOBBLE_M = 1.0  # m of pipe over which the pig's wobble is one independent draw
 
 @kernel
 def axis_angles_k(sv: Array) -> tuple[float, float, float]:
-    """The azimuth (from north, clockwise) and pitch (up) of the axis (base_link x) in ENU,
-    rad, and the axis's horizontal length (0: vertical, no azimuth)."""
-    c = c_nb_k(sv)
-    te, tn, tu = c[0, 0], c[1, 0], c[2, 0]
-    h = np.hypot(te, tn)
-    return np.arctan2(te, tn), np.arctan2(tu, h), h
+    """The azimuth (from north, clockwise) and pitch (up) of the direction of travel
+    (:func:`travel_axis_k`) in ENU, rad, and its horizontal length (0: vertical, no azimuth)."""
+    t, _ = travel_axis_k(sv)
+    h = np.hypot(t[0], t[1])
+    return np.arctan2(t[0], t[1]), np.arctan2(t[2], h), h
 
 
 @kernel
 def section_direction_k(sv: Array, L: Index, plan: bool, vertical: bool, sigma: float) -> Model:
-    """The axis's azimuth minus the section's (if plan) and pitch minus the section's (if
-    vertical), rad, zero on a straight pipe: residual, H and R (sigma rad on each row)."""
-    c = c_nb_k(sv)
-    te, tn, tu = c[0, 0], c[1, 0], c[2, 0]
-    azimuth, pitch, h = axis_angles_k(sv)
+    """The travel direction's azimuth minus the section's (if plan) and pitch minus the
+    section's (if vertical), rad, zero on a straight pipe: residual, H (attitude, boresight
+    and section direction columns) and R (sigma rad on each row)."""
+    t, dt_bore = travel_axis_k(sv)
+    te, tn, tu = t[0], t[1], t[2]
+    h = np.hypot(te, tn)
+    azimuth, pitch = np.arctan2(te, tn), np.arctan2(tu, h)
     m = int(plan) + int(vertical)
     r = np.zeros(m)
     H = np.zeros((m, L[L_N]))
-    a, d = L[L_ATT], L[L_DIR]
+    a, d, b = L[L_ATT], L[L_DIR], L[L_BORE]
     i = 0
-    if plan:  # d azimuth = (tn dte - te dtn) / h^2 with dt = phi x t
+    if plan:  # d azimuth = (tn dte - te dtn) / h^2 with dt = phi x t, or dt_bore d bore
         r[i] = -(np.mod(azimuth - sv[I_DIR] + np.pi, 2.0 * np.pi) - np.pi)
         H[i, a], H[i, a + 1], H[i, a + 2] = te * tu / h**2, tn * tu / h**2, -1.0
+        if b >= 0:
+            for j in range(2):
+                H[i, b + j] = (tn * dt_bore[0, j] - te * dt_bore[1, j]) / h**2
         H[i, d] = -1.0
         i += 1
-    if vertical:  # d pitch = dtu / h
+    if vertical:  # d pitch = dtu / h (dt is normal to t)
         r[i] = -(pitch - sv[I_DIR + 1])
         H[i, a], H[i, a + 1] = tn / h, -te / h
+        if b >= 0:
+            for j in range(2):
+                H[i, b + j] = dt_bore[2, j] / h
         H[i, d + 1] = -1.0
     return r, H, np.eye(m) * sigma**2
 
@@ -79,7 +97,7 @@ def restart_k(
     """Start the section direction afresh in an epoch from chainage d0 to d1 (m) that enters
     a straight interval (in plan: the azimuth; in the vertical plane: the pitch): its row of
     phi zeroed, RESTART_SIGMA^2 its process noise, uncorrelated, and its nominal in the
-    mechanized state s1 the axis's angle."""
+    mechanized state s1 the travel direction's angle."""
     j = L[L_DIR]
     if j < 0 or prm.straight_wander <= 0.0:
         return

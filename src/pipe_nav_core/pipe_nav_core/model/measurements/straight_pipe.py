@@ -39,6 +39,7 @@ from pipe_nav_core.model.state import (
     SV_DIST,
     SV_LAT,
     c_nb_k,
+    travel_axis_k,
 )
 
 if TYPE_CHECKING:
@@ -54,11 +55,13 @@ OTHER_CURVATURE = 0.02  # 1/m: the other plane's curvature up to which a plane's
 
 @kernel
 def axes_k(sv: Array) -> Array:
-    """(2, 3) the base_link directions across the bore (x) about which a rate turns the
-    pipe's axis in plan (row 0: u = t x n in ENU) and in its vertical plane (row 1: n = up x
-    t, horizontal), t the axis in ENU; zeros where the axis is vertical."""
+    """(2, 3) the base_link directions across the bore about which a rate turns the pipe's
+    axis in plan (row 0: u = t x n in ENU) and in its vertical plane (row 1: n = up x t,
+    horizontal), t the direction of travel in ENU (:func:`travel_axis_k`: a pig rolls about
+    it); zeros where the axis is vertical."""
     c = c_nb_k(sv)
-    te, tn, tu = c[0, 0], c[1, 0], c[2, 0]
+    t, _ = travel_axis_k(sv)
+    te, tn, tu = t[0], t[1], t[2]
     h = np.hypot(te, tn)
     enu = np.zeros((2, 3))
     if h > 1e-6:
