@@ -64,7 +64,7 @@ def test_it_takes_the_horizontal_error_down(drag):
         err[name] = (s.max_h, s.max_v, s.inside_3sigma)
         assert (res.summary["straight_pipe_updates"] > 500) == (name != "off")  # of 1428 epochs
         assert (res.summary["section_direction_updates"] > 500) == (name == "on")
-    # measured: 12.6 -> 6.1 -> 5.05 cm horizontal, 1.8 -> 1.85 -> 1.8 cm vertical
+    # measured: 12.6 -> 6.1 -> 5.05 cm horizontal, 1.8 -> 1.9 -> 1.8 cm vertical
     assert err["rate_only"][0] < 0.67 * err["off"][0]
     assert err["on"][0] < 0.85 * err["rate_only"][0]
     assert err["on"][1] < 1.1 * err["off"][1]

@@ -30,15 +30,18 @@ from pipe_nav_core.jit import kernel
 from pipe_nav_core.model.measurements.context import Context, factor, update
 from pipe_nav_core.model.state import (
     I_BG,
+    I_BORE,
     I_GM,
     I_Q,
     L_ATT,
     L_BG,
+    L_BORE,
     L_GM,
     L_N,
     SV_DIST,
     SV_LAT,
     c_nb_k,
+    odometer_axis,
     travel_axis_k,
 )
 
@@ -75,17 +78,23 @@ def straight_pipe_k(
     sv: Array, L: Index, gyro_mean: Array, sigma: float, earth_sign: float, axes: Array
 ) -> Model:
     """The components along ``axes`` (m, 3; base_link, across the bore) of the body's rate
-    relative to the ground, omega_nb (rad/s), zero on a straight pipe: residual, H and R
-    (sigma rad/s on each row). The axes are inputs (the policy's, from the linearization
-    point: :func:`axes_k`), so that both planes' rows turn with the body as the bore does."""
+    relative to the ground, omega_nb (rad/s), less its roll about the direction of travel
+    u(boresight) (a pig rolls about the pipe's axis): zero on a straight pipe. Residual, H and
+    R (sigma rad/s on each row). The axes are inputs (the policy's, from the linearization
+    point: :func:`axes_k`), so that both planes' rows turn with the body as the bore does; the
+    roll taken out about u(boresight) is the state's, so that the roll shows the boresight."""
     c = c_nb_k(sv)
     w_ie = earth.earth_rate_k(sv[SV_LAT], earth_sign)
+    u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
     gm = L[L_GM]
     inv = np.eye(3)
     if gm >= 0:
         inv = att.inv3(np.eye(3) + sv[I_GM : I_GM + 9].copy().reshape(3, 3))
     w_ib = inv @ (gyro_mean - sv[I_BG : I_BG + 3])
-    mi = axes @ inv  # d(rows)/d(raw rate)
+    w_nb = w_ib - c.T @ w_ie
+    roll = u @ w_nb
+    across = axes @ (np.eye(3) - np.outer(u, u))  # d(rows)/d(omega_nb)
+    mi = across @ inv  # d(rows)/d(raw rate)
     m = axes.shape[0]
     H = np.zeros((m, L[L_N]))
     H[:, L[L_BG] : L[L_BG] + 3] = -mi
@@ -94,8 +103,12 @@ def straight_pipe_k(
             for j in range(3):
                 H[:, gm + 3 * r + j] = -mi[:, r] * w_ib[j]
     a = L[L_ATT]
-    H[:, a : a + 3] = -(axes @ c.T @ att.skew_k(w_ie))
-    return -(axes @ (w_ib - c.T @ w_ie)), H, np.eye(m) * sigma**2
+    H[:, a : a + 3] = -(across @ c.T @ att.skew_k(w_ie))
+    b = L[L_BORE]
+    if b >= 0:
+        for j in range(2):
+            H[:, b + j] = -(axes @ (du[:, j] * roll + u * (du[:, j] @ w_nb)))
+    return -(axes @ (w_nb - u * roll)), H, np.eye(m) * sigma**2
 
 
 @kernel
