@@ -106,8 +106,9 @@ def straight_pipe_k(
     H[:, a : a + 3] = -(across @ c.T @ att.skew_k(w_ie))
     b = L[L_BORE]
     if b >= 0:
+        du_w = w_nb @ du  # (2,): the roll's change with the boresight
         for j in range(2):
-            H[:, b + j] = -(axes @ (du[:, j] * roll + u * (du[:, j] @ w_nb)))
+            H[:, b + j] = -(axes @ (du[:, j] * roll + u * du_w[j]))
     return -(axes @ (w_nb - u * roll)), H, np.eye(m) * sigma**2
 
 
