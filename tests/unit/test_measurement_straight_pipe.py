@@ -70,6 +70,27 @@ def test_the_rows_are_across_the_direction_of_travel():
     assert np.abs(axes @ np.array([1.0, 0.0, 0.0])).max() > 2e-3
 
 
+def test_a_roll_about_the_direction_of_travel_is_no_turn():
+    """A pig rolling at 0.05 rad/s about the pipe's axis with its IMU 4 mrad askew: the rows
+    are zero with the boresight right, and 0.05 rad/s times the boresight's error with it
+    2 mrad wrong (the roll leaks into the rows: what shows the boresight)."""
+    s = _level_state(0.7, azimuth=1.0)
+    s.bore = np.array([4e-3, -3e-3])
+    u = np.array([1.0, *s.bore]) / math.hypot(1.0, *s.bore)
+    axes = sp.axes_k(s.vector())
+    L = Layout("ins").index
+    gyro = 0.05 * u  # rad/s base_link; no Earth rate below
+    r, _, _ = sp.straight_pipe_k(s.vector(), L, gyro, 1e-3, 0.0, axes)
+    assert np.allclose(r, 0.0, atol=1e-15)
+    s.bore = s.bore + np.array([2e-3, 0.0])
+    r, _, _ = sp.straight_pipe_k(s.vector(), L, gyro, 1e-3, 0.0, axes)
+    # a rate along the body's y axis, rolled 0.7 rad up from the horizontal: about the
+    # vertical (the plan row) by its sine, about the horizontal normal by its cosine
+    assert np.linalg.norm(r) == pytest.approx(0.05 * 2e-3, rel=0.01)
+    assert abs(r[0]) == pytest.approx(0.05 * 2e-3 * math.sin(0.7), rel=0.01)
+    assert abs(r[1]) == pytest.approx(0.05 * 2e-3 * math.cos(0.7), rel=0.01)
+
+
 def _path(ds: float = 0.1) -> np.ndarray:
     """Flat states along 100 m of pipe: straight, a 90 deg plan bend of 10 m radius from
     30 m, straight, and from 70 m a gentle vertical sag (curvature 5e-3 1/m) to the end."""
