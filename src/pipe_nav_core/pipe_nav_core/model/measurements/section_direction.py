@@ -50,12 +50,17 @@ WOBBLE_M = 1.0  # m of pipe over which the pig's wobble is one independent draw
 
 
 @kernel
-def axis_angles_k(sv: Array) -> tuple[float, float, float]:
-    """The azimuth (from north, clockwise) and pitch (up) of the direction of travel
-    (:func:`travel_axis_k`) in ENU, rad, and its horizontal length (0: vertical, no azimuth)."""
-    t, _ = travel_axis_k(sv)
+def direction_angles_k(t: Array) -> tuple[float, float, float]:
+    """The azimuth (from north, clockwise) and pitch (up) of a unit direction t in ENU, rad,
+    and its horizontal length (0: vertical, no azimuth)."""
     h = np.hypot(t[0], t[1])
     return np.arctan2(t[0], t[1]), np.arctan2(t[2], h), h
+
+
+@kernel
+def axis_angles_k(sv: Array) -> tuple[float, float, float]:
+    """:func:`direction_angles_k` of the direction of travel (:func:`travel_axis_k`)."""
+    return direction_angles_k(travel_axis_k(sv)[0])
 
 
 @kernel
@@ -65,8 +70,7 @@ def section_direction_k(sv: Array, L: Index, plan: bool, vertical: bool, sigma: 
     and section direction columns) and R (sigma rad on each row)."""
     t, dt_bore = travel_axis_k(sv)
     te, tn, tu = t[0], t[1], t[2]
-    h = np.hypot(te, tn)
-    azimuth, pitch = np.arctan2(te, tn), np.arctan2(tu, h)
+    azimuth, pitch, h = direction_angles_k(t)
     m = int(plan) + int(vertical)
     r = np.zeros(m)
     H = np.zeros((m, L[L_N]))

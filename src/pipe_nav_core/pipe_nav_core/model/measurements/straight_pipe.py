@@ -42,7 +42,6 @@ from pipe_nav_core.model.state import (
     SV_LAT,
     c_nb_k,
     odometer_axis,
-    travel_axis_k,
 )
 
 if TYPE_CHECKING:
@@ -60,10 +59,11 @@ OTHER_CURVATURE = 0.02  # 1/m: the other plane's curvature up to which a plane's
 def axes_k(sv: Array) -> Array:
     """(2, 3) the base_link directions across the bore about which a rate turns the pipe's
     axis in plan (row 0: u = t x n in ENU) and in its vertical plane (row 1: n = up x t,
-    horizontal), t the direction of travel in ENU (:func:`travel_axis_k`: a pig rolls about
-    it); zeros where the axis is vertical."""
+    horizontal), t the direction of travel in ENU (:func:`~pipe_nav_core.model.state.travel_axis_k`:
+    a pig rolls about it); zeros where the axis is vertical."""
     c = c_nb_k(sv)
-    t, _ = travel_axis_k(sv)
+    u, _ = odometer_axis(sv[I_BORE : I_BORE + 2])
+    t = c @ u  # travel_axis_k's, with the C_nb this function needs anyway
     te, tn, tu = t[0], t[1], t[2]
     h = np.hypot(te, tn)
     enu = np.zeros((2, 3))
