@@ -6,9 +6,12 @@ import math
 import numpy as np
 import pytest
 from measurement_check import MODES, check_jacobian, random_state
+from pipe_nav_core.config import NavConfig
 from pipe_nav_core.geo import attitude as att
 from pipe_nav_core.model.measurements import straight_pipe as sp
-from pipe_nav_core.model.state import SV_DIST, SV_Q, SV_SIZE, Layout, NavState, c_nb_k
+from pipe_nav_core.model.state import SV_DIST, SV_Q, SV_SIZE, SV_T, Layout, NavState, c_nb_k
+
+CFG = NavConfig()  # 1e-3 1/m over 2 m, a margin of 1.5 m, a wander of 3e-4 rad/sqrt(m)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -109,7 +112,7 @@ def test_sections_leave_out_each_bend_and_its_margin():
     ref = _path()
     axis = c_nb_k(ref[350])[:, 0]  # 35 m, in the bend: azimuth 0.5 rad, level
     assert np.allclose(axis, [math.sin(0.5), math.cos(0.5), 0.0])
-    plan, vertical = sp.sections(ref, 1e-3, 1.5)
+    plan, vertical, _ = sp.sections(ref, CFG)
     bend_end = 30.0 + 10.0 * math.pi / 2
     reach = 1.5 + sp.WINDOW_M  # the margin, and at most the window the curvature is seen over
     # plan: straight before the bend and after it, the sag included (it does not turn in plan)
@@ -127,9 +130,9 @@ def test_sections_leave_out_each_bend_and_its_margin():
 
 def test_no_sections_on_a_short_or_standing_path():
     ref = _path()[:10]  # 1 m
-    assert all(len(x) == 0 for x in sp.sections(ref, 1e-3, 1.5))
+    assert all(len(x) == 0 for x in sp.sections(ref, CFG)[:2])
     standing = np.repeat(_path()[:1], 50, axis=0)
-    assert all(len(x) == 0 for x in sp.sections(standing, 1e-3, 1.5))
+    assert all(len(x) == 0 for x in sp.sections(standing, CFG)[:2])
 
 
 def test_a_diverged_reference_gives_what_its_finite_epochs_say():
@@ -137,28 +140,74 @@ def test_a_diverged_reference_gives_what_its_finite_epochs_say():
     bad = ref.copy()
     bad[::7, SV_DIST] = np.nan
     bad[3::11, SV_Q] = np.nan
-    plan, vertical = sp.sections(bad, 1e-3, 1.5)
-    want = sp.sections(ref, 1e-3, 1.5)
+    plan, vertical, _ = sp.sections(bad, CFG)
+    want = sp.sections(ref, CFG)
     assert np.allclose(plan, want[0], atol=0.5) and np.allclose(vertical, want[1], atol=0.5)
     nothing = ref.copy()
     nothing[:, SV_DIST] = np.nan
-    assert all(len(x) == 0 for x in sp.sections(nothing, 1e-3, 1.5))
+    assert all(len(x) == 0 for x in sp.sections(nothing, CFG)[:2])
     far = ref.copy()
     far[-1, SV_DIST] = 1e9  # m: a pass that ran away; the grid stays a few times the epochs
-    assert len(sp.sections(far, 1e-3, 1.5)[0]) >= 1
+    assert len(sp.sections(far, CFG)[0]) >= 1
 
 
 def test_backward_sections_are_the_forward_ones_from_the_receive_trap():
     """Two-filter's backward filter counts its chainage from zero at the receive trap,
     falling towards the launch: the forward pass's sections shifted by its last chainage."""
-    from pipe_nav_core.config import NavConfig
     from pipe_nav_core.smooth.two_filter import backward_sections
 
     ref = _path()
-    cfg = NavConfig()
-    plan, vertical = sp.sections(ref, cfg.straight_pipe_curvature, cfg.straight_pipe_margin)
-    back = backward_sections(ref, cfg)
+    plan, vertical, _ = sp.sections(ref, CFG)
     end = ref[-1, SV_DIST]
+    back = backward_sections((plan, vertical), end)
     assert np.array_equal(back[0], plan - end) and np.array_equal(back[1], vertical - end)
     assert back[0][0, 0] == -end and back[0][-1, 1] == 0.0  # launch and receive trap
-    assert backward_sections(None, cfg) is None
+    assert backward_sections(None, end) is None
+
+
+def _curve(azimuth_rate: np.ndarray, ds: float = 0.1, speed: float = 0.6) -> np.ndarray:
+    """Flat states along a level path whose azimuth turns by azimuth_rate (rad/m, one per
+    ds m of chainage), the pig at ``speed`` m/s."""
+    s = np.arange(len(azimuth_rate)) * ds
+    azimuth = np.cumsum(azimuth_rate) * ds
+    out = np.zeros((len(s), SV_SIZE))
+    out[:, SV_DIST], out[:, SV_T] = s, s / speed
+    for k, a in enumerate(azimuth):
+        out[k, SV_Q] = att.quat_from_euler(0.0, 0.0, a)
+    return out
+
+
+def test_a_gentle_curve_is_no_straight_section():
+    """A 2 deg curve of 1500 m radius from 50 to 102 m of a 200 m pipe turns 0.67 mrad a metre,
+    under the 2 mrad that 2 m of chainage may turn, but 35 mrad in all: far more than a
+    straight section may wander (3e-4 rad/sqrt(m): 2.2 mrad over its 52 m). It is left out of
+    the plan's sections; the straight pipe each side of it stays in them."""
+    s = np.arange(0.0, 200.0, 0.1)
+    rate = np.where((s >= 50.0) & (s < 50.0 + 1500.0 * math.radians(2.0)), 1 / 1500.0, 0.0)
+    plan, vertical, curves = sp.sections(_curve(rate), CFG)
+    inside = [lo <= d <= hi for lo, hi in plan for d in (55.0, 76.0, 97.0)]
+    assert not any(inside)  # the old test alone took it all: one interval, 0 to 200 m
+    # measured: [0, 45.5] and [106.75, 199.9]
+    assert plan.shape == (2, 2) and plan[0, 0] == 0.0 and plan[0, 1] > 40.0
+    assert plan[1, 1] == pytest.approx(199.9) and plan[1, 0] < 112.0
+    assert len(vertical) == 1  # it is level throughout
+    # the curve found, handed to the next pass, stays out whatever that pass's path says (a
+    # pass that held the curve's ends straight has flattened them)
+    # measured: 48 to 104.25 m (the stretch seen, grown by what its curvature hides)
+    assert curves[0].shape == (1, 2) and 45.0 < curves[0][0, 0] < curves[0][0, 1] < 108.0
+    flattened = _curve(np.zeros_like(rate))
+    assert np.array_equal(sp.sections(flattened, CFG, curves=curves).plan, plan)
+    assert sp.sections(flattened, CFG).plan.tolist() == [[0.0, pytest.approx(199.9)]]
+
+
+def test_a_straight_pipe_seen_through_a_gyros_noise_stays_straight():
+    """A reference whose azimuth walks as the consumer gyro's angle random walk makes it
+    (0.6 deg/sqrt(h), the pig at 0.6 m/s): no window is taken for a gentle curve."""
+    cfg = NavConfig(imu_grade="consumer")
+    arw = cfg.imu_spec().gyro_arw  # rad/sqrt(s)
+    ds, speed = 0.1, 0.6
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        walk = rng.standard_normal(3000) * arw * math.sqrt(ds / speed) / ds  # rad/m
+        plan, _, curves = sp.sections(_curve(walk, ds, speed), cfg, arw)
+        assert plan.tolist() == [[0.0, pytest.approx(299.9)]] and len(curves[0]) == 0

@@ -269,7 +269,9 @@ def _print_summary(s: dict[str, Any], method: str) -> None:
     rej = s.get("rejected_updates") or {}
     print("  rejected updates    " + (", ".join(f"{k} {v}" for k, v in rej.items()) or "none"))
     if s.get("straight_pipe_updates"):
-        print(f"  straight pipe       {s['straight_pipe_updates']} updates")
+        curves = float(s.get("gentle_curves_m") or 0.0)  # left out of the straight sections
+        print(f"  straight pipe       {s['straight_pipe_updates']} updates"
+              + (f"; gentle curves {curves:.1f} m left out" if curves else ""))  # fmt: skip
     if s.get("section_direction_updates"):
         print(f"  section direction   {s['section_direction_updates']} updates")
     print(f"  odometer scale      {s['odometer_scale']:.5f}")

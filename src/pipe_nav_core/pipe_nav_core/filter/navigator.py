@@ -347,8 +347,8 @@ class Navigator:
         earth_sign = self.options.earth_sign
         straight = self.options.straight
         if straight is None:
-            straight = (NO_SECTIONS, NO_SECTIONS) if self.reference is None else sections(
-                self.reference, cfg.straight_pipe_curvature, cfg.straight_pipe_margin)  # fmt: skip
+            straight = (NO_SECTIONS, NO_SECTIONS) if self.reference is None else tuple(sections(
+                self.reference, cfg, self.imu_spec.gyro_arw)[:2])  # fmt: skip
         self._prm = parameters(cfg, self.imu_spec, np.asarray(cfg.odometer_lever_arm, float),
                                earth_sign, a.mag_ref, straight)  # fmt: skip
         self._counts["aligned_at_ms"] = int(round(s.t * 1000))

@@ -321,11 +321,14 @@ def graph_smooth(
     max_iterations: int = MAX_ITERATIONS,
     huber_k: float = HUBER_K,
     say: Callable[[str], None] = lambda _msg: None,
+    straight: tuple[Array, Array] | None = None,
 ) -> GraphResult:
     """Gauss-Newton on the batch problem of a time-sorted log from reference (flat states
     (K, SV_SIZE) at the epochs of an earlier pass, e.g. the RTS solution; see the module
     docstring). odometer_exclude: (N, 2) s intervals without odometer speed factors (slips);
-    reverse: the log runs in reversed time (the Navigator's reverse)."""
+    reverse: the log runs in reversed time (the Navigator's reverse); straight: the straight
+    sections (plan, vertical: chainage intervals (K, 2), m) for every iteration (None: each
+    iteration's from its own linearization point)."""
     layout = layout_for(config)
     markers = markers_sorted(log.markers)
     pivot: Pivot | None = (markers[0].lat, markers[0].lon, markers[0].alt) if markers else None
@@ -343,7 +346,7 @@ def graph_smooth(
         stream = StreamingSolve(layout.n, config.gate_probability, huber_k)
         nav = FactorRecorder(
             config, log.markers, reference=X, odometer_exclude=odometer_exclude,
-            reverse=reverse, sink=stream,
+            reverse=reverse, sink=stream, straight=straight,
         )  # fmt: skip
         try:
             feed(nav, log, config, release=True)  # in slices: not the whole log copied at once

@@ -81,12 +81,13 @@ class FactorRecorder(Navigator):
         odometer_exclude: Array | None = None,
         reverse: bool = False,
         sink: EpochSink | None = None,
+        straight: tuple[Array, Array] | None = None,
     ) -> None:
         super().__init__(
             config,
             survey,
             PassOptions(record=True, emit=False, reverse=reverse, reference=reference,
-                        odometer_exclude=odometer_exclude),
+                        odometer_exclude=odometer_exclude, straight=straight),
         )  # fmt: skip
         self.sink = sink
         if sink is not None:

@@ -42,7 +42,17 @@ from pipe_nav_core.background import Background
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.memory import trim_heap
-from pipe_nav_core.model.state import SV_H, SV_LAT, SV_LON, SV_T, Layout, inject_many, layout_for
+from pipe_nav_core.model.measurements.straight_pipe import Sections, sections
+from pipe_nav_core.model.state import (
+    SV_DIST,
+    SV_H,
+    SV_LAT,
+    SV_LON,
+    SV_T,
+    Layout,
+    inject_many,
+    layout_for,
+)
 from pipe_nav_core.smooth.centreline import (
     Parked,
     SmoothResult,
@@ -182,19 +192,24 @@ def smooth_log(
         return result
     exclude: Array | None = None
     reference: Array | None = None
+    straight: Sections | None = None  # each pass's, its gentle curves kept for the next
+    arw = nav.imu_spec.gyro_arw  # rad/sqrt(s): the IMU model the first pass chose
     best: tuple[int, SmoothResult | Parked] | None = None  # the pass taken so far
     n_pass = max(1, iterations)
     for it in range(n_pass):
         back: Background | None = None
         if it:
+            straight = sections(reference, cfg, arw, straight.curves if straight else None)
             if method == "two-filter":  # its backward half on the other core
+                end = float(reference[-1, SV_DIST])
                 back = Background("pipe-nav backward filter", backward_pass, log, cfg,
                                   reference[:, SV_T].copy(), end_azimuth(reference[-1]),
-                                  exclude, QUIET, backward_sections(reference, cfg))  # fmt: skip
+                                  exclude, QUIET, backward_sections(straight[:2], end))  # fmt: skip
             say(f"forward filter about the smoothed trajectory (pass {it + 1})"
                 + (", the backward filter beside it" if back else ""))  # fmt: skip
             nav = run_forward(log, cfg, reference=reference, odometer_exclude=exclude,
-                              reverse=reverse, progress=progress, release=True)  # fmt: skip
+                              reverse=reverse, progress=progress, release=True,
+                              straight=(straight.plan, straight.vertical))  # fmt: skip
         rec = nav.recording
         assert rec is not None
         if method in ("rts", "graph"):
@@ -228,6 +243,7 @@ def smooth_log(
             best = (rejected, result)
         result.summary["last_step_m"] = step_pos
         result.summary["last_step_rad"] = step_att
+        result.summary["gentle_curves_m"] = curve_length(straight)
         # the slips the next pass leaves out (after the last pass only the graph takes them)
         new_exclude = (
             find_slips(rec, centre, cfg, resolution=nav.odometer_resolution)
@@ -238,8 +254,10 @@ def smooth_log(
             if method == "graph":  # the batch smoother, from this pass's smoothed trajectory
                 start = smoothed_states(rec, e, layout)
                 slips = new_exclude if new_exclude is not None else exclude
+                straight = sections(start, cfg, arw, straight.curves if straight else None)
                 del nav, rec, e, var, centre, result, best  # the RTS passes' memory first
-                return _graph_result(log, cfg, start, slips, it + 1, progress, reverse, result_of)
+                return _graph_result(log, cfg, start, slips, it + 1, progress, reverse, result_of,
+                                     straight)  # fmt: skip
             break
         del centre, result, var  # the pass kept so far holds its centreline ...
         if isinstance(best[1], SmoothResult) and Parked.worth(best[1]):
@@ -252,6 +270,14 @@ def smooth_log(
     taken.summary["passes_run"] = it + 1
     taken.summary["converged"] = converged
     return taken
+
+
+def curve_length(straight: Sections | None) -> float:
+    """The length (m) of the gentle curves a pass's straight sections leave out, in plan and
+    in the vertical plane together (:func:`.straight_pipe.sections`)."""
+    if straight is None:
+        return 0.0
+    return float(sum((c[:, 1] - c[:, 0]).sum() for c in straight.curves))
 
 
 def epoch_config(config: NavConfig, method: str) -> NavConfig:
@@ -271,15 +297,17 @@ def _graph_result(
     progress: Progress,
     reverse: bool,
     result_of: Callable[[Navigator, Trajectory], SmoothResult],
+    straight: Sections,
 ) -> SmoothResult:
     """The batch smoother (pipe_nav_core.graph) from the RTS passes' last smoothed trajectory
-    (flat states start (K, SV_SIZE)) with their odometer exclusions; the summary says the
-    method, the RTS passes and the graph's iterations, markers downweighted by its robust
-    loss and factors left out by its gate. ``progress`` hears its stages."""
+    (flat states start (K, SV_SIZE)) with their odometer exclusions and the straight sections
+    of start; the summary says the method, the RTS passes and the graph's iterations, markers
+    downweighted by its robust loss and factors left out by its gate. ``progress`` hears its
+    stages."""
     from pipe_nav_core.graph import graph_smooth
 
     g = graph_smooth(log, cfg, start, odometer_exclude=exclude, reverse=reverse,
-                     say=progress.stage)  # fmt: skip
+                     say=progress.stage, straight=(straight.plan, straight.vertical))  # fmt: skip
     nav, rec = g.nav, g.nav.recording
     assert rec is not None
     e, var = g.corrections(), g.solution.var[:, rec.pose]
@@ -292,6 +320,7 @@ def _graph_result(
         graph_cost=g.history[-1],
         graph_markers_downweighted=list(g.weighing.downweighted),
         graph_factors_gated=dict(g.weighing.gated),
+        gentle_curves_m=curve_length(straight),
     )
     del g  # its solution and final states (0.5 GB at 100 km) before the centreline is made
     centre = smoothed_centreline(rec, e, var)

@@ -199,6 +199,7 @@ def _joined(log: SensorLog, config: NavConfig, parts: list[SmoothResult]) -> Smo
     for key in ("markers_used", "markers_rejected", "markers_total", "straight_pipe_updates",
                 "section_direction_updates"):  # fmt: skip
         summary[key] = sum(int(p.summary.get(key, 0)) for p in parts)  # type: ignore[call-overload]
+    summary["gentle_curves_m"] = sum(float(p.summary.get("gentle_curves_m", 0.0)) for p in parts)  # type: ignore[arg-type]
     for key in ("warnings", "marker_warnings", "marker_outliers"):
         summary[key] = [w for p in parts for w in p.summary.get(key, [])]  # type: ignore[attr-defined]
     for key in ("max_sigma_h_between_markers_m", "max_marker_residual_m"):

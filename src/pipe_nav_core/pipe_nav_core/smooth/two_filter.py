@@ -13,7 +13,6 @@ from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.geo import attitude as att
-from pipe_nav_core.model.measurements.straight_pipe import sections
 from pipe_nav_core.model.state import (
     SV_BG,
     SV_DIST,
@@ -57,15 +56,16 @@ def two_filter(
     exclude: Array | None = None,
     progress: Progress = QUIET,
     cols: Array | None = None,
+    straight: tuple[Array, Array] | None = None,
 ) -> tuple[Array, Array]:
     """Fuse the forward pass recorded in ``rec`` with a filter run over the time-reversed log
     (:func:`backward_pass` at rec's epochs from the forward estimate's azimuth at the end, then
     :func:`fuse_passes`). Returns the corrections (K, n) to the forward estimates and the
     variances (K, len(cols)) of the fused covariances at the states ``cols`` (every state when
-    None); ``progress`` hears the backward pass."""
-    straight = backward_sections(rec.lin if rec.linearized else None, config)
+    None); ``progress`` hears the backward pass. ``straight``: the forward pass's straight
+    sections (plan, vertical; chainage intervals, m), which the backward filter takes too."""
     back = backward_pass(log, config, rec.t, end_azimuth(rec.states[-1]), exclude, progress,
-                         straight)  # fmt: skip
+                         backward_sections(straight, float(rec.states[-1][SV_DIST])))  # fmt: skip
     return fuse_passes(rec, back, layout, cols)
 
 
@@ -76,16 +76,16 @@ def end_azimuth(state: Array) -> float:
     return float(az)
 
 
-def backward_sections(reference: Array | None, config: NavConfig) -> tuple[Array, Array] | None:
-    """The straight sections (:func:`.straight_pipe.sections`) of the forward pass's reference
-    trajectory (K, SV_SIZE) in the backward filter's chainage, which is zero at the receive
-    trap (the reference's last state: m) and falls towards the launch; None without one."""
-    if reference is None or len(reference) == 0:
+def backward_sections(
+    straight: tuple[Array, Array] | None, end: float
+) -> tuple[Array, Array] | None:
+    """The forward pass's straight sections (plan, vertical: chainage intervals (K, 2), m;
+    :func:`.straight_pipe.sections`) in the backward filter's chainage, which is zero at the
+    receive trap (the forward chainage ``end``, m) and falls towards the launch; None
+    without them."""
+    if straight is None:
         return None
-    plan, vertical = sections(reference, config.straight_pipe_curvature,
-                              config.straight_pipe_margin)  # fmt: skip
-    end = float(reference[-1, SV_DIST])
-    return plan - end, vertical - end
+    return straight[0] - end, straight[1] - end
 
 
 def backward_pass(

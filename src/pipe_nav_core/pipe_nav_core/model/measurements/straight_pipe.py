@@ -20,7 +20,7 @@ pig's wobble and the pipe's own waviness (1e-3 rad/s by default: a curvature of 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -40,11 +40,13 @@ from pipe_nav_core.model.state import (
     L_N,
     SV_DIST,
     SV_LAT,
+    SV_T,
     c_nb_k,
     odometer_axis,
 )
 
 if TYPE_CHECKING:
+    from pipe_nav_core.config import NavConfig
     from pipe_nav_core.filter.epoch import EpochOutputs
     from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
 
@@ -53,6 +55,11 @@ NO_SECTIONS = np.zeros((0, 2))  # (K, 2) chainage intervals: none
 WINDOW_M = 2.0  # m of path over which sections() measures the curvature
 GRID_M = 0.25  # m: the chainage step sections() measures at
 OTHER_CURVATURE = 0.02  # 1/m: the other plane's curvature up to which a plane's row applies
+SCALES_M = 4.0 * 2.0 ** np.arange(9)  # m: the windows a gentle curve is looked for over (4-1024)
+N_SIGMA = 3.0  # sigmas of the reference's own noise a curve turns by beyond N_WANDER ...
+N_WANDER = 2.5  # ... sigmas of the section's wander (what the rows allow it)
+GROW = 3.0  # times the length over which a stretch's curvature shows that it grows by
+END_SCALE_M = 16.0  # m: the windows in which a section's end stands for the half it cuts off
 
 
 @kernel
@@ -155,22 +162,55 @@ def factors(c: Context) -> list[Factor]:
     return [factor(KINDS[0], straight_pipe_k, *args)] if on else []
 
 
-def sections(reference: Array, max_curvature: float, margin: float) -> tuple[Array, Array]:
-    """The chainage intervals (K, 2; m, sorted, disjoint) where the path of flat states
-    ``reference`` (K, SV_SIZE; a pass's smoothed trajectory) runs straight in plan and in its
-    vertical plane: the axis (base_link x) turns by less than ``max_curvature`` (1/m) over
-    every WINDOW_M of chainage, and no bend is nearer than ``margin`` (m). Epochs whose
-    chainage or attitude is not finite (a pass that diverged) are left out."""
+class Sections(NamedTuple):
+    """Where a path runs straight: chainage intervals (K, 2; m, sorted, disjoint) in plan and
+    in its vertical plane, and the gentle curves found (plan, vertical; (K, 2), m)."""
+
+    plan: Array
+    vertical: Array
+    curves: tuple[Array, Array]
+
+
+def sections(
+    reference: Array,
+    config: NavConfig,
+    gyro_arw: float | None = None,
+    curves: tuple[Array, Array] | None = None,
+) -> Sections:
+    """Where the path of flat states ``reference`` (K, SV_SIZE; a pass's smoothed trajectory)
+    runs straight in plan and in its vertical plane, by ``config``'s straight_pipe_curvature,
+    _margin and _wander and the gyro's angle random walk (rad/sqrt(s); None: config's IMU
+    model's). ``curves``: the gentle curves an earlier pass found, left out as well (a pass
+    that held a curve's ends straight flattens them, so the next pass would find less of it).
+    Epochs whose chainage, time or attitude is not finite (a pass that diverged) are left out.
+
+    Two tests, both of which a section passes:
+    - a bend: the axis (base_link x) turns by more than straight_pipe_curvature (1/m) over
+      WINDOW_M of chainage; straight_pipe_margin (m) is left out at each of its ends;
+    - a gentle curve (a radius of a kilometre turns a milliradian in a metre, below what
+      WINDOW_M sees through the gyro's noise, but 35 mrad in 50 m): over every window of
+      SCALES_M about a point (clipped to the section the first test leaves), the axis turns on
+      both sides of it (one near the section's end) by more than N_WANDER sigmas of the
+      section's wander (straight_pipe_wander per sqrt(m)) and N_SIGMA of the reference's own
+      angle random walk (gyro ARW per sqrt(s)) allow (:func:`_curved`); the same margin is
+      left out about such points. Else the rows would hold such a curve straight: on a 90 m
+      pipe with a 2 deg curve of 1500 m radius, 48 cm of error at 14 sigma (BENCHMARKS.md,
+      "Gentle curves"). A curve gentler than the gyro's bias can show (a consumer gyro's
+      1.2e-4 rad/s at 0.6 m/s: a radius of 5 km) is not found."""
     ok = np.isfinite(reference[:, SV_DIST]) & np.isfinite(reference[:, I_Q : I_Q + 4]).all(1)
+    ok &= np.isfinite(reference[:, SV_T])
     ref = reference[ok]
     order = np.argsort(ref[:, SV_DIST], kind="stable")
     d = ref[order, SV_DIST]
+    earlier = curves if curves is not None else (NO_SECTIONS, NO_SECTIONS)
+    none = Sections(NO_SECTIONS, NO_SECTIONS, earlier)
     if len(d) < 2:
-        return NO_SECTIONS, NO_SECTIONS
+        return none
     keep = order[np.r_[True, np.diff(d) > 1e-6]]  # the first epoch at each chainage (stops)
     d = ref[keep, SV_DIST]
     if len(d) < 2 or d[-1] - d[0] < WINDOW_M:
-        return NO_SECTIONS, NO_SECTIONS
+        return none
+    t = ref[keep, SV_T]
     _, pitch, azimuth = att.euler_from_dcm(att.dcm_from_quat(ref[keep, I_Q : I_Q + 4]))
     azimuth = np.unwrap(azimuth)
     # GRID_M, or coarser where the epochs are further apart (a diverged pass's chainage)
@@ -180,19 +220,99 @@ def sections(reference: Array, max_curvature: float, margin: float) -> tuple[Arr
     lo, hi = np.clip(grid - half, d[0], d[-1]), np.clip(grid + half, d[0], d[-1])
     span = np.maximum(hi - lo, step)
     ends = (float(d[0]), float(d[-1]))
+    cos_pitch = np.cos(np.interp(grid, d, pitch))
 
     def turn(angle: Array) -> Array:
         return np.abs(np.interp(hi, d, angle) - np.interp(lo, d, angle)) / span
 
-    plan = turn(azimuth) * np.cos(np.interp(grid, d, pitch))
+    plan = turn(azimuth) * cos_pitch
     vertical = turn(pitch)
     # a plane's row is left out where the other plane turns faster than OTHER_CURVATURE too:
     # there a milliradian of axis or gyro misalignment leaks the other plane's turn into it
-    reach = margin + half
-    return (
-        _straight(grid, (plan <= max_curvature) & (vertical <= OTHER_CURVATURE), reach, *ends),
-        _straight(grid, (vertical <= max_curvature) & (plan <= OTHER_CURVATURE), reach, *ends),
-    )
+    reach = config.straight_pipe_margin + half
+    kappa = config.straight_pipe_curvature
+    wander = config.straight_pipe_wander
+    arw = config.imu_spec().gyro_arw if gyro_arw is None else gyro_arw
+    out, found = [], []
+    for flat, angle, scale, known in (
+        ((plan <= kappa) & (vertical <= OTHER_CURVATURE), azimuth, cos_pitch, earlier[0]),
+        ((vertical <= kappa) & (plan <= OTHER_CURVATURE), pitch, 1.0, earlier[1]),
+    ):
+        candidates = _straight(grid, flat, reach, *ends)
+        curved = _curved(grid, candidates, d, t, angle, scale, wander, arw)
+        curved |= section_index(known, grid) >= 0
+        out.append(_straight(grid, flat & ~curved, reach, *ends))
+        found.append(_runs(grid, curved))
+    return Sections(out[0], out[1], (found[0], found[1]))
+
+
+def section_index(intervals: Array, d: Array) -> Array:
+    """:func:`section_of` for every chainage of d (m): the interval of ``intervals`` (K, 2;
+    sorted, disjoint) each is inside, -1 if none."""
+    i = np.searchsorted(intervals[:, 0], d, side="right") - 1
+    inside = (i >= 0) & (d <= intervals[np.maximum(i, 0), 1]) if len(intervals) else i < -1
+    return np.where(inside, i, -1)
+
+
+def _runs(grid: Array, flags: Array) -> Array:
+    """The intervals (K, 2; m) from the first to the last grid point of each run of flags."""
+    edges = np.flatnonzero(np.diff(np.r_[0, flags.astype(np.int8), 0]))
+    return np.ascontiguousarray(np.c_[grid[edges[::2]], grid[edges[1::2] - 1]]).reshape(-1, 2)
+
+
+def _curved(
+    grid: Array,
+    candidates: Array,
+    d: Array,
+    t: Array,
+    angle: Array,
+    scale: Array | float,
+    wander: float,
+    arw: float,
+) -> Array:
+    """Which grid points (m of chainage) of the intervals ``candidates`` (K, 2; m) lie inside
+    a curve: over both halves of a window of SCALES_M about the point (clipped to its
+    interval), ``angle`` (rad, at chainages d and times t; times ``scale``) turns by more than
+    sqrt((N_WANDER wander)^2 L + (N_SIGMA arw)^2 T): what the section may wander over the
+    half's length L (m), and the reference's own noise over its duration T (s).
+    Both halves, so that a window reaching into a curve from the straight pipe beside it does
+    not take that pipe for the curve; but in windows up to END_SCALE_M a half cut short by the
+    interval's end (a bend's margin, the run's end) is not asked, so that a curve running into
+    the end is found up to it (and straight pipe within END_SCALE_M / 2 of the end may be
+    taken with it)."""
+    curved = np.zeros(len(grid), dtype=bool)
+    for a, b in candidates:
+        inside = (grid >= a) & (grid <= b)
+        g = grid[inside]
+        s = scale[inside] if isinstance(scale, np.ndarray) else scale
+        at_g, t_g = np.interp(g, d, angle), np.interp(g, d, t)
+        hit = np.zeros(len(g), dtype=bool)
+        for w in SCALES_M:
+            if w > 2 * (b - a):
+                break
+            both, either = np.ones(len(g), dtype=bool), np.zeros(len(g), dtype=bool)
+            for end in (np.maximum(g - w / 2, a), np.minimum(g + w / 2, b)):
+                length = np.abs(end - g)
+                turned = (np.interp(end, d, angle) - at_g) * s
+                duration = np.abs(np.interp(end, d, t) - t_g)
+                allowed = (N_WANDER * wander) ** 2 * length + (N_SIGMA * arw) ** 2 * duration
+                bent = turned**2 > allowed
+                both &= bent | ((length < w / 2 - 1e-9) & (w <= END_SCALE_M))
+                either |= bent
+            hit |= both & either
+        # a curve's ends turn too little for a window to see (within the first metres): each
+        # found stretch grows by the length over which its own curvature would be seen, at
+        # most its own length (a stretch that barely turns is not taken for a long curve)
+        for c0, c1 in _runs(g, hit):
+            if c1 <= c0:
+                continue
+            kappa = abs(np.interp(c1, d, angle) - np.interp(c0, d, angle)) / (c1 - c0)
+            pace = (np.interp(c1, d, t) - np.interp(c0, d, t)) / (c1 - c0)  # s/m
+            per_m = (N_WANDER * wander) ** 2 + (N_SIGMA * arw) ** 2 * pace
+            grow = min(GROW * per_m / max(kappa, 1e-12) ** 2, c1 - c0, END_SCALE_M / 2)
+            hit |= (g >= c0 - grow) & (g <= c1 + grow)
+        curved[inside] = hit
+    return curved
 
 
 def _straight(grid: Array, flat: Array, margin: float, start: float, end: float) -> Array:
