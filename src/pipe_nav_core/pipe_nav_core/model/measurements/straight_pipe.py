@@ -282,7 +282,7 @@ def _curved(
     taken with it)."""
     curved = np.zeros(len(grid), dtype=bool)
     for a, b in candidates:
-        inside = (grid >= a) & (grid <= b)
+        inside = slice(np.searchsorted(grid, a, "left"), np.searchsorted(grid, b, "right"))
         g = grid[inside]
         s = scale[inside] if isinstance(scale, np.ndarray) else scale
         at_g, t_g = np.interp(g, d, angle), np.interp(g, d, t)
