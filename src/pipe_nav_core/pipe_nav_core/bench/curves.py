@@ -17,9 +17,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import replace
 
-import numpy as np
-
-from pipe_nav_core.bench.evaluation import errors_enu
+from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.sim import Scenario, get_scenario, simulate
 from pipe_nav_core.sim.geometry import Bend
@@ -49,12 +47,9 @@ def run_case(scenario: Scenario, seed: int) -> tuple[float, float, float]:
     found m) of one run smoothed with rts."""
     run = simulate(scenario, seed=seed)
     res = smooth_log(run.log, NavConfig.from_dict(scenario.estimator_settings()), method="rts")
-    _, err, _ = errors_enu(res.centreline, run.truth, datum=res.datum)
-    sigma = res.centreline.sigma_enu
-    h = np.hypot(err[:, 0], err[:, 1])
-    i = int(np.nanargmax(h))
+    s = score(res.centreline, run.truth, datum=res.datum)
     found = float(res.summary.get("gentle_curves_m", 0.0))  # type: ignore[arg-type]
-    return float(h[i]), float(np.hypot(sigma[i, 0], sigma[i, 1])), found
+    return s.max_h, s.sigma_h_at_max_h, found
 
 
 def main(argv: Sequence[str] | None = None) -> int:

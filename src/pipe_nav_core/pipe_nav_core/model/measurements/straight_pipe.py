@@ -240,18 +240,19 @@ def sections(
     ):
         candidates = _straight(grid, flat, reach, *ends)
         curved = _curved(grid, candidates, d, t, angle, scale, wander, arw)
-        curved |= section_index(known, grid) >= 0
+        curved |= _within(known, grid)
         out.append(_straight(grid, flat & ~curved, reach, *ends))
         found.append(_runs(grid, curved))
     return Sections(out[0], out[1], (found[0], found[1]))
 
 
-def section_index(intervals: Array, d: Array) -> Array:
-    """:func:`section_of` for every chainage of d (m): the interval of ``intervals`` (K, 2;
-    sorted, disjoint) each is inside, -1 if none."""
+def _within(intervals: Array, d: Array) -> Array:
+    """Whether each chainage of d (m) lies inside one of ``intervals`` (K, 2; sorted, disjoint):
+    :func:`section_of` >= 0 for all of them at once."""
+    if len(intervals) == 0:
+        return np.zeros(len(d), dtype=bool)
     i = np.searchsorted(intervals[:, 0], d, side="right") - 1
-    inside = (i >= 0) & (d <= intervals[np.maximum(i, 0), 1]) if len(intervals) else i < -1
-    return np.where(inside, i, -1)
+    return (i >= 0) & (d <= intervals[np.maximum(i, 0), 1])
 
 
 def _runs(grid: Array, flags: Array) -> Array:
