@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from pipe_nav_core.filter.kalman import chi2_threshold, joseph_update, predict_k
+from pipe_nav_core.filter.kalman import chi2_threshold, joseph_in_place, predict_k
 from pipe_nav_core.model.process import discretize_k
 from pipe_nav_core.model.state import Layout
 
@@ -51,7 +51,7 @@ def test_discretize_and_predict_equal_dense_formulas(mode):
 
 
 @pytest.mark.parametrize("m", [1, 2, 3])
-def test_joseph_update_equals_dense_formula_and_gates(m):
+def test_joseph_in_place_equals_dense_formula_and_gates(m):
     rng = np.random.default_rng(m)
     n = 38
     M = rng.normal(size=(n, n))
@@ -61,17 +61,27 @@ def test_joseph_update_equals_dense_formula_and_gates(m):
     H[:, 0] = 1.0
     R = np.diag(rng.random(m) + 0.1)
     z = rng.normal(size=m)
-    nis, dx, x_new, P_new = joseph_update(P, x, H, R, z, np.inf)
+    x_new, P_new, dx = x.copy(), P.copy(), np.full(n, np.nan)
+    nis, applied = joseph_in_place(P_new, x_new, H, R, z, np.inf, dx)
     r = z - H @ x
     S = H @ P @ H.T + R
     K = P @ H.T @ np.linalg.inv(S)
     IKH = np.eye(n) - K @ H
     P_ref = IKH @ P @ IKH.T + K @ R @ K.T
+    assert applied
     np.testing.assert_allclose(nis, r @ np.linalg.solve(S, r), rtol=1e-10)
-    np.testing.assert_allclose(x_new, x + K @ r, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(dx, K @ r, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(x_new, x + dx)
     np.testing.assert_allclose(P_new, 0.5 * (P_ref + P_ref.T), rtol=1e-9, atol=1e-9)
-    gated = joseph_update(P, x, H, R, z, nis * 0.5)
-    assert len(gated[1]) == 0 and gated[0] == pytest.approx(nis)
+    assert np.array_equal(P_new, P_new.T)
+    # gated (NIS above the gate) or singular (S = 0): nothing changes
+    for R_, gate in ((R, nis * 0.5), (np.zeros((m, m)), np.inf)):
+        H_ = H if gate < np.inf else np.zeros((m, n))
+        x_g, P_g, dx_g = x.copy(), P.copy(), np.full(n, 7.0)
+        nis_g, applied_g = joseph_in_place(P_g, x_g, H_, R_, z, gate, dx_g)
+        assert not applied_g
+        assert np.array_equal(x_g, x) and np.array_equal(P_g, P) and np.all(dx_g == 7.0)
+    assert nis_g != nis_g  # nan: S singular
 
 
 def test_kernels_are_recompiled_when_a_module_they_depend_on_changes(tmp_path, monkeypatch):

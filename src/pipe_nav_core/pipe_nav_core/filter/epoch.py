@@ -47,7 +47,7 @@ from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.kalman import chi2_threshold, predict_k
 from pipe_nav_core.jit import kernel, literal_unroll
 from pipe_nav_core.model.measurements import C_EPOCHS, COUNTERS, KINDS, UPDATES
-from pipe_nav_core.model.measurements.context import Context, Settings
+from pipe_nav_core.model.measurements.context import Context, Settings, Tally
 from pipe_nav_core.model.measurements.section_direction import restart_k
 from pipe_nav_core.model.measurements.straight_pipe import NO_SECTIONS
 from pipe_nav_core.model.mechanization import dr_step_k, ins_step_k
@@ -551,8 +551,10 @@ def _updates(
     has_ref = ref.shape[0] > 0
     c = _context(out.ws, out.ws_i, out.ws_sv, out.ws_m, dyn, dyn_i, L, prm, inp.imu_t, out.q,
                  inp.mag_t, inp.mag_f, markers)  # fmt: skip
+    tally = Tally(out.counts, out.acc, out.rej, out.nis, out.dof, out.marker_res, out.fac,
+                  out.fac_i, out.fac_n)  # fmt: skip
     for u in literal_unroll(UPDATES):  # straight calls, in their order: (kind, event, apply)
-        u[2](c, x, P, out, u[0], u[1])
+        u[2](c, x, P, tally, u[0], u[1])
     s, s1, T, speed, stopped, dp = c.s, c.s1, c.T, c.speed, c.stopped, c.dp
     omega = out.ws[W_OMEGA : W_OMEGA + 3]
     v_jac = c.v_jac

@@ -86,19 +86,20 @@ class UpdateStats:
 
 
 @kernel
-def joseph_update(
-    P: Array, x: Array, H: Array, R: Array, residual: Array, nis_max: float
-) -> tuple[float, Array, Array, Array]:
-    """One gated update of (x, P) with m rows (m small): returns (nis, dx, x_new, P_new).
+def joseph_in_place(
+    P: Array, x: Array, H: Array, R: Array, residual: Array, nis_max: float, dx: Array
+) -> tuple[float, bool]:
+    """One gated update of (x, P) with m rows (m small), in place: returns (nis, applied).
 
-    r = residual - H x, S = H P H^T + R, NIS = r^T S^-1 r; the update is skipped (dx, x_new,
-    P_new empty) when S is singular (nis = nan) or NIS is not finite or above nis_max. Else
-    K = P H^T S^-1, x_new = x + K r and the Joseph form P_new = (I - KH) P (I - KH)^T + K R K^T,
-    each factor (I - KH) applied as a rank-m correction, then symmetrized. Loops instead of
-    numpy calls: with n ~ 40 and m <= 3 the per-call overhead of numpy dominated.
+    r = residual - H x, S = H P H^T + R, NIS = r^T S^-1 r; the update is skipped (x, P and
+    dx as they were, applied False) when S is singular (nis = nan) or NIS is not finite or
+    above nis_max. Else K = P H^T S^-1, dx = K r, x <- x + dx and the Joseph form
+    P <- (I - KH) P (I - KH)^T + K R K^T, each factor (I - KH) applied as a rank-m correction,
+    then symmetrized. Loops instead of numpy calls, and P overwritten instead of copied: with
+    n ~ 40 and m <= 3 numpy's per-call overhead, and then the allocations and copies of
+    (n, n) arrays, were most of an update's time.
     """
     m, n = H.shape
-    empty1, empty2 = np.empty(0), np.empty((0, 0))
     r = residual.copy()
     for a in range(m):
         for j in range(n):
@@ -113,7 +114,7 @@ def joseph_update(
                 for i in range(n):
                     PHt[i, a] += P[i, j] * h
                     HP[a, i] += h * P[j, i]
-    # solve S [y, Z] = [r, PHt^T] by Gaussian elimination with partial pivoting
+    # solve S [y, K^T] = [r, PHt^T] by Gaussian elimination with partial pivoting
     S = R.copy()
     for a in range(m):
         for b in range(m):
@@ -130,7 +131,7 @@ def joseph_update(
             if abs(S[i, k]) > abs(S[piv, k]):
                 piv = i
         if S[piv, k] == 0.0:
-            return np.nan, empty1, empty1, empty2
+            return np.nan, False
         if piv != k:
             for j in range(m):
                 S[k, j], S[piv, j] = S[piv, j], S[k, j]
@@ -152,24 +153,19 @@ def joseph_update(
     for a in range(m):
         nis += r[a] * rhs[a, 0]
     if not np.isfinite(nis) or nis > nis_max:
-        return nis, empty1, empty1, empty2
-    K = np.empty((n, m))
-    KT = np.empty((m, n))  # K transposed: the inner loops below run along rows
+        return nis, False
+    KT = rhs[:, 1:]  # K transposed (m, n): the inner loops below run along its rows
+    for i in range(n):
+        acc = 0.0
+        for a in range(m):
+            acc += KT[a, i] * r[a]
+        dx[i] = acc
+    # P <- B = (I - KH) P, then B (I - KH)^T + K R K^T: HP and PHt hold what is read of P
     for i in range(n):
         for a in range(m):
-            K[i, a] = rhs[a, i + 1]
-            KT[a, i] = rhs[a, i + 1]
-    dx = np.zeros(n)
-    for i in range(n):
-        for a in range(m):
-            dx[i] += K[i, a] * r[a]
-    # B = (I - KH) P; P_new = B (I - KH)^T + K R K^T
-    B = P.copy()
-    for i in range(n):
-        for a in range(m):
-            k = K[i, a]
+            k = KT[a, i]
             for j in range(n):
-                B[i, j] -= k * HP[a, j]
+                P[i, j] -= k * HP[a, j]
     BHt = np.zeros((n, m))
     KR = np.zeros((n, m))
     for a in range(m):
@@ -177,21 +173,23 @@ def joseph_update(
             h = H[a, j]
             if h != 0.0:
                 for i in range(n):
-                    BHt[i, a] += B[i, j] * h
+                    BHt[i, a] += P[i, j] * h
     for i in range(n):
         for a in range(m):
             for b in range(m):
-                KR[i, a] += K[i, b] * R[b, a]
+                KR[i, a] += KT[b, i] * R[b, a]
     for i in range(n):
         for a in range(m):
             c1, c2 = KR[i, a], BHt[i, a]
             for j in range(n):
-                B[i, j] += c1 * KT[a, j] - c2 * KT[a, j]
-    P_new = np.empty((n, n))
+                P[i, j] += c1 * KT[a, j] - c2 * KT[a, j]
     for i in range(n):
-        for j in range(n):
-            P_new[i, j] = 0.5 * (B[i, j] + B[j, i])
-    return nis, dx, x + dx, P_new
+        for j in range(i, n):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+        x[i] += dx[i]
+    return nis, True
 
 
 @kernel
@@ -272,15 +270,19 @@ class ErrorStateKF:
         """Apply one measurement (residual evaluated at the linearization point); returns the
         correction added to x, or None if rejected by the innovation gate."""
         dof = len(m.residual)
-        nis, dx, x, P = joseph_update(
-            np.ascontiguousarray(self.P, dtype=np.float64),
-            np.ascontiguousarray(self.x, dtype=np.float64),
+        x = np.array(self.x, dtype=np.float64)  # copies: a caller may hold the old x and P
+        P = np.array(self.P, dtype=np.float64)
+        dx = np.zeros(len(x))
+        nis, applied = joseph_in_place(
+            P,
+            x,
             np.ascontiguousarray(m.H, dtype=np.float64),
             np.ascontiguousarray(m.R, dtype=np.float64),
             np.ascontiguousarray(m.residual, dtype=np.float64),
             chi2_threshold(self.gate_probability, dof) if gate else np.inf,
+            dx,
         )
-        if not len(dx):
+        if not applied:
             self.stats.rejected[m.name] += 1
             return None
         self.x, self.P = x, P

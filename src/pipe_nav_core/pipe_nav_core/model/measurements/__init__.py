@@ -10,10 +10,11 @@ Each module owns everything of its measurement:
   units), and a NavState wrapper of each update for tests;
 - ``inputs_k(c)``: its policy at an epoch (:class:`~.context.Context`): preconditions, gates,
   noise, returning whether it applies and the model's inputs;
-- ``apply(c, x, P, out, kind, event)``: the compiled epoch's call: the policy, then the model
-  at the linearization point, split into its updates, each through :func:`.context.update`
-  (chi-square gate, Joseph update, statistics under ``kind`` + its place in KINDS), and the
-  gates' events counted (under ``event`` + its place in EVENTS);
+- ``apply(c, x, P, tally, kind, event)``: the compiled epoch's call: the policy, then the
+  model at the linearization point, split into its updates, each through
+  :func:`.context.update` (chi-square gate, Joseph update, statistics in the
+  :class:`~.context.Tally` under ``kind`` + its place in KINDS), and the gates' events counted
+  (under ``event`` + its place in EVENTS);
 - ``factors(c)``: the same updates, from the same policy, as models of the state for the batch
   solver (:mod:`pipe_nav_core.graph.linearize`).
 

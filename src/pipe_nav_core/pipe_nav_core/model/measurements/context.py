@@ -8,16 +8,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from pipe_nav_core.filter.kalman import joseph_update
+from pipe_nav_core.filter.kalman import joseph_in_place
 from pipe_nav_core.jit import kernel
-
-if TYPE_CHECKING:
-    from pipe_nav_core.filter.epoch import EpochOutputs
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
@@ -135,15 +132,35 @@ class Context(NamedTuple):
     markers: Array
 
 
+class Tally(NamedTuple):
+    """What the updates write besides x and P (:func:`update`; the arrays of
+    epoch.EpochOutputs): counts the events (measurements.COUNTERS); per kind
+    (measurements.KINDS) acc / rej the updates applied and gated out, nis / dof their NIS and
+    rows summed; marker_res (M, 3) the markers' residuals (m, ENU); fac, fac_i, fac_n the
+    updates recorded as factors instead (epoch.linearize_epochs). A record of its own so that
+    each call passes these nine arrays, not the epoch's every output."""
+
+    counts: Index
+    acc: Index
+    rej: Index
+    nis: Array
+    dof: Index
+    marker_res: Array
+    fac: Array
+    fac_i: Index
+    fac_n: Index
+
+
 @kernel
 def update(
-    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, prm: Settings, out: EpochOutputs
+    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, chi2: Array, out: Tally
 ) -> None:
-    """One gated update of (x, P) in place, counted under kind in out's statistics
-    (epoch.EpochOutputs). Where out records the updates instead (epoch.linearize_epochs:
-    out.fac has rows), the update is not applied but kept, ungated, as the batch smoother's
-    factor: r, H, R in out.fac's next row, its kind and rows in out.fac_i's, counted in
-    out.fac_n (also beyond out.fac's rows, which are then not written)."""
+    """One gated update of (x, P) in place (gate: chi2[m - 1] for m rows, Settings.chi2),
+    counted under kind in out's statistics. Where out records the updates instead
+    (epoch.linearize_epochs: out.fac has rows), the update is not applied but kept, ungated,
+    as the batch smoother's factor: r, H, R in out.fac's next row, its kind and rows in
+    out.fac_i's, counted in out.fac_n (also beyond out.fac's rows, which are then not
+    written)."""
     m = r.shape[0]
     if out.fac.shape[0] > 0:
         j = out.fac_n[0]
@@ -156,12 +173,10 @@ def update(
             out.fac_i[j, 0] = kind
             out.fac_i[j, 1] = m
         return
-    nis, dx, x_new, P_new = joseph_update(P, x, H, R, r, prm.chi2[m - 1])
-    if dx.shape[0] == 0:
+    nis, applied = joseph_in_place(P, x, H, R, r, chi2[m - 1], np.empty(x.shape[0]))
+    if not applied:
         out.rej[kind] += 1
         return
-    x[:] = x_new
-    P[:] = P_new
     out.acc[kind] += 1
     out.nis[kind] += nis
     out.dof[kind] += m

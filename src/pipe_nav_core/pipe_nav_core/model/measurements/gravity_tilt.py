@@ -22,8 +22,7 @@ from pipe_nav_core.model.measurements.context import Context, Measurement, facto
 from pipe_nav_core.model.state import L_AM, L_ATT, L_BA, L_N, SV_H, SV_LAT, Layout, NavState
 
 if TYPE_CHECKING:
-    from pipe_nav_core.filter.epoch import EpochOutputs
-    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model, Tally
 
 KINDS, EVENTS = ("tilt",), ("tilt_gated_motion",)  # its update (statistics), the events it counts
 
@@ -101,15 +100,15 @@ def inputs_k(c: Context) -> tuple[int, tuple[Array, Array, Array, float, Array]]
 # apply and factors have the shape of the other measurements' on purpose: numba takes no kernel
 # as an argument without losing its disk cache, so each measurement calls its own model itself
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+def apply(c: Context, x: Array, P: Array, tally: Tally, kind: int, event: int) -> None:
     """The update (counted under kind), or the gated motion counted (event), as
     :func:`inputs_k` says."""
     verdict, args = inputs_k(c)
     if verdict == GATED:
-        out.counts[event] += 1
+        tally.counts[event] += 1
     elif verdict == ON:
         r, H, R = gravity_tilt_k(c.s, c.L, *args)
-        update(kind, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm.chi2, tally)
 
 
 def factors(c: Context) -> list[Factor]:

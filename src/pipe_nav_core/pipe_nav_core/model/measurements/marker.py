@@ -34,8 +34,7 @@ from pipe_nav_core.model.state import (
 from pipe_nav_core.types import Marker
 
 if TYPE_CHECKING:
-    from pipe_nav_core.filter.epoch import EpochOutputs
-    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model, Tally
 
 KINDS, EVENTS = ("marker",), ()  # its update (statistics), the events it counts
 
@@ -100,13 +99,13 @@ def inflation(
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+def apply(c: Context, x: Array, P: Array, tally: Tally, kind: int, event: int) -> None:
     """Each passage of the epoch (c.markers) in turn, counted under kind, its residual written
-    to out.marker_res."""
+    to tally.marker_res."""
     for j in range(c.markers.shape[0]):
         r, H, R = marker_fix_k(c.s, c.L, c.markers[j], c.prm.marker_time)
-        out.marker_res[j] = r
-        update(kind, r, H, R, x, P, c.prm, out)
+        tally.marker_res[j] = r
+        update(kind, r, H, R, x, P, c.prm.chi2, tally)
 
 
 def factors(c: Context) -> list[Factor]:

@@ -36,8 +36,7 @@ from pipe_nav_core.model.state import (
 )
 
 if TYPE_CHECKING:
-    from pipe_nav_core.filter.epoch import EpochOutputs
-    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model, Tally
 
 KINDS = ("nhc", "odometer")  # its updates (statistics): the NHC rows, the speed row
 EVENTS = ("epochs_without_odometer", "odometer_excluded")  # the events it counts
@@ -146,22 +145,22 @@ def inputs_k(c: Context) -> tuple[bool, tuple[float, Array, float, float, float,
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+def apply(c: Context, x: Array, P: Array, tally: Tally, kind: int, event: int) -> None:
     """The NHC update, then the speed update unless excluded (counted, as epochs without
     odometer data are); kind, event: where its KINDS and EVENTS start in the statistics."""
     if not c.odo_ok:
-        out.counts[event + NO_ODOMETER] += 1
+        tally.counts[event + NO_ODOMETER] += 1
     on, args = inputs_k(c)
     if not on:
         return
     r, H, R = velocity_k(c.s, c.L, 0, 3, *args)  # the model once, both updates' rows
     lo, hi = ROWS[NHC]
-    update(kind + NHC, *rows(r, H, R, lo, hi), x, P, c.prm, out)
+    update(kind + NHC, *rows(r, H, R, lo, hi), x, P, c.prm.chi2, tally)
     if c.excluded:
-        out.counts[event + EXCLUDED] += 1
+        tally.counts[event + EXCLUDED] += 1
     else:
         lo, hi = ROWS[SPEED]
-        update(kind + SPEED, *rows(r, H, R, lo, hi), x, P, c.prm, out)
+        update(kind + SPEED, *rows(r, H, R, lo, hi), x, P, c.prm.chi2, tally)
 
 
 def factors(c: Context) -> list[Factor]:

@@ -41,8 +41,14 @@ from pipe_nav_core.model.state import (
 )
 
 if TYPE_CHECKING:
-    from pipe_nav_core.filter.epoch import EpochOutputs
-    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model, Settings
+    from pipe_nav_core.model.measurements.context import (
+        Array,
+        Factor,
+        Index,
+        Model,
+        Settings,
+        Tally,
+    )
 
 KINDS, EVENTS = ("direction",), ()  # its update (statistics), the events it counts
 RESTART_SIGMA = 1.0  # rad: a new section's direction before its first row (free)
@@ -135,12 +141,12 @@ def inputs_k(c: Context) -> tuple[bool, tuple[bool, bool, float]]:
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+def apply(c: Context, x: Array, P: Array, tally: Tally, kind: int, event: int) -> None:
     """The update where :func:`inputs_k` says so, counted under kind."""
     on, args = inputs_k(c)
     if on:
         r, H, R = section_direction_k(c.s, c.L, *args)
-        update(kind, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm.chi2, tally)
 
 
 def factors(c: Context) -> list[Factor]:

@@ -47,8 +47,7 @@ from pipe_nav_core.model.state import (
 
 if TYPE_CHECKING:
     from pipe_nav_core.config import NavConfig
-    from pipe_nav_core.filter.epoch import EpochOutputs
-    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model, Tally
 
 KINDS, EVENTS = ("straight",), ()  # its update (statistics), the events it counts
 NO_SECTIONS = np.zeros((0, 2))  # (K, 2) chainage intervals: none
@@ -148,12 +147,12 @@ def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, Array]]:
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+def apply(c: Context, x: Array, P: Array, tally: Tally, kind: int, event: int) -> None:
     """The update where :func:`inputs_k` says so, counted under kind."""
     on, args = inputs_k(c)
     if on:
         r, H, R = straight_pipe_k(c.s, c.L, *args)
-        update(kind, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm.chi2, tally)
 
 
 def factors(c: Context) -> list[Factor]:

@@ -16,8 +16,7 @@ from pipe_nav_core.model.measurements.context import Context, Measurement, facto
 from pipe_nav_core.model.state import I_BG, L_ATT, L_BG, L_N, SV_LAT, Layout, NavState, c_nb_k
 
 if TYPE_CHECKING:
-    from pipe_nav_core.filter.epoch import EpochOutputs
-    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model, Tally
 
 KINDS, EVENTS = ("zaru",), ()  # its update (statistics), the events it counts
 
@@ -64,12 +63,12 @@ def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, bool]]:
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+def apply(c: Context, x: Array, P: Array, tally: Tally, kind: int, event: int) -> None:
     """The update where :func:`inputs_k` says so, counted under kind."""
     on, args = inputs_k(c)
     if on:
         r, H, R = zero_rate_k(c.s, c.L, *args)
-        update(kind, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm.chi2, tally)
 
 
 def factors(c: Context) -> list[Factor]:

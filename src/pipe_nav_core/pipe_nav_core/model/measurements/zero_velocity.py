@@ -11,8 +11,7 @@ from pipe_nav_core.model.measurements.context import Context, Measurement, facto
 from pipe_nav_core.model.state import I_VEL, L_N, L_VEL, Layout, NavState
 
 if TYPE_CHECKING:
-    from pipe_nav_core.filter.epoch import EpochOutputs
-    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model
+    from pipe_nav_core.model.measurements.context import Array, Factor, Index, Model, Tally
 
 KINDS, EVENTS = ("zupt",), ()  # its update (statistics), the events it counts
 
@@ -39,12 +38,12 @@ def inputs_k(c: Context) -> tuple[bool, float]:
 
 
 @kernel
-def apply(c: Context, x: Array, P: Array, out: EpochOutputs, kind: int, event: int) -> None:
+def apply(c: Context, x: Array, P: Array, tally: Tally, kind: int, event: int) -> None:
     """The update where :func:`inputs_k` says so, counted under kind."""
     on, sigma = inputs_k(c)
     if on:
         r, H, R = zero_velocity_k(c.s, c.L, sigma)
-        update(kind, r, H, R, x, P, c.prm, out)
+        update(kind, r, H, R, x, P, c.prm.chi2, tally)
 
 
 def factors(c: Context) -> list[Factor]:
