@@ -139,17 +139,17 @@ class Inbox:
         """A time-sorted log (imu_link), or one of consecutive chunks of one (final: the
         last), straight into the buffers; non-finite IMU samples are counted and dropped."""
         imu = log.imu
-        ok = (
-            np.isfinite(imu.t)
-            & np.all(np.isfinite(imu.gyro), 1)
-            & np.all(np.isfinite(imu.accel), 1)
-        )
-        self._counts["dropped_nan_imu"] += int((~ok).sum())
+        t, gyro, accel = imu.t, imu.gyro, imu.accel
+        dropped = 0
+        # the whole chunk checked at once (a log's samples are finite but where a fault is):
+        # per-sample masks and the copies they index cost a tenth of a filter pass
+        if not (np.isfinite(t).all() and np.isfinite(gyro).all() and np.isfinite(accel).all()):
+            ok = np.isfinite(t) & np.all(np.isfinite(gyro), 1) & np.all(np.isfinite(accel), 1)
+            dropped = int((~ok).sum())
+            t, gyro, accel = t[ok], gyro[ok], accel[ok]
+        self._counts["dropped_nan_imu"] += dropped
         horizon = math.inf if final else _last_stamp(log)
-        self.add(
-            imu.t[ok], imu.gyro[ok], imu.accel[ok], log.odometer, log.mag, list(log.markers),
-            horizon,
-        )  # fmt: skip
+        self.add(t, gyro, accel, log.odometer, log.mag, list(log.markers), horizon)
 
     def add(
         self,
