@@ -3,6 +3,8 @@ progress, with the estimates of the whole log at once."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.filter.navigator import Navigator, PassOptions
@@ -55,3 +57,23 @@ def test_a_pass_reserves_about_what_it_records():
     assert len(rec.states) <= epochs <= 1.05 * len(rec.states)
     assert len(rec.s_t) <= samples <= 1.05 * len(rec.s_t)
     assert len(rec._states._a) == epochs and len(rec._s["t"]._a) == samples  # never grown
+
+
+def test_non_finite_imu_samples_are_dropped_and_counted():
+    """A log's IMU samples with a non-finite stamp or reading are left out of the pass and
+    counted (dropped_nan_imu); the pass is that of the log without them, and a clean log
+    counts none."""
+    run = simulate("sag104", seed=6)
+    cfg = NavConfig.from_dict(run.scenario.estimator_settings())
+    imu = run.log.imu
+    bad = np.array([4000, 4001, 9000])
+    keep = np.ones(len(imu), dtype=bool)
+    keep[bad] = False
+    gyro, accel = imu.gyro.copy(), imu.accel.copy()
+    gyro[bad[0], 1], accel[bad[1], 2], gyro[bad[2], 0] = np.nan, np.inf, -np.inf
+    damaged = replace(run.log, imu=replace(imu, gyro=gyro, accel=accel))
+    clean = replace(run.log, imu=imu.slice(keep))
+    a, b = run_forward(damaged, cfg), run_forward(clean, cfg)
+    assert a.diagnostics()["dropped_nan_imu"] == 3
+    assert b.diagnostics()["dropped_nan_imu"] == 0
+    np.testing.assert_array_equal(a.recording.states, b.recording.states)
