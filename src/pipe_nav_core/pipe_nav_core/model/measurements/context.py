@@ -153,33 +153,33 @@ class Tally(NamedTuple):
 
 @kernel
 def update(
-    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, chi2: Array, out: Tally
+    kind: int, r: Array, H: Array, R: Array, x: Array, P: Array, chi2: Array, tally: Tally
 ) -> None:
     """One gated update of (x, P) in place (gate: chi2[m - 1] for m rows, Settings.chi2),
-    counted under kind in out's statistics. Where out records the updates instead
-    (epoch.linearize_epochs: out.fac has rows), the update is not applied but kept, ungated,
-    as the batch smoother's factor: r, H, R in out.fac's next row, its kind and rows in
-    out.fac_i's, counted in out.fac_n (also beyond out.fac's rows, which are then not
+    counted under kind in the tally. Where the tally records the updates instead
+    (epoch.linearize_epochs: tally.fac has rows), the update is not applied but kept, ungated,
+    as the batch smoother's factor: r, H, R in tally.fac's next row, its kind and rows in
+    tally.fac_i's, counted in tally.fac_n (also beyond tally.fac's rows, which are then not
     written)."""
     m = r.shape[0]
-    if out.fac.shape[0] > 0:
-        j = out.fac_n[0]
-        out.fac_n[0] = j + 1
-        if j < out.fac.shape[0]:
+    if tally.fac.shape[0] > 0:
+        j = tally.fac_n[0]
+        tally.fac_n[0] = j + 1
+        if j < tally.fac.shape[0]:
             n = H.shape[1]
-            out.fac[j, :m, :n] = H
-            out.fac[j, :m, n] = r
-            out.fac[j, :m, n + 1 : n + 1 + m] = R
-            out.fac_i[j, 0] = kind
-            out.fac_i[j, 1] = m
+            tally.fac[j, :m, :n] = H
+            tally.fac[j, :m, n] = r
+            tally.fac[j, :m, n + 1 : n + 1 + m] = R
+            tally.fac_i[j, 0] = kind
+            tally.fac_i[j, 1] = m
         return
     nis, applied = joseph_in_place(P, x, H, R, r, chi2[m - 1], np.empty(x.shape[0]))
     if not applied:
-        out.rej[kind] += 1
+        tally.rej[kind] += 1
         return
-    out.acc[kind] += 1
-    out.nis[kind] += nis
-    out.dof[kind] += m
+    tally.acc[kind] += 1
+    tally.nis[kind] += nis
+    tally.dof[kind] += m
 
 
 def factor(kind: str, model_k: Callable[..., Model], *args: object) -> Factor:
