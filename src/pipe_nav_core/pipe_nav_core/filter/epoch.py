@@ -75,10 +75,12 @@ D_PREV_SPEED = _dyn()  # the previous epoch's raw odometer speed, m/s
 D_PREV_VEL = _dyn(3)  # the previous epoch's mean ENU velocity, m/s
 D_S_START = _dyn()  # the odometer reading at the epoch's start, m
 D_V_JAC = _dyn(3)  # the previous first-estimate Jacobian velocity, ENU m/s
+D_SLOW_GYRO = _dyn(3)  # the epochs' mean gyro readings so far, low-passed: rad/s base_link
 D_SIZE = _dyn.size
 _dyn_i = Fields()
 D_HAS_PREV_VEL = _dyn_i()  # D_PREV_VEL is set
 D_FREE = _dyn_i()  # the heading is unanchored
+D_HAS_SLOW_GYRO = _dyn_i()  # D_SLOW_GYRO is set
 D_INT_SIZE = _dyn_i.size
 
 # the prediction's results the updates use: floats (ws), integers (ws_i), the states (ws_sv)
@@ -93,6 +95,7 @@ W_MVB = _ws(3)  # the mean body velocity, m/s base_link
 W_FMN = _ws(3)  # mean C_nb (f - ba), m/s^2 ENU
 W_DP = _ws(3)  # the ENU displacement, m
 W_VJAC = _ws(3)  # the first-estimate Jacobian velocity, ENU m/s
+W_SLOW_GYRO = _ws(3)  # the epochs' mean gyro readings before this one, low-passed, rad/s
 W_SIZE = _ws.size
 _ws_i = Fields()
 W_I0, W_I1 = _ws_i(), _ws_i()  # the epoch's samples i0:i1 of the batch
@@ -100,6 +103,9 @@ W_MAG_I = _ws_i()  # its magnetometer sample (-1 none)
 W_STOPPED, W_HAS_ODO, W_EXCLUDED = _ws_i(), _ws_i(), _ws_i()  # flags, 0 or 1
 W_INT_SIZE = _ws_i.size
 S_MECH, S_LIN = 0, 1  # rows of ws_sv: the mechanized state, the updates' linearization point
+# s: the time constant of the low-passed gyro reading (W_SLOW_GYRO), longer than an epoch (so
+# that it holds little of any one epoch's noise) and shorter than the pipe's turns last
+SLOW_GYRO_S = 1.0
 
 
 def parameters(
@@ -221,6 +227,7 @@ class Prediction(NamedTuple):
     f_mean_n: Array
     dp: Array
     v_jac: Array
+    gyro_slow: Array
     i0: int
     i1: int
     mag_i: int
@@ -421,8 +428,10 @@ def _transition(
     out.tr_ws_sv[row, S_LIN] = s_lin
     lever = prm.lever
     lever_rate = omega_b[1] * lever[2] - omega_b[2] * lever[1]  # (omega x d)_x
+    gyro_slow = dyn[D_SLOW_GYRO : D_SLOW_GYRO + 3].copy() if dyn_i[D_HAS_SLOW_GYRO] else gyro_mean
     p = Prediction(T, speed, lever_rate, w_yz, gyro_mean, omega_b, mean_vel_b, f_mean_n, dp,
-                   v_jac, i0, i1, inp.mag_i[e], stopped, odo_ok, inp.excluded[e])  # fmt: skip
+                   v_jac, gyro_slow, i0, i1, inp.mag_i[e], stopped, odo_ok,
+                   inp.excluded[e])  # fmt: skip
     _keep(p, out.tr_ws[row], out.tr_ws_i[row])
     out.tr_ws_m[row, :, :3] = sum_c_dt  # for the tilt update: C_mean and the accelerometer
     out.tr_ws_m[row, :, 3:] = sum_c_f_dt  # coupling
@@ -430,6 +439,16 @@ def _transition(
     dyn[D_PREV_SPEED] = speed
     dyn[D_V_JAC : D_V_JAC + 3] = v_jac
     dyn[D_S_START] = out.s_odo[i1 - 1]
+    _slow_gyro(dyn, dyn_i, gyro_slow, gyro_mean, T)
+
+
+@kernel
+def _slow_gyro(dyn: Array, dyn_i: Index, before: Array, gyro_mean: Array, T: float) -> None:
+    """The low-passed gyro reading (dyn's D_SLOW_GYRO, rad/s) after an epoch of T s whose mean
+    reading was gyro_mean, from ``before``: what the transition and the updates both set."""
+    a = 1.0 - np.exp(-T / SLOW_GYRO_S)
+    dyn[D_SLOW_GYRO : D_SLOW_GYRO + 3] = before + a * (gyro_mean - before)
+    dyn_i[D_HAS_SLOW_GYRO] = 1
 
 
 @kernel
@@ -475,6 +494,7 @@ def _keep(p: Prediction, ws: Array, ws_i: Index) -> None:
     ws[W_FMN : W_FMN + 3] = p.f_mean_n
     ws[W_DP : W_DP + 3] = p.dp
     ws[W_VJAC : W_VJAC + 3] = p.v_jac
+    ws[W_SLOW_GYRO : W_SLOW_GYRO + 3] = p.gyro_slow
     ws_i[W_I0], ws_i[W_I1], ws_i[W_MAG_I] = p.i0, p.i1, p.mag_i
     ws_i[W_STOPPED], ws_i[W_HAS_ODO], ws_i[W_EXCLUDED] = p.stopped, p.has_odo, p.excluded
 
@@ -515,6 +535,7 @@ def context(
         ws[W_VJAC : W_VJAC + 3].copy(),
         ws[W_MVB : W_MVB + 3],
         ws[W_GYRO : W_GYRO + 3].copy(),
+        ws[W_SLOW_GYRO : W_SLOW_GYRO + 3].copy(),
         ws[W_FMN : W_FMN + 3].copy(),
         ws[W_DP : W_DP + 3],
         ws_m,
@@ -576,6 +597,7 @@ def _updates(
     dyn_i[D_HAS_PREV_VEL] = 1
     dyn[D_V_JAC : D_V_JAC + 3] = v_jac
     dyn[D_S_START] = out.s_odo[out.ws_i[W_I1] - 1]
+    _slow_gyro(dyn, dyn_i, c.gyro_slow, c.gyro_mean, T)
     sv[:] = est
     out.sv[e] = est
     out.P_upd[e] = P

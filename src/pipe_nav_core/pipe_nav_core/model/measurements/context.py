@@ -96,7 +96,9 @@ class Context(NamedTuple):
     lever_rate: mean (omega x d)_x of the wheel contact (m/s); w_yz: the body's turn rate
     across the bore (rad/s); v_jac: the first-estimate Jacobian velocity (ENU m/s);
     mean_vel_b: the mean body velocity over the epoch (m/s); gyro_mean: the time-weighted mean
-    gyro reading (rad/s, base_link); f_mean_n: mean C_nb (f - ba) (m/s^2); dp: the epoch's
+    gyro reading (rad/s, base_link); gyro_slow: the readings of the epochs before, low-passed
+    (rad/s, base_link; epoch.SLOW_GYRO_S): a rate that holds none of this epoch's noise;
+    f_mean_n: mean C_nb (f - ba) (m/s^2); dp: the epoch's
     ENU displacement (m); sums: (3, 12) the sums of C_nb dt and C_nb[:, i] f_j dt over the
     epoch; has_prev_vel / prev_vel: the previous epoch's mean ENU velocity (m/s); imu_t / q:
     the epoch's sample times (s) and attitude quaternions; mag_i: its magnetometer sample
@@ -119,6 +121,7 @@ class Context(NamedTuple):
     v_jac: Array
     mean_vel_b: Array
     gyro_mean: Array
+    gyro_slow: Array
     f_mean_n: Array
     dp: Array
     sums: Array

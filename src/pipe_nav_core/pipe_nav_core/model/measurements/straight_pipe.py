@@ -81,14 +81,29 @@ def axes_k(sv: Array) -> Array:
 
 @kernel
 def straight_pipe_k(
-    sv: Array, L: Index, gyro_mean: Array, sigma: float, earth_sign: float, axes: Array
+    sv: Array,
+    L: Index,
+    gyro_mean: Array,
+    gyro_slow: Array,
+    sigma: float,
+    earth_sign: float,
+    axes: Array,
 ) -> Model:
     """The components along ``axes`` (m, 3; base_link, across the bore) of the body's rate
     relative to the ground, omega_nb (rad/s), less its roll about the direction of travel
     u(boresight) (a pig rolls about the pipe's axis): zero on a straight pipe. Residual, H and
     R (sigma rad/s on each row). The axes are inputs (the policy's, from the linearization
     point: :func:`axes_k`), so that both planes' rows turn with the body as the bore does; the
-    roll taken out about u(boresight) is the state's, so that the roll shows the boresight."""
+    roll taken out about u(boresight) is the state's, so that the roll shows the boresight.
+
+    The gyro error matrix's columns are the corrected rate, which they multiply, taken from
+    ``gyro_slow`` (rad/s, base_link; the readings of the epochs before, low-passed) rather
+    than from ``gyro_mean``: the residual holds the epoch's gyro noise, and a column holding
+    the same noise correlates with it, so that the update reads the noise as a scale factor
+    (errors in variables; a consumer gyro's noise over an epoch is as large as the rate the
+    rows see, and biased the yaw gyro's scale factor 0.5-3 % high on the undulating pipe:
+    BENCHMARKS.md, "The straight-pipe rows' scale-factor columns"). With gyro_slow equal to
+    gyro_mean, H is the residual's exact Jacobian."""
     c = c_nb_k(sv)
     w_ie = earth.earth_rate_k(sv[SV_LAT], earth_sign)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
@@ -105,9 +120,10 @@ def straight_pipe_k(
     H = np.zeros((m, L[L_N]))
     H[:, L[L_BG] : L[L_BG] + 3] = -mi
     if gm >= 0:
+        w_col = inv @ (gyro_slow - sv[I_BG : I_BG + 3])
         for r in range(3):
             for j in range(3):
-                H[:, gm + 3 * r + j] = -mi[:, r] * w_ib[j]
+                H[:, gm + 3 * r + j] = -mi[:, r] * w_col[j]
     a = L[L_ATT]
     H[:, a : a + 3] = -(across @ c.T @ att.skew_k(w_ie))
     b = L[L_BORE]
@@ -127,7 +143,7 @@ def section_of(sections: Array, d: float) -> int:
 
 
 @kernel
-def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, Array]]:
+def inputs_k(c: Context) -> tuple[bool, tuple[Array, Array, float, float, Array]]:
     """Whether the epoch has the update (moving, on a straight section in plan or in its
     vertical plane) and straight_pipe_k's inputs after sv, L (the rows of the planes it is
     straight in)."""
@@ -138,12 +154,12 @@ def inputs_k(c: Context) -> tuple[bool, tuple[Array, float, float, Array]]:
         flat, level = section_of(prm.straight_h, d) >= 0, section_of(prm.straight_v, d) >= 0
         lo, hi = (0 if flat else 1), (2 if level else 1)
     if hi == lo:  # the axes only where a row may apply: the live filter's epochs have none
-        return False, (c.gyro_mean, 0.0, prm.earth_sign, np.zeros((0, 3)))
+        return False, (c.gyro_mean, c.gyro_slow, 0.0, prm.earth_sign, np.zeros((0, 3)))
     axes = axes_k(c.s)
     if axes[1, 0] == 0.0 and axes[1, 1] == 0.0:
         hi = lo  # a vertical axis: neither plane is defined
     sigma = np.sqrt(prm.imu[0] ** 2 / c.T + prm.straight_sigma**2)
-    return hi > lo, (c.gyro_mean, sigma, prm.earth_sign, axes[lo:hi].copy())
+    return hi > lo, (c.gyro_mean, c.gyro_slow, sigma, prm.earth_sign, axes[lo:hi].copy())
 
 
 @kernel
