@@ -217,7 +217,7 @@ def test_a_straight_pipe_seen_through_a_gyros_noise_stays_straight():
 def _scale_factor_estimate(regressor: str, seed: int, epochs: int = 4000) -> tuple[float, float]:
     """The z gyro scale factor (and its sigma) that the plan row estimates from ``epochs``
     epochs of a straight, level pipe rolled 0.3 rad, pitching at 3 mrad/s one way and the
-    other, the gyro exact but for a consumer gyro's noise over a 0.05 s epoch (8e-4 rad/s):
+    other, the gyro exact but for a consumer gyro's noise over a 10 Hz epoch (5.5e-4 rad/s):
     the truth is zero. ``regressor``: what the E columns are given as the rate, the epoch's
     own reading ("own") or the rate without its noise ("slow")."""
     rng = np.random.default_rng(seed)
@@ -232,7 +232,7 @@ def _scale_factor_estimate(regressor: str, seed: int, epochs: int = 4000) -> tup
     gm, bg = lay.slices["gm"], lay.slices["bg"]
     P[gm, gm] = np.eye(9) * 1e-2**2  # a 1 % scale factor and 10 mrad misalignment prior
     P[bg, bg] = np.eye(3) * 1e-4**2
-    sigma = 8e-4
+    sigma = 5.5e-4
     for k in range(epochs):
         rate = c.T @ (3e-3 * np.sign(np.sin(2 * np.pi * k / 400)) * normal)  # rad/s body
         gyro = rate + rng.normal(0.0, sigma, 3)
