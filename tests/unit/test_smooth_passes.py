@@ -315,3 +315,31 @@ def test_a_transition_that_fails_on_the_other_core_fails_the_pass(monkeypatch):
     with pytest.raises(RuntimeError, match="the transitions failed"):
         smooth_log(run.log, cfg, method="rts", iterations=2)
     assert len(calls) == 3
+
+
+def test_the_low_passed_gyro_reading_holds_none_of_the_epochs_own(monkeypatch):
+    """The rate the straight-pipe rows' E columns take (epoch's W_SLOW_GYRO) is the low-passed
+    mean reading of the epochs before: each epoch's is the one before it moved towards that
+    epoch's reading by 1 - exp(-T / SLOW_GYRO_S), so no epoch's own reading (and noise) is in
+    its own. Read from the transitions made on the other core, spans of 5 epochs."""
+    from pipe_nav_core.filter import epoch, navigator
+
+    run = simulate(get_scenario("demo"), seed=2)
+    cfg = NavConfig.from_dict(get_scenario("demo").estimator_settings())
+    made = navigator.transition_epochs
+    spans: list[np.ndarray] = []
+
+    def kept(e0, e1, *args):
+        made(e0, e1, *args)
+        spans.append(args[-1].tr_ws[e0:e1].copy())  # out: the transition rows e0 .. e1 - 1
+
+    monkeypatch.setattr(navigator, "transition_epochs", kept)
+    monkeypatch.setattr(navigator, "AHEAD_SPAN", 5)
+    smooth_log(run.log, cfg, method="rts", iterations=2)
+    assert len(spans) > 10
+    g, slow = slice(epoch.W_GYRO, epoch.W_GYRO + 3), slice(epoch.W_SLOW_GYRO, epoch.W_SLOW_GYRO + 3)
+    for ws in spans:
+        a = 1.0 - np.exp(-ws[:-1, epoch.W_T] / epoch.SLOW_GYRO_S)
+        moved = ws[:-1, slow] + a[:, None] * (ws[:-1, g] - ws[:-1, slow])
+        np.testing.assert_allclose(ws[1:, slow], moved, rtol=0, atol=1e-15)
+        assert not np.allclose(ws[:, slow], ws[:, g])  # not the epochs' own readings
