@@ -96,14 +96,14 @@ def straight_pipe_k(
     point: :func:`axes_k`), so that both planes' rows turn with the body as the bore does; the
     roll taken out about u(boresight) is the state's, so that the roll shows the boresight.
 
-    The gyro error matrix's columns are the corrected rate, which they multiply, taken from
-    ``gyro_slow`` (rad/s, base_link; the readings of the epochs before, low-passed) rather
-    than from ``gyro_mean``: the residual holds the epoch's gyro noise, and a column holding
-    the same noise correlates with it, so that the update reads the noise as a scale factor
-    (errors in variables; a consumer gyro's noise over an epoch is as large as the rate the
-    rows see, and biased the yaw gyro's scale factor 0.5-3 % high on the undulating pipe:
-    BENCHMARKS.md, "The straight-pipe rows' scale-factor columns"). With gyro_slow equal to
-    gyro_mean, H is the residual's exact Jacobian."""
+    The gyro error matrix's columns multiply the corrected rate, and they take it from
+    ``gyro_slow`` (rad/s, base_link; the readings of the epochs before, low-passed), not from
+    ``gyro_mean``. The residual holds the epoch's gyro noise, and a column holding the same
+    noise correlates with it, so the update would read the noise as a scale factor (errors in
+    variables). A consumer gyro's noise over an epoch is as large as the rates the rows see:
+    it biased the yaw gyro's scale factor 0.5-3 % high on the undulating pipe (BENCHMARKS.md,
+    "The straight-pipe rows' scale-factor columns"). With gyro_slow equal to gyro_mean, H is
+    the residual's exact Jacobian."""
     c = c_nb_k(sv)
     w_ie = earth.earth_rate_k(sv[SV_LAT], earth_sign)
     u, du = odometer_axis(sv[I_BORE : I_BORE + 2])
