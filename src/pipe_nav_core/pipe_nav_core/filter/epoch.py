@@ -158,7 +158,8 @@ class Filter(NamedTuple):
 class Inputs(NamedTuple):
     """A batch's data: IMU samples (base_link; s, rad/s, m/s^2) from just after the state's
     time, each epoch's last sample ``ends``, the odometer reading at every sample ``s_odo``
-    (m); per epoch ``has_odo``, ``excluded`` (slip), encoder ``resolution`` (m) and
+    (m); per epoch ``has_odo``, ``still`` (the odometer stands still over it and a margin
+    either side: a stop may be claimed), ``excluded`` (slip), encoder ``resolution`` (m) and
     magnetometer sample ``mag_i`` (-1 none) into ``mag_t`` (s) / ``mag_f`` (T, base_link)."""
 
     imu_t: Array
@@ -167,6 +168,7 @@ class Inputs(NamedTuple):
     ends: Index
     s_odo: Array
     has_odo: NDArray[np.bool_]
+    still: NDArray[np.bool_]
     excluded: NDArray[np.bool_]
     resolution: Array
     mag_i: Index
@@ -370,6 +372,7 @@ def _transition(
     thr = prm.stop_speed
     stopped = (
         odo_ok
+        and inp.still[e]
         and abs(speed) < thr
         and abs(dyn[D_PREV_SPEED]) < thr
         and np.sqrt(dg[0] ** 2 + dg[1] ** 2 + dg[2] ** 2) < prm.stop_gyro

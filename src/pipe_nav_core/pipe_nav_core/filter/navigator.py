@@ -377,7 +377,10 @@ class Navigator:
 
     def _inputs(self, ends: Ends) -> Inputs:
         assert self.state is not None
-        return epoch_inputs(self.inbox, self.state.t, ends, self.odometer_exclude, self.resolution)
+        return epoch_inputs(
+            self.inbox, self.state.t, ends, self.odometer_exclude, self.resolution,
+            self.cfg.stop_speed_threshold,
+        )  # fmt: skip
 
     def _run_batch(self, ends: Ends) -> None:
         """Epochs without a marker passage, all in one call of the compiled loop (about a

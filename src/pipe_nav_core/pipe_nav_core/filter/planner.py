@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.filter.epoch import COUNTERS, KINDS, Batch, Inputs
+from pipe_nav_core.filter.ingest import STOP_MARGIN_S
 from pipe_nav_core.filter.kalman import UpdateStats
 from pipe_nav_core.jit import kernel
 
@@ -42,7 +43,8 @@ def plan(inbox: Inbox, t0: float, period: float, epoch_times: Array | None) -> t
     (then it is the only one with a marker due)."""
     times = epoch_times if epoch_times is not None else np.empty(0)
     mk = np.array([m.t for m in inbox.markers]) if inbox.markers else np.empty(0)
-    odo_end = float(inbox.odo.t[-1]) if len(inbox.odo) else -math.inf
+    # an epoch waits for the readings STOP_MARGIN_S after it too (its stop test reads them)
+    odo_end = float(inbox.odo.t[-1]) - STOP_MARGIN_S if len(inbox.odo) else -math.inf
     return _plan_epochs(
         inbox.imu_t, t0, period, times, mk, inbox.horizon, odo_end, ODOMETER_TIMEOUT_S, MAX_BATCH
     )
@@ -54,11 +56,14 @@ def epoch_inputs(
     ends: Ends,
     odometer_exclude: Array,
     resolution: OdometerResolution,
+    stop_speed: float,
 ) -> Inputs:
     """The data of the epochs after t0 (s) ending at these IMU samples: the samples, per epoch
     the odometer coverage, excluded (inside one of the odometer_exclude intervals (N, 2) s:
-    slips), encoder resolution (m) and magnetometer sample, per IMU sample the odometer
-    reading (m)."""
+    slips), whether the odometer stands still over it and STOP_MARGIN_S either side (a stop
+    may be claimed), encoder resolution (m) and magnetometer sample, per IMU sample the
+    odometer reading (m). stop_speed: m/s, the mean speed over that span below which the
+    odometer stands still."""
     t = inbox.imu_t[: ends[-1] + 1]
     t_end = t[ends]
     t_start = np.r_[t0, t_end[:-1]]
@@ -73,8 +78,14 @@ def epoch_inputs(
         has_odo = ((o.t[-1] >= t_end) & (before <= t_start + 1e-9)
                    & (t_start - before <= ODOMETER_TIMEOUT_S)
                    & (after - t_end <= ODOMETER_TIMEOUT_S))  # fmt: skip
+        # readings on both sides of the span (or the log's last): a stop the count can see
+        lo, hi = t_start - STOP_MARGIN_S, t_end + STOP_MARGIN_S
+        seen = (o.t[-1] >= hi) | (inbox.horizon == math.inf)
+        moved = np.abs(np.interp(hi, o.t, o.distance) - np.interp(lo, o.t, o.distance))
+        still = has_odo & seen & (moved <= stop_speed * (hi - lo))
     else:
         has_odo = np.zeros(len(ends), dtype=bool)
+        still = has_odo
     ex = odometer_exclude
     excluded = np.zeros(len(ends), dtype=bool)
     if len(ex):
@@ -90,7 +101,7 @@ def epoch_inputs(
     res = resolution.at_times(o, t_end)
     n = ends[-1] + 1
     return Inputs(
-        inbox.imu_t[:n], inbox.imu_g[:n], inbox.imu_a[:n], ends, s_odo, has_odo, excluded,
+        inbox.imu_t[:n], inbox.imu_g[:n], inbox.imu_a[:n], ends, s_odo, has_odo, still, excluded,
         res, mag_i, mag.t, mag.field,
     )  # fmt: skip
 

@@ -231,7 +231,7 @@ class FactorRecorder(Navigator):
             one = Inputs(
                 inputs.imu_t[i0:i1], inputs.imu_g[i0:i1], inputs.imu_a[i0:i1],
                 np.array([i1 - i0 - 1], dtype=np.int64), inputs.s_odo[i0:i1],
-                inputs.has_odo[e : e + 1], inputs.excluded[e : e + 1],
+                inputs.has_odo[e : e + 1], inputs.still[e : e + 1], inputs.excluded[e : e + 1],
                 inputs.resolution[e : e + 1], inputs.mag_i[e : e + 1], inputs.mag_t,
                 inputs.mag_f,
             )  # fmt: skip
