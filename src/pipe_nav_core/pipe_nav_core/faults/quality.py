@@ -69,13 +69,13 @@ def judge(
         sig_h = np.hypot(c.sigma_enu[:, 0], c.sigma_enu[:, 1])
         worst = float(np.nanmax(sig_h)) if np.isfinite(sig_h).any() else math.inf
         span = float(np.ptp(c.distance)) if np.isfinite(c.distance).all() else math.inf
+        lost = (": the filter lost its way (epochs too long for the run's motion: "
+                "filter_rate_hz, smoother_rate_hz; or an IMU grade that does not fit)")  # fmt: skip
         if not worst <= MAX_SIGMA_H_M:
-            failed.append(f"horizontal sigma up to {worst:.0f} m")
+            failed.append(f"horizontal sigma up to {worst:.0f} m{lost}")
         elif worst > LOST_SHARE * max(span, LOST_MIN_SPAN_M):
             failed.append(
-                f"horizontal sigma up to {worst:.1f} m over {span:.1f} m of chainage: the "
-                "filter lost its way (epochs too long for the run's motion: filter_rate_hz, "
-                "smoother_rate_hz; or an IMU grade that does not fit)"
+                f"horizontal sigma up to {worst:.1f} m over {span:.1f} m of chainage{lost}"
             )
     passes = int(summary.get("passes_run", 1))  # type: ignore[call-overload]
     if summary.get("converged") is False and passes >= 2:  # one pass: nothing to converge
