@@ -42,7 +42,7 @@ def _inbox(t_last, horizon):
 
 
 def _epochs(ib):
-    ends, _ = plan(ib, 0.0, 0.1, None)
+    ends, _ = plan(ib, 0.0, 0.1, None, STOP_SPEED)
     inp = epoch_inputs(
         ib, 0.0, ends, np.empty((0, 2)), OdometerResolution(TICK), STOP_SPEED
     )
@@ -70,11 +70,15 @@ def test_a_pig_creeping_under_one_count_is_not_stopped():
     assert rest.sum() >= 80 and inp.still[rest].all()
 
 
-def test_an_epoch_waits_for_the_count_after_it():
-    # the data in up to 6 s: the epochs end 0.5 s before the last reading, so that their stop
-    # test sees the count 0.5 s after them
-    t_start, t_end, inp = _epochs(_inbox(6.0, 6.0))
-    assert 6.0 - STOP_MARGIN_S - 0.1 < t_end[-1] <= 6.0 - STOP_MARGIN_S + 1e-9
-    # the same epochs as with the whole log in
-    _, t_all, inp_all = _epochs(_inbox(16.0, np.inf))
-    assert np.array_equal(inp.still, inp_all.still[: len(t_end)])
+def test_an_epoch_still_so_far_waits_for_the_count_after_it():
+    # the data in up to 4 s, the pig at rest: the epochs wait for the readings 0.5 s after
+    # them, which decide whether they are stops
+    _, t_end, inp = _epochs(_inbox(4.0, 4.0))
+    assert 4.0 - STOP_MARGIN_S - 0.1 < t_end[-1] <= 4.0 - STOP_MARGIN_S + 1e-9
+    # up to 8 s, the pig moving since 5 s: its epochs do not wait
+    _, t_moving, inp_moving = _epochs(_inbox(8.0, 8.0))
+    assert t_moving[-1] > 8.0 - 0.1 - 1e-9
+    # the same stops as with the whole log in
+    _, _, inp_all = _epochs(_inbox(16.0, np.inf))
+    for part in (inp, inp_moving):
+        assert np.array_equal(part.still, inp_all.still[: len(part.still)])

@@ -28,7 +28,9 @@ MAG_KEEP_S = 1.0  # s: magnetometer samples kept before the state's time
 # s: an epoch is a stop only if the odometer stands still this long before and after it too. A
 # count is blind below one step: a pig starting at 0.3 m/s^2 moves 0.26 s and 0.08 m/s before a
 # 1 cm encoder counts, and stops as long after its last count; a zero-velocity update there
-# tells the filter a speed that is not zero (it biased the pitch rate's scale factor 0.2-0.5 %)
+# tells the filter a speed that is not zero (it biased the pitch rate's scale factor 0.2-0.5 %).
+# An epoch still so far waits for the readings after it (filter.planner.plan): live, a stop's
+# estimates come this much later, a moving pig's no later
 STOP_MARGIN_S = 0.5
 
 

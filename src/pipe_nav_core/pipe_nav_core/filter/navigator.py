@@ -303,7 +303,7 @@ class Navigator:
                 self._align(idx)
                 continue
             ends, marker_due = plan(self.inbox, self.state.t, 1.0 / self.cfg.filter_rate_hz,
-                                    self.epoch_times)  # fmt: skip
+                                    self.epoch_times, self.cfg.stop_speed_threshold)  # fmt: skip
             if not len(ends):
                 return
             if marker_due:

@@ -36,18 +36,53 @@ MAX_BATCH = 1024  # epochs per call of the compiled epoch loop (bounds its outpu
 SAMPLES_PER_EPOCH = 20  # IMU samples per epoch the shared output buffers are first sized for
 
 
-def plan(inbox: Inbox, t0: float, period: float, epoch_times: Array | None) -> tuple[Ends, bool]:
+def plan(
+    inbox: Inbox, t0: float, period: float, epoch_times: Array | None, stop_speed: float
+) -> tuple[Ends, bool]:
     """The next epochs after the state's time t0 (s) over the buffered data, with the filter
     period (s) or the imposed epoch_times (s, sorted): their last IMU samples (indices into
     the buffer), at most MAX_BATCH, and whether the last of them is a marker passage's epoch
-    (then it is the only one with a marker due)."""
+    (then it is the only one with a marker due). An epoch over which the odometer has stood
+    still so far waits for the readings STOP_MARGIN_S after it, which decide whether it is a
+    stop (:func:`stops`; stop_speed m/s); a moving pig's epochs do not wait."""
     times = epoch_times if epoch_times is not None else np.empty(0)
     mk = np.array([m.t for m in inbox.markers]) if inbox.markers else np.empty(0)
-    # an epoch waits for the readings STOP_MARGIN_S after it too (its stop test reads them)
-    odo_end = float(inbox.odo.t[-1]) - STOP_MARGIN_S if len(inbox.odo) else -math.inf
-    return _plan_epochs(
+    odo_end = float(inbox.odo.t[-1]) if len(inbox.odo) else -math.inf
+    ends, due = _plan_epochs(
         inbox.imu_t, t0, period, times, mk, inbox.horizon, odo_end, ODOMETER_TIMEOUT_S, MAX_BATCH
     )
+    if len(ends) and len(inbox.odo):
+        t_end = inbox.imu_t[ends]
+        so_far, decided, _ = stops(inbox, np.r_[t0, t_end[:-1]], t_end, stop_speed)
+        wait = so_far & ~decided
+        if wait.any():
+            k = int(np.argmax(wait))
+            ends, due = ends[:k], False  # the marker's epoch, if due, was the last
+    return ends, due
+
+
+def stops(
+    inbox: Inbox, t_start: Array, t_end: Array, stop_speed: float
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per epoch from t_start to t_end (s), with the odometer's buffered readings: whether the
+    count has stood still from STOP_MARGIN_S before the epoch to its end (a mean speed under
+    stop_speed, m/s); whether what follows is known (a reading from STOP_MARGIN_S after it on
+    is in, or the data to ODOMETER_TIMEOUT_S past that, or the log has ended); and whether it
+    stands still over the whole span, read on the first reading after it (within
+    ODOMETER_TIMEOUT_S, or the log's last): where a stop may be claimed. The same data give
+    the same answers however they were batched."""
+    o = inbox.odo
+    lo, hi = t_start - STOP_MARGIN_S, t_end + STOP_MARGIN_S
+    s_lo = np.interp(lo, o.t, o.distance)
+    so_far = np.abs(np.interp(t_end, o.t, o.distance) - s_lo) <= stop_speed * (t_end - lo)
+    j = np.searchsorted(o.t, hi, side="left")
+    after = j < len(o.t)
+    ended = inbox.horizon == math.inf
+    decided = after | (inbox.horizon >= hi + ODOMETER_TIMEOUT_S) | ended
+    first = o.t[np.minimum(j, len(o.t) - 1)]
+    seen = (after & (first - hi <= ODOMETER_TIMEOUT_S)) | (~after & ended)
+    moved = np.abs(np.interp(hi, o.t, o.distance) - s_lo)
+    return so_far, decided, so_far & seen & (moved <= stop_speed * (hi - lo))
 
 
 def epoch_inputs(
@@ -78,11 +113,7 @@ def epoch_inputs(
         has_odo = ((o.t[-1] >= t_end) & (before <= t_start + 1e-9)
                    & (t_start - before <= ODOMETER_TIMEOUT_S)
                    & (after - t_end <= ODOMETER_TIMEOUT_S))  # fmt: skip
-        # readings on both sides of the span (or the log's last): a stop the count can see
-        lo, hi = t_start - STOP_MARGIN_S, t_end + STOP_MARGIN_S
-        seen = (o.t[-1] >= hi) | (inbox.horizon == math.inf)
-        moved = np.abs(np.interp(hi, o.t, o.distance) - np.interp(lo, o.t, o.distance))
-        still = has_odo & seen & (moved <= stop_speed * (hi - lo))
+        still = has_odo & stops(inbox, t_start, t_end, stop_speed)[2]
     else:
         has_odo = np.zeros(len(ends), dtype=bool)
         still = has_odo
