@@ -156,3 +156,18 @@ def test_settings_given_on_the_command_line_reach_every_run(tmp_path):
     assert abs(straight["rts"]["max_h"] - plain["rts"]["max_h"]) > 0.01  # m (12.6 -> 5.0 cm)
     # the baseline (seed 002's complementary filter) takes none of them
     assert straight[bench.BASELINE]["max_h"] == plain[bench.BASELINE]["max_h"]
+
+
+def test_many_seeds_give_each_smoothers_mean_and_worst():
+    """With more than one seed, each smoother's max error per seed, mean (worst) over them;
+    the forward filter and a single seed have no row."""
+
+    def row(method, seed, h, v):
+        return {"method": method, "scenario": "sag104", "seed": seed, "max_h": h, "max_v": v}
+
+    rows = [row("rts", 1, 0.02, 0.01), row("rts", 2, 0.04, 0.005), row("forward", 1, 1.0, 1.0),
+            row("forward", 2, 2.0, 2.0), row("graph", 1, 0.03, 0.01)]  # fmt: skip
+    md = bench.markdown({"sag104": rows}, "cmd", 2)
+    assert "| sag104 | rts | 2 | 3.00 (4.00) | 0.75 (1.00) |" in md
+    assert "| sag104 | forward |" not in md and "| sag104 | graph |" not in md
+    assert "mean (worst)" not in bench.markdown({"sag104": rows[:1]}, "cmd", 1)
