@@ -539,12 +539,11 @@ def _spread_lines(results: dict[str, list[dict[str, object]]]) -> list[str]:
             rows = [r for r in rows_all if r["method"] == method]
             if method == "forward" or len({r.get("seed") for r in rows}) < 2:
                 continue
-            h = [100 * float(r["max_h"]) for r in rows]  # type: ignore[arg-type]
-            v = [100 * float(r["max_v"]) for r in rows]  # type: ignore[arg-type]
-            out.append(
-                f"| {case.scenario} | {method} | {len(rows)} | {np.mean(h):.2f} ({max(h):.2f}) "
-                f"| {np.mean(v):.2f} ({max(v):.2f}) |"
+            h, v = (
+                f"{100 * _agg(rows, key, np.mean):.2f} ({100 * _agg(rows, key, max):.2f})"
+                for key in ("max_h", "max_v")
             )
+            out.append(f"| {case.scenario} | {method} | {len(rows)} | {h} | {v} |")
     if not out:
         return []
     return [
