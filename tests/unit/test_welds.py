@@ -255,3 +255,26 @@ def test_smoothed_bag_carries_welds_and_centreline(demo, tmp_path):
     write_output_bag(plain, path=path, datum=res.datum)
     r = read_smoothed_run(plain)
     assert r.welds == [] and r.attachments == [] and r.trajectory.sigma_enu is None
+
+
+def test_field_fit_normal_equations_and_the_degenerate_run():
+    """The field fit (welds._field_fit) gives least squares' coefficients: through the normal
+    equations for a pig that turns and rolls, and from the SVD with the null directions left out
+    for one that never turns (its C_nb columns constant, collinear with the constant column),
+    where the normal equations are singular."""
+    from pipe_nav_core.products.welds import FIT_COND_MAX, _field_fit
+
+    rng = np.random.default_rng(7)
+    b = rng.normal(size=(5000, 3))
+    turning = np.column_stack([rng.uniform(-1.0, 1.0, size=(5000, 9)), np.ones(5000)])
+    assert np.linalg.cond(turning.T @ turning) < FIT_COND_MAX
+    ref = np.linalg.lstsq(turning, b, rcond=1e-9)[0]
+    np.testing.assert_allclose(_field_fit(turning, b), ref, rtol=1e-9, atol=1e-12)
+    straight = np.column_stack([np.tile(rng.uniform(-1.0, 1.0, 9), (5000, 1)), np.ones(5000)])
+    straight[:, 0] += 1e-12 * rng.normal(size=5000)  # round-off, not information
+    assert np.linalg.cond(straight.T @ straight) > FIT_COND_MAX
+    coef = _field_fit(straight, b)
+    ref = np.linalg.lstsq(straight, b, rcond=1e-9)[0]
+    assert np.isfinite(coef).all()
+    np.testing.assert_allclose(straight @ coef, straight @ ref, atol=1e-9)
+    np.testing.assert_allclose(coef, ref, atol=1e-9)

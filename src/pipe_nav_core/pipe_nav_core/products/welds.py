@@ -60,6 +60,7 @@ GRID_STEP_M = 0.05  # m, chainage bins of the magnetometer residual
 # regressors larger than this wait in a file between the fits (0.2 GB at 100 km, whose fits
 # without the welds' samples held them beside their own copy and LAPACK's)
 MAPPED_X_BYTES = 64 << 20
+FIT_COND_MAX = 1e8  # condition number of the field fit's normal equations solved as they are
 BASELINE_M = 3.0  # m, running-median window of the slowly varying residual
 WIDTH_D = 1.0  # weld anomaly width (one sigma) in pipe diameters
 THRESHOLD_SNR = 6.0  # a weld on its own
@@ -175,6 +176,19 @@ def mag_residual(
     return _residual(_mag_samples(log, centreline), r_base_imu, exclude, exclude_half)
 
 
+def _field_fit(x: FloatArray, b: FloatArray) -> FloatArray:
+    """(10, 3) least-squares coefficients of ``b`` (M, 3) on the regressors ``x`` (M, 10):
+    through the normal equations (a tenth of the SVD's time on 0.3 M samples) while they are
+    well conditioned, which a run that turns and rolls makes them; else the SVD solution with
+    the near-null directions left out (a pig that never turns: its C_nb columns are nearly
+    collinear with the constant)."""
+    gram = x.T @ x
+    if np.linalg.cond(gram) < FIT_COND_MAX:
+        return np.linalg.solve(gram, x.T @ b)
+    coef, *_ = np.linalg.lstsq(x, b, rcond=1e-9)
+    return coef
+
+
 def _residual(
     m: _MagSamples | None,
     r_base_imu: ArrayLike | None = None,
@@ -196,14 +210,14 @@ def _residual(
     x_fit = x if whole else x[fit]
     if not whole:
         let_go(x)  # (from its file) while the fit runs on its copy of the rows it takes
-    coef, *_ = np.linalg.lstsq(x_fit, b if whole else b[fit], rcond=1e-9)
+    coef = _field_fit(x_fit, b if whole else b[fit])
     del x_fit
     res_i = b - x @ coef
     r_bi = np.eye(3) if r_base_imu is None else np.asarray(r_base_imu, dtype=np.float64)
     res_n = np.empty_like(res_i)
     for a in range(0, len(b), batched.BATCH):  # in batches: bounded temporaries
-        s = slice(a, a + batched.BATCH)
-        res_n[s] = np.einsum("kij,kj->ki", c_nb[s] @ r_bi, res_i[s])
+        s = slice(a, a + batched.BATCH)  # C_nb (R_bi r): a quarter the time of (C_nb R_bi) r
+        res_n[s] = np.einsum("kij,kj->ki", c_nb[s], res_i[s] @ r_bi.T)
     let_go(x)
     grid, res = _binned(d, res_n, GRID_STEP_M)
     size = max(3, int(round(BASELINE_M / GRID_STEP_M)) | 1)
