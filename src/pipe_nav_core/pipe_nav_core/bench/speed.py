@@ -255,11 +255,14 @@ def smooth_stages(bag: Path, duration: float) -> dict[str, float]:
     return out
 
 
-# run in the measured child: pipe-nav smooth, then its own high-water mark (VmHWM, kB) into
-# the file argv[1]. The rusage of a child is no measure: Linux starts it from the parent's
-# peak at fork, so a large benchmark process would report its own size.
+# run in the measured child: pipe-nav smooth as the command runs it (cli.run: BLAS on one
+# thread, out of the process at once, without the interpreter's teardown), then its own
+# high-water mark (VmHWM, kB) into the file argv[1]. The rusage of a child is no measure:
+# Linux starts it from the parent's peak at fork, so a large benchmark process would report
+# its own size.
 _CHILD = """
-import sys
+import os, sys
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from pipe_nav_core.app.cli import main
 rc = main(sys.argv[2:])
 try:
@@ -269,7 +272,9 @@ try:
         f.write(hwm)
 except (OSError, StopIteration):
     pass
-sys.exit(rc)
+sys.stdout.flush()
+sys.stderr.flush()
+os._exit(rc)
 """
 
 
