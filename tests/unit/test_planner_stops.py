@@ -42,10 +42,8 @@ def _inbox(t_last, horizon):
 
 
 def _epochs(ib):
-    ends, _ = plan(ib, 0.0, 0.1, None, STOP_SPEED)
-    inp = epoch_inputs(
-        ib, 0.0, ends, np.empty((0, 2)), OdometerResolution(TICK), STOP_SPEED
-    )
+    ends, _, still = plan(ib, 0.0, 0.1, None, STOP_SPEED)
+    inp = epoch_inputs(ib, 0.0, ends, np.empty((0, 2)), OdometerResolution(TICK), still)
     t_end = ib.imu_t[ends]
     return np.r_[0.0, t_end[:-1]], t_end, inp
 

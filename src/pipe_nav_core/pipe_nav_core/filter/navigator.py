@@ -302,17 +302,18 @@ class Navigator:
                     return
                 self._align(idx)
                 continue
-            ends, marker_due = plan(self.inbox, self.state.t, 1.0 / self.cfg.filter_rate_hz,
-                                    self.epoch_times, self.cfg.stop_speed_threshold)  # fmt: skip
+            ends, marker_due, still = plan(self.inbox, self.state.t,
+                                           1.0 / self.cfg.filter_rate_hz, self.epoch_times,
+                                           self.cfg.stop_speed_threshold)  # fmt: skip
             if not len(ends):
                 return
             if marker_due:
                 if len(ends) > 1:
-                    self._run_batch(ends[:-1])
+                    self._run_batch(ends[:-1], still[:-1])
                     ends = ends[-1:] - (ends[-2] + 1)  # the buffer now starts after ends[-2]
-                self._run_marker_epoch(ends)
+                self._run_marker_epoch(ends, still[-1:])
             else:
-                self._run_batch(ends)
+                self._run_batch(ends, still)
 
     def _align(self, idx: NDArray[np.intp]) -> None:
         """The static alignment over the IMU samples idx of the buffer, and the filter's start
@@ -375,21 +376,20 @@ class Navigator:
             self._prm, ref, inputs, markers, batch.buffers(),
         )  # fmt: skip
 
-    def _inputs(self, ends: Ends) -> Inputs:
+    def _inputs(self, ends: Ends, still: NDArray[np.bool_]) -> Inputs:
         assert self.state is not None
         return epoch_inputs(
-            self.inbox, self.state.t, ends, self.odometer_exclude, self.resolution,
-            self.cfg.stop_speed_threshold,
-        )  # fmt: skip
+            self.inbox, self.state.t, ends, self.odometer_exclude, self.resolution, still
+        )
 
-    def _run_batch(self, ends: Ends) -> None:
-        """Epochs without a marker passage, all in one call of the compiled loop (about a
-        reference trajectory, on two cores: :meth:`_call_ahead`)."""
+    def _run_batch(self, ends: Ends, still: NDArray[np.bool_]) -> None:
+        """Epochs without a marker passage (``still``: plan's), all in one call of the compiled
+        loop (about a reference trajectory, on two cores: :meth:`_call_ahead`)."""
         batch = self._pool.get(len(ends), int(ends[-1]) + 1)
         if self.reference is not None and len(ends) > AHEAD_SPAN:
-            self._call_ahead(batch, self._inputs(ends))
+            self._call_ahead(batch, self._inputs(ends, still))
         else:
-            self._call(batch, self._inputs(ends), np.zeros((0, 7)))
+            self._call(batch, self._inputs(ends, still), np.zeros((0, 7)))
         self._finish(batch, ends)
 
     def _call_ahead(self, batch: Batch, inputs: Inputs) -> None:
@@ -428,15 +428,15 @@ class Navigator:
         job.result()
         self._carry[:] = carry  # the last epoch's, as _call leaves it
 
-    def _run_marker_epoch(self, ends: Ends) -> None:
-        """The epoch of a marker passage: prediction, then (Python) the heading re-anchoring
-        and the covariance recovery (HeadingAnchor.before_marker), then the updates with the
-        marker fix."""
+    def _run_marker_epoch(self, ends: Ends, still: NDArray[np.bool_]) -> None:
+        """The epoch of a marker passage (``still``: plan's): prediction, then (Python) the
+        heading re-anchoring and the covariance recovery (HeadingAnchor.before_marker), then
+        the updates with the marker fix."""
         kf = self.kf
         assert kf is not None and self.state is not None
         due = self.inbox.take_markers(self.inbox.imu_t[ends[-1]])
         batch = Batch(1, int(ends[-1]) + 1, self.layout.n)
-        inputs = self._inputs(ends)
+        inputs = self._inputs(ends, still)
         self._call(batch, inputs, np.zeros((0, 7)), stop=True)
         s = NavState.from_vector(batch.ws_sv[S_LIN])
         due = [m for m in due if not self.anchor.late(m, s)]

@@ -38,27 +38,30 @@ SAMPLES_PER_EPOCH = 20  # IMU samples per epoch the shared output buffers are fi
 
 def plan(
     inbox: Inbox, t0: float, period: float, epoch_times: Array | None, stop_speed: float
-) -> tuple[Ends, bool]:
+) -> tuple[Ends, bool, NDArray[np.bool_]]:
     """The next epochs after the state's time t0 (s) over the buffered data, with the filter
     period (s) or the imposed epoch_times (s, sorted): their last IMU samples (indices into
-    the buffer), at most MAX_BATCH, and whether the last of them is a marker passage's epoch
-    (then it is the only one with a marker due). An epoch over which the odometer has stood
-    still so far waits for the readings STOP_MARGIN_S after it, which decide whether it is a
-    stop (:func:`stops`; stop_speed m/s); a moving pig's epochs do not wait."""
+    the buffer), at most MAX_BATCH, whether the last of them is a marker passage's epoch
+    (then it is the only one with a marker due), and per epoch whether the odometer stands
+    still over it and STOP_MARGIN_S either side, where a stop may be claimed (:func:`stops`;
+    stop_speed m/s; :func:`epoch_inputs` takes it). An epoch over which the odometer has stood
+    still so far waits for the readings STOP_MARGIN_S after it, which decide that; a moving
+    pig's epochs do not wait. One answer decides both, so they cannot disagree."""
     times = epoch_times if epoch_times is not None else np.empty(0)
     mk = np.array([m.t for m in inbox.markers]) if inbox.markers else np.empty(0)
     odo_end = float(inbox.odo.t[-1]) if len(inbox.odo) else -math.inf
     ends, due = _plan_epochs(
         inbox.imu_t, t0, period, times, mk, inbox.horizon, odo_end, ODOMETER_TIMEOUT_S, MAX_BATCH
     )
+    still = np.zeros(len(ends), dtype=bool)
     if len(ends) and len(inbox.odo):
         t_end = inbox.imu_t[ends]
-        so_far, decided, _ = stops(inbox, np.r_[t0, t_end[:-1]], t_end, stop_speed)
+        so_far, decided, still = stops(inbox, np.r_[t0, t_end[:-1]], t_end, stop_speed)
         wait = so_far & ~decided
         if wait.any():
             k = int(np.argmax(wait))
-            ends, due = ends[:k], False  # the marker's epoch, if due, was the last
-    return ends, due
+            ends, due, still = ends[:k], False, still[:k]  # a marker's epoch, if due, was last
+    return ends, due, still
 
 
 def stops(
@@ -91,14 +94,13 @@ def epoch_inputs(
     ends: Ends,
     odometer_exclude: Array,
     resolution: OdometerResolution,
-    stop_speed: float,
+    still: NDArray[np.bool_],
 ) -> Inputs:
     """The data of the epochs after t0 (s) ending at these IMU samples: the samples, per epoch
     the odometer coverage, excluded (inside one of the odometer_exclude intervals (N, 2) s:
-    slips), whether the odometer stands still over it and STOP_MARGIN_S either side (a stop
-    may be claimed), encoder resolution (m) and magnetometer sample, per IMU sample the
-    odometer reading (m). stop_speed: m/s, the mean speed over that span below which the
-    odometer stands still."""
+    slips), encoder resolution (m) and magnetometer sample, per IMU sample the odometer
+    reading (m); ``still``, per epoch, is :func:`plan`'s (the odometer stands still over it and
+    STOP_MARGIN_S either side: a stop may be claimed where it also covers the epoch)."""
     t = inbox.imu_t[: ends[-1] + 1]
     t_end = t[ends]
     t_start = np.r_[t0, t_end[:-1]]
@@ -113,10 +115,8 @@ def epoch_inputs(
         has_odo = ((o.t[-1] >= t_end) & (before <= t_start + 1e-9)
                    & (t_start - before <= ODOMETER_TIMEOUT_S)
                    & (after - t_end <= ODOMETER_TIMEOUT_S))  # fmt: skip
-        still = has_odo & stops(inbox, t_start, t_end, stop_speed)[2]
     else:
         has_odo = np.zeros(len(ends), dtype=bool)
-        still = has_odo
     ex = odometer_exclude
     excluded = np.zeros(len(ends), dtype=bool)
     if len(ex):
