@@ -224,3 +224,34 @@ def test_the_axis_track_built_in_batches_is_the_same(monkeypatch):
     batched = curvature.axis_track(traj)
     for name in whole.__dataclass_fields__:
         assert getattr(batched, name).tobytes() == getattr(whole, name).tobytes(), name
+
+
+def test_apexes_and_peaks_found_together_are_those_found_one_by_one():
+    """The bends' apexes and the strain features' peaks are refined for every stretch in one
+    call of windowed_curvature (a window per point): the same, bit for bit, as one stretch at
+    a time, on a pipe whose bends differ in length (so their grids, windows and rounds do)."""
+    from pipe_nav_core.model.sensors import imu_grade
+    from pipe_nav_core.products import bends, curvature, strain
+
+    turns = [arc(20.0, 12 * DEG, 8.0), arc(60.0, -3 * DEG, 2.0), arc(90.0, 40 * DEG, 1.5),
+             arc(130.0, 5 * DEG, 60.0)]  # fmt: skip
+    traj = pipe(lambda s: sum(t(s) for t in turns), lambda s: arc(40.0, 4 * DEG, 30.0)(s), 200.0)
+    spec = imu_grade("tactical")
+    track = curvature.axis_track(traj)
+    profile = curvature.curvature_profile(traj, spec, window=0.6, track=track)
+    stretches = bends._stretches(profile, 1.0 / CFG.bend_threshold_radius)
+    assert len(stretches) >= 4
+    floor = 4.0 * float(np.median(np.diff(track.arc)))
+    together = bends._apexes(profile, track, spec, stretches, floor)
+    assert together == [bends._apexes(profile, track, spec, [s], floor)[0] for s in stretches]
+    assert all(a is not None for a in together)
+    rows = [a + int(np.argmax(profile.total[a : b + 1])) for a, b in stretches]
+    peaks = strain._peaks(profile, 0.3, track, spec, rows)
+    assert peaks == [strain._peaks(profile, 0.3, track, spec, [r])[0] for r in rows]
+    arcs = np.linspace(5.0, 150.0, 40)
+    windows = np.linspace(0.3, 2.0, 40)
+    each = [curvature.windowed_curvature(track, arcs[i : i + 1], windows[i], spec)
+            for i in range(40)]  # fmt: skip
+    per_point = curvature.windowed_curvature(track, arcs, windows, spec)
+    for name, values in per_point.items():
+        assert values.tobytes() == np.concatenate([e[name] for e in each]).tobytes(), name

@@ -149,9 +149,9 @@ def find_bends(
     k = np.stack([profile.vertical, profile.horizontal], axis=1)
     d = profile.distance
     junctions = [_junction(k, d, stretches[i], stretches[i + 1]) for i in range(len(stretches) - 1)]
-    bends: list[PipeBend] = []
     n = len(profile)
     floor = 4.0 * float(np.median(np.diff(track.arc)))  # m: the shortest arc the track resolves
+    spans: list[tuple[int, int, tuple[float, float]]] = []
     for idx, (a, b) in enumerate(stretches):
         lo = 0 if idx == 0 else (stretches[idx - 1][1] + a + 1) // 2
         hi = n - 1 if idx == len(stretches) - 1 else (b + stretches[idx + 1][0]) // 2
@@ -164,9 +164,15 @@ def find_bends(
             before = max(before, junctions[idx - 1])
         if idx < len(junctions):
             after = min(after, junctions[idx])
-        bend = _measure(profile, track, spec, a, b, (before, after), outer_diameter,
-                        class_limits, floor)  # fmt: skip
-        if bend is not None and bend.angle >= min_angle - 1e-9:
+        spans.append((a, b, (before, after)))
+    apexes = _apexes(profile, track, spec, [(a, b) for a, b, _ in spans], floor)
+    bends: list[PipeBend] = []
+    for (a, b, ends), apex in zip(spans, apexes, strict=True):
+        if apex is None:
+            continue
+        bend = _measure(profile, track, spec, a, b, ends, apex, outer_diameter, class_limits,
+                        floor)  # fmt: skip
+        if bend.angle >= min_angle - 1e-9:
             bends.append(bend)
     return [replace(b, number=i + 1) for i, b in enumerate(bends)]
 
@@ -187,6 +193,70 @@ def _junction(
     return float(d[j - 1] + f * (d[j] - d[j - 1]))
 
 
+@dataclass(frozen=True)
+class _Apex:
+    """Where a stretch's curvature peaks, on its finest profile: arc m (the middle of the
+    part over half the peak), peak 1/m, sigma 1/m (the profile's at the peak), span m (the
+    length of the part over half the peak)."""
+
+    arc: float
+    peak: float
+    sigma: float
+    span: float
+
+
+def _apexes(
+    profile: CurvatureProfile,
+    track: AxisTrack,
+    spec: ImuSpec,
+    stretches: list[tuple[int, int]],
+    floor: float,
+) -> list[_Apex | None]:
+    """The apex of each stretch a..b (rows of profile), on a profile whose window is a quarter
+    of the stretch over half the peak, refined until that stretch stops shrinking (a short
+    bend is not averaged wider), at most 4 times; None for a stretch shorter than 3 points of
+    its profile. The profiles of every stretch of a round are one call of windowed_curvature
+    (a window per point): a call per stretch would be mostly numpy's overhead."""
+    step = float(profile.distance[1] - profile.distance[0])
+    half_w = 0.5 * profile.window
+    lo, hi, width = [], [], []
+    for a, b in stretches:
+        peak = float(np.max(profile.total[a : b + 1]))
+        over = np.flatnonzero(profile.total[a : b + 1] >= 0.5 * peak) + a
+        half_len = float(profile.distance[over[-1]] - profile.distance[over[0]]) + step
+        lo.append(float(track.arc_at(np.array([profile.distance[a]]))[0]) - half_w)
+        hi.append(float(track.arc_at(np.array([profile.distance[b]]))[0]) + half_w)
+        width.append(max(0.25 * half_len, floor))
+    found: list[_Apex | None] = [None] * len(stretches)
+    active = list(range(len(stretches)))
+    for _ in range(4):
+        grids = {i: np.arange(lo[i], hi[i], min(0.25 * width[i], APEX_STEP_M)) for i in active}
+        for i in active:
+            if len(grids[i]) < 3:
+                found[i] = None
+        active = [i for i in active if len(grids[i]) >= 3]
+        if not active:
+            break
+        arc = np.concatenate([grids[i] for i in active])
+        window = np.concatenate([np.full(len(grids[i]), width[i]) for i in active])
+        fine = windowed_curvature(track, arc, window, spec)
+        cuts = np.cumsum([len(grids[i]) for i in active])[:-1]
+        narrowing = []
+        for i, g, total, sigma in zip(active, np.split(arc, cuts), np.split(fine["total"], cuts),
+                                      np.split(fine["sigma"], cuts), strict=True):  # fmt: skip
+            k_peak = float(np.max(total))
+            near = np.flatnonzero(total >= 0.5 * k_peak)
+            span = float(g[near[-1]] - g[near[0]]) + float(g[1] - g[0])
+            found[i] = _Apex(arc=float(0.5 * (g[near[0]] + g[near[-1]])), peak=k_peak,
+                             sigma=float(sigma[int(np.argmax(total))]), span=span)  # fmt: skip
+            narrower = max(0.25 * span, floor)
+            if narrower < 0.9 * width[i]:
+                width[i] = narrower
+                narrowing.append(i)
+        active = narrowing
+    return found
+
+
 def _measure(
     profile: CurvatureProfile,
     track: AxisTrack,
@@ -194,13 +264,14 @@ def _measure(
     a: int,
     b: int,
     ends: tuple[float, float],
+    apex: _Apex,
     outer_diameter: float,
     class_limits: tuple[float, float, float],
     floor: float,
-) -> PipeBend | None:
-    """The bend of stretch a..b (rows of profile) between the chainages ``ends`` (m); floor:
-    the shortest arc the track resolves, m (one pass over the whole track, not one a bend)."""
-    half_w = 0.5 * profile.window
+) -> PipeBend:
+    """The bend of stretch a..b (rows of profile) between the chainages ``ends`` (m) with its
+    ``apex`` (:func:`_apexes`); floor: the shortest arc the track resolves, m (one pass over the
+    whole track, not one a bend)."""
     (ax0, ax1), (t0, t1) = track.at_arc(track.arc_at(np.array(ends)))
     angle = float(np.arccos(np.clip(ax0 @ ax1, -1.0, 1.0)))
     step = float(profile.distance[1] - profile.distance[0])
@@ -209,31 +280,10 @@ def _measure(
                  int(np.searchsorted(profile.distance, ends[1], "right")))  # fmt: skip
     vert = float(np.sum(profile.vertical[span]) * step)
     horiz = float(np.sum(profile.horizontal[span]) * step)
-    # apex and radius on a profile whose window is a quarter of the stretch over half the
-    # peak, refined until that stretch stops shrinking (a short bend is not averaged wider)
-    peak = float(np.max(profile.total[a : b + 1]))
-    over = np.flatnonzero(profile.total[a : b + 1] >= 0.5 * peak) + a
-    half_len = float(profile.distance[over[-1]] - profile.distance[over[0]]) + step
-    arc_lo = float(track.arc_at(np.array([profile.distance[a]]))[0]) - half_w
-    arc_hi = float(track.arc_at(np.array([profile.distance[b]]))[0]) + half_w
-    fine_w = max(0.25 * half_len, floor)
-    for _ in range(4):
-        fine_arc = np.arange(arc_lo, arc_hi, min(0.25 * fine_w, APEX_STEP_M))
-        if len(fine_arc) < 3:
-            return None
-        fine = windowed_curvature(track, fine_arc, fine_w, spec)
-        k_peak = float(np.max(fine["total"]))
-        near = np.flatnonzero(fine["total"] >= 0.5 * k_peak)
-        span = float(fine_arc[near[-1]] - fine_arc[near[0]]) + float(fine_arc[1] - fine_arc[0])
-        narrower = max(0.25 * span, floor)
-        if narrower >= 0.9 * fine_w:
-            break
-        fine_w = narrower
-    i_peak = int(np.argmax(fine["total"]))
-    apex_arc = 0.5 * (fine_arc[near[0]] + fine_arc[near[-1]])
-    radius = 1.0 / max(k_peak, 1e-12)
-    sigma_radius = radius**2 * float(fine["sigma"][i_peak])
-    resolved = span >= 3.0 * floor
+    apex_arc = apex.arc
+    radius = 1.0 / max(apex.peak, 1e-12)
+    sigma_radius = radius**2 * apex.sigma
+    resolved = apex.span >= 3.0 * floor
     if not resolved:  # shorter than the track resolves: the radius is at most this
         sigma_radius = max(sigma_radius, radius)
     (apex_axis,), (apex_t,) = track.at_arc(np.array([apex_arc]))

@@ -169,11 +169,11 @@ class CurvatureProfile:
 
 
 def windowed_curvature(
-    track: AxisTrack, arc: FloatArray, window: float, spec: ImuSpec
+    track: AxisTrack, arc: FloatArray, window: float | FloatArray, spec: ImuSpec
 ) -> dict[str, FloatArray]:
-    """Mean curvature over ``window`` m of arc centred on each of ``arc`` (m): its components
-    (1/m), plane (rad), sigma (1/m) and the axis's pitch and azimuth (rad). Near the ends of the
-    track the window shrinks to what the track holds."""
+    """Mean curvature over ``window`` m of arc (one for all, or one per point) centred on each
+    of ``arc`` (m): its components (1/m), plane (rad), sigma (1/m) and the axis's pitch and
+    azimuth (rad). Near the ends of the track the window shrinks to what the track holds."""
     lo = np.maximum(arc - 0.5 * window, track.arc[0])
     hi = np.minimum(arc + 0.5 * window, track.arc[-1])
     t0, time0 = track.at_arc(lo)

@@ -95,8 +95,8 @@ def strain_features(
     is taken on a grid of an eighth of the window (the rows may straddle a short peak), and the
     stretch reaches it (start_m <= peak_m <= end_m)."""
     strain, sigma = strain_pct(profile, outer_diameter)
-    found: list[StrainFeature] = []
     d = profile.distance
+    stretches: list[tuple[float, int, int, int]] = []  # threshold, first and last row, peak row
     for thr in sorted(thresholds):
         over = strain > thr
         edges = np.flatnonzero(np.diff(np.concatenate([[0], over.astype(np.int8), [0]])))
@@ -107,39 +107,49 @@ def strain_features(
                 merged[-1] = (merged[-1][0], b)
             else:
                 merged.append((a, b))
-        for a, b in merged:
-            i = a + int(np.argmax(strain[a : b + 1]))
-            start, end = float(d[a]), float(d[b])
-            peak = _peak(profile, outer_diameter, track, spec, i) if track and spec else None
-            if peak is not None:  # over the threshold there too: a stretch of one row or two
-                start, end = min(start, peak[0]), max(end, peak[0])  # reaches its peak
-            bend = next((x.number for x in bends if x.start_m <= end and start <= x.end_m), 0)
-            construction = (
-                None
-                if reference is None
-                else any(r0 <= end and start <= r1 for r0, r1 in reference)
-            )
-            if peak is None:
-                peak = (float(d[i]), float(profile.lat[i]), float(profile.lon[i]),
-                        float(profile.alt[i]), float(strain[i]), float(sigma[i]),
-                        float(profile.plane[i]))  # fmt: skip
-            found.append(StrainFeature(0, float(thr), start, peak[0], end, *peak[1:], bend,
-                                       construction))  # fmt: skip
+        stretches += [(thr, a, b, a + int(np.argmax(strain[a : b + 1]))) for a, b in merged]
+    peaks: list[tuple[float, ...] | None] = [None] * len(stretches)
+    if track and spec and stretches:
+        peaks = list(_peaks(profile, outer_diameter, track, spec, [s[3] for s in stretches]))
+    found: list[StrainFeature] = []
+    for (thr, a, b, i), peak in zip(stretches, peaks, strict=True):
+        start, end = float(d[a]), float(d[b])
+        if peak is not None:  # over the threshold there too: a stretch of one row or two
+            start, end = min(start, peak[0]), max(end, peak[0])  # reaches its peak
+        bend = next((x.number for x in bends if x.start_m <= end and start <= x.end_m), 0)
+        construction = (
+            None if reference is None else any(r0 <= end and start <= r1 for r0, r1 in reference)
+        )
+        if peak is None:
+            peak = (float(d[i]), float(profile.lat[i]), float(profile.lon[i]),
+                    float(profile.alt[i]), float(strain[i]), float(sigma[i]),
+                    float(profile.plane[i]))  # fmt: skip
+        found.append(StrainFeature(0, float(thr), start, peak[0], end, *peak[1:], bend,
+                                   construction))  # fmt: skip
     found.sort(key=lambda f: (f.start_m, f.threshold_pct))
     return [replace(f, number=n + 1) for n, f in enumerate(found)]
 
 
-def _peak(
-    profile: CurvatureProfile, outer_diameter: float, track: AxisTrack, spec: ImuSpec, i: int
-) -> tuple[float, ...]:
-    """(chainage m, lat, lon rad, alt m, strain %, sigma %, plane rad) of the peak near row i,
-    on a grid of an eighth of the window within a window of it."""
+def _peaks(
+    profile: CurvatureProfile,
+    outer_diameter: float,
+    track: AxisTrack,
+    spec: ImuSpec,
+    rows: list[int],
+) -> list[tuple[float, ...]]:
+    """(chainage m, lat, lon rad, alt m, strain %, sigma %, plane rad) of the peak near each
+    of ``rows``, on a grid of an eighth of the window within a window of it (every row's grid
+    in one call of windowed_curvature: a call a row would be mostly numpy's overhead)."""
     w = profile.window
-    centre = float(track.arc_at(np.array([profile.distance[i]]))[0])
-    arc = np.arange(centre - w, centre + w + 1e-9, w / 8.0)
-    v = windowed_curvature(track, arc, w, spec)
-    j = int(np.argmax(v["total"]))
+    centres = track.arc_at(profile.distance[np.asarray(rows, dtype=np.int64)]).tolist()
+    grids = [np.arange(c - w, c + w + 1e-9, w / 8.0) for c in centres]
+    v = windowed_curvature(track, np.concatenate(grids), w, spec)
+    first = np.cumsum([0] + [len(g) for g in grids[:-1]])
+    at = np.array([f + int(np.argmax(v["total"][f : f + len(g)]))
+                   for f, g in zip(first, grids, strict=True)], dtype=np.int64)  # fmt: skip
+    arc = np.concatenate(grids)[at]
     k = 0.5 * outer_diameter * 100.0
-    lat, lon, alt = (float(x[0]) for x in track.position_at(arc[j : j + 1]))
-    return (float(track.distance_at(arc[j : j + 1])[0]), lat, lon, alt,
-            float(v["total"][j]) * k, float(v["sigma"][j]) * k, float(v["plane"][j]))  # fmt: skip
+    lat, lon, alt = track.position_at(arc)
+    return list(zip(track.distance_at(arc).tolist(), lat.tolist(), lon.tolist(), alt.tolist(),
+                    (v["total"][at] * k).tolist(), (v["sigma"][at] * k).tolist(),
+                    v["plane"][at].tolist(), strict=True))  # fmt: skip
