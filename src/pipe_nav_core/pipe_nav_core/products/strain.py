@@ -143,11 +143,12 @@ def _peaks(
     w = profile.window
     centres = track.arc_at(profile.distance[np.asarray(rows, dtype=np.int64)]).tolist()
     grids = [np.arange(c - w, c + w + 1e-9, w / 8.0) for c in centres]
-    v = windowed_curvature(track, np.concatenate(grids), w, spec)
+    arcs = np.concatenate(grids)
+    v = windowed_curvature(track, arcs, w, spec)
     first = np.cumsum([0] + [len(g) for g in grids[:-1]])
     at = np.array([f + int(np.argmax(v["total"][f : f + len(g)]))
                    for f, g in zip(first, grids, strict=True)], dtype=np.int64)  # fmt: skip
-    arc = np.concatenate(grids)[at]
+    arc = arcs[at]
     k = 0.5 * outer_diameter * 100.0
     lat, lon, alt = track.position_at(arc)
     return list(zip(track.distance_at(arc).tolist(), lat.tolist(), lon.tolist(), alt.tolist(),
