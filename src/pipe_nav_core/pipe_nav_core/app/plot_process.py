@@ -27,7 +27,7 @@ _WARM = "warm"  # the parent's word to load matplotlib now (PlotProcess.warm)
 
 def _warm() -> None:
     """Import matplotlib's Agg canvas and draw once what every report draws (text, a legend,
-    log-scale tick labels in mathtext), so fonts and parsers are loaded before the data."""
+    a band), so fonts are loaded before the data."""
     import io
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -36,7 +36,7 @@ def _warm() -> None:
     fig = Figure(figsize=(2, 2), dpi=20)
     FigureCanvasAgg(fig)
     ax = fig.subplots()
-    ax.semilogy([1.0, 2.0], [1e-3, 1e-1], label="strain [%]")
+    ax.plot([1.0, 2.0], [1e-3, 1e-1], label="strain [%]")
     ax.fill_between([1.0, 2.0], [1e-3, 1e-2], [1e-2, 1e-1], alpha=0.25)
     ax.set_title("0 m")
     ax.legend(fontsize=8)

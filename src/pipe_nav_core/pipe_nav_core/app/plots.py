@@ -67,9 +67,14 @@ def _envelope(y: NDArray[np.float64]) -> NDArray[np.int64]:
     return np.unique(np.clip(idx, 0, n - 1))
 
 
+def _plain_number(value: float, _position: object = None) -> str:
+    """A log axis's tick label as a plain number (0.01, 0.1, 1, 10)."""
+    return f"{value:g}"
+
+
 def _strain_panel(ax: Any, integrity: IntegrityReport, dscale: float, dunit: str) -> None:
     """The strain-along-chainage panel (see the module docstring)."""
-    from matplotlib.ticker import NullLocator
+    from matplotlib.ticker import FuncFormatter, NullLocator
 
     prof = integrity.profile
     d = np.asarray(prof.distance, dtype=np.float64)
@@ -82,6 +87,8 @@ def _strain_panel(ax: Any, integrity: IntegrityReport, dscale: float, dunit: str
     bottom = lowest * _STRAIN_FLOOR
     top = 6.0 * max(peak, thresholds[-1] if thresholds else 0.0, bottom * 10.0)  # legend room
     ax.set_yscale("log", nonpositive="clip")
+    plain = FuncFormatter(_plain_number)  # 0.01, 0.1, 1: no mathtext powers of ten to typeset
+    ax.yaxis.set_major_formatter(plain)
     if len(d):
         idx = _envelope(strain)
         x = d[idx] / dscale
@@ -122,6 +129,7 @@ def _strain_panel(ax: Any, integrity: IntegrityReport, dscale: float, dunit: str
         sec = ax.secondary_yaxis("right", functions=(lambda s: s * to_curv,
                                                      lambda k: k / to_curv))  # fmt: skip
         sec.set_ylabel("curvature [1/km]")
+        sec.yaxis.set_major_formatter(plain)
         sec.yaxis.set_minor_locator(NullLocator())
     ax.set_title(
         f"Bending strain (outer diameter {integrity.outer_diameter:g} m, window "
