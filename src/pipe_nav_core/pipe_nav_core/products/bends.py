@@ -151,7 +151,7 @@ def find_bends(
     junctions = [_junction(k, d, stretches[i], stretches[i + 1]) for i in range(len(stretches) - 1)]
     n = len(profile)
     floor = 4.0 * float(np.median(np.diff(track.arc)))  # m: the shortest arc the track resolves
-    spans: list[tuple[int, int, tuple[float, float]]] = []
+    ends: list[tuple[float, float]] = []  # per stretch, the chainages of the axis before and after
     for idx, (a, b) in enumerate(stretches):
         lo = 0 if idx == 0 else (stretches[idx - 1][1] + a + 1) // 2
         hi = n - 1 if idx == len(stretches) - 1 else (b + stretches[idx + 1][0]) // 2
@@ -164,13 +164,13 @@ def find_bends(
             before = max(before, junctions[idx - 1])
         if idx < len(junctions):
             after = min(after, junctions[idx])
-        spans.append((a, b, (before, after)))
-    apexes = _apexes(profile, track, spec, [(a, b) for a, b, _ in spans], floor)
+        ends.append((before, after))
+    apexes = _apexes(profile, track, spec, stretches, floor)
     bends: list[PipeBend] = []
-    for (a, b, ends), apex in zip(spans, apexes, strict=True):
+    for (a, b), around, apex in zip(stretches, ends, apexes, strict=True):
         if apex is None:
             continue
-        bend = _measure(profile, track, spec, a, b, ends, apex, outer_diameter, class_limits,
+        bend = _measure(profile, track, spec, a, b, around, apex, outer_diameter, class_limits,
                         floor)  # fmt: skip
         if bend.angle >= min_angle - 1e-9:
             bends.append(bend)
