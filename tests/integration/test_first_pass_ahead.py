@@ -131,14 +131,14 @@ def test_a_reading_that_fails_stops_the_thread(monkeypatch):
     real = pipeline.read_bag
     told = []
 
-    def failing(bag, topics, pieces=None, workers=None):
+    def failing(bag, topics, pieces=None, workers=None, spill_imu_bytes=None):
         def some(piece, report):
             if len(told) == 2:
                 raise OSError("the disk went away")
             told.append(piece)
             pieces(piece, report)
 
-        return real(bag, topics, pieces=some, workers=workers)
+        return real(bag, topics, pieces=some, workers=workers, spill_imu_bytes=spill_imu_bytes)
 
     monkeypatch.setattr(pipeline, "read_bag", failing)
     with pytest.raises(OSError, match="the disk went away"):
@@ -156,9 +156,9 @@ def test_the_reading_leaves_a_core_to_the_first_pass(monkeypatch, cores):
     monkeypatch.setattr(pipeline.os, "cpu_count", lambda: cores)
     real, asked = pipeline.read_bag, []
 
-    def spy(bag, topics, pieces=None, workers=None):
+    def spy(bag, topics, pieces=None, workers=None, spill_imu_bytes=None):
         asked.append(workers)
-        return real(bag, topics, pieces=pieces, workers=workers)
+        return real(bag, topics, pieces=pieces, workers=workers, spill_imu_bytes=spill_imu_bytes)
 
     monkeypatch.setattr(pipeline, "read_bag", spy)
     with FirstPassAhead(NavConfig(), "rts") as ahead:

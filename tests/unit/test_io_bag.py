@@ -643,3 +643,30 @@ def test_output_bag_without_path_for_replay(tmp_path):
         }
     finally:
         rd.close()
+
+
+@pytest.mark.parametrize("spill", [30_000, 0, 10**9])
+def test_a_large_imu_is_gathered_in_files_as_it_is_read(bag, monkeypatch, spill):
+    """read_bag(spill_imu_bytes=N): once more than N bytes of IMU samples are read, they go to
+    files as the chunks come (those read before too) and the log's IMU is mapped from them,
+    read-only: the same log, bit for bit, as read whole; under N, in memory as before."""
+    from pipe_nav_core.io import bagread
+
+    from pipe_nav_core import memory
+
+    monkeypatch.setattr(bagread, "PIECE_S", 2.0)  # several chunks: some before the spill
+    told: list[SensorLog] = []
+    got, rep = read_bag(bag, pieces=lambda piece, _r: told.append(piece), spill_imu_bytes=spill)
+    whole, rep_whole = read_bag(bag)
+    assert len(told) >= 5 and rep.counts == rep_whole.counts
+    assert_logs_equal(got, whole)
+    for a, b in zip((got.imu.t, got.imu.gyro, got.imu.accel), (whole.imu.t, whole.imu.gyro,
+                                                             whole.imu.accel)):  # fmt: skip
+        assert a.tobytes() == b.tobytes()
+        assert (memory.mapping(a) is not None) == (spill < 10**9)
+        assert a.flags.writeable == (spill >= 10**9)
+    # the chunks handed out keep their own samples (the first pass beside the reading feeds
+    # on them): none is emptied by the spill
+    assert sum(len(p.imu) for p in told) == len(whole.imu)
+    alone, _ = read_bag(bag, spill_imu_bytes=spill)  # without pieces: the same
+    assert_logs_equal(alone, whole)

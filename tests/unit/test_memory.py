@@ -100,3 +100,48 @@ def test_small_pages_stop_numpy_asking_for_huge_pages():
     run = subprocess.run([sys.executable, "-c", _SMALL_PAGES], env=env, capture_output=True,
                          text=True, timeout=120)  # fmt: skip
     assert run.returncode == 0 and run.stdout.strip() == "ok", run.stderr
+
+
+def test_a_spool_gathers_its_rows_in_a_file_or_in_memory(monkeypatch):
+    """memory.Spool: rows appended piece by piece come back in order, mapped read-only from a
+    file; where the file has no room from the start, or runs out of it half-way, the same
+    rows come back from memory."""
+    import resource
+    import signal
+    import tempfile
+
+    rng = np.random.default_rng(3)
+    pieces = [rng.normal(size=(n, 3)) for n in (5, 0, 17, 1, 40)]
+    whole = np.concatenate(pieces)
+
+    def gather() -> tuple[np.ndarray, bool]:
+        s = memory.Spool((3,))
+        for p in pieces:
+            s.append(p)
+        return s.gathered(), s.in_file
+
+    got, in_file = gather()
+    assert got.tobytes() == whole.tobytes() and got.shape == whole.shape and in_file
+    assert memory.mapping(got) is not None and not got.flags.writeable
+    vec = memory.Spool()
+    vec.append(whole[:, 0])
+    assert vec.gathered().tobytes() == np.ascontiguousarray(whole[:, 0]).tobytes()
+    assert memory.Spool((3,)).gathered().shape == (0, 3)  # nothing appended
+
+    # the file runs out of room at the last piece (a file size limit: EFBIG, as a full disk)
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    old = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    try:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (600, hard))
+        got, in_file = gather()
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, old)
+    assert not in_file and got.tobytes() == whole.tobytes() and memory.mapping(got) is None
+
+    def no_room(*_args, **_kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(tempfile, "TemporaryFile", no_room)
+    got, in_file = gather()
+    assert not in_file and got.tobytes() == whole.tobytes() and memory.mapping(got) is None

@@ -15,6 +15,7 @@ import gc
 import mmap
 import os
 import tempfile
+from typing import IO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,6 +37,73 @@ def file_array(shape: tuple[int, ...], min_bytes: int) -> Array:
     except OSError:  # no room for the file (a full or read-only temporary folder)
         return np.zeros(shape)
     return np.frombuffer(m, dtype=np.float64).reshape(shape)
+
+
+class Spool:
+    """float64 rows gathered piece by piece in an unlinked temporary file and then mapped
+    read-only (:meth:`gathered`): an array that is never whole in memory while it is built,
+    nor twice when it is joined. ``row``: the shape of one row (``()`` for a vector). Where the
+    temporary folder has no room (or no file can be made or mapped), the rows are kept in memory
+    instead, from the first that could not be written on; the array gathered is the same."""
+
+    def __init__(self, row: tuple[int, ...] = ()) -> None:
+        self.row = row
+        self.rows = 0  # written to the file
+        self._file: IO[bytes] | None = None
+        self._kept: list[Array] | None = None  # the rows in memory, once the file failed
+        try:
+            self._file = tempfile.TemporaryFile(prefix="pipe_nav_mapped_")  # noqa: SIM115 - held open while rows come
+        except OSError:
+            self._kept = []
+
+    @property
+    def in_file(self) -> bool:
+        """Whether the rows are in the file (False once it had no room, or none was made)."""
+        return self._file is not None
+
+    def append(self, a: Array) -> None:
+        """Add the rows of ``a`` (shape (n, *row)) after those appended before."""
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        if self._file is not None:
+            try:  # unbuffered: once written, the rows are the file's (a full disk raises here)
+                data, fd, done = memoryview(a.reshape(-1).view(np.uint8)), self._file.fileno(), 0
+                while done < len(data):
+                    done += os.write(fd, data[done:])
+                self.rows += len(a)
+                return
+            except OSError:  # no room: what was written comes back into memory
+                self._to_memory()
+        assert self._kept is not None
+        self._kept.append(a)
+
+    def gathered(self) -> Array:
+        """Every row appended, in order, mapped read-only from the file (in memory where it
+        could not be). The spool is spent."""
+        if self._file is not None and self.rows:
+            try:
+                m = mmap.mmap(self._file.fileno(), 0, access=mmap.ACCESS_READ)
+            except (OSError, ValueError):
+                self._to_memory()
+            else:
+                self._file.close()
+                count = self.rows * self._width
+                return np.frombuffer(m, np.float64, count).reshape((self.rows, *self.row))
+        if self._file is not None:
+            self._file.close()
+        kept = self._kept or []
+        return np.concatenate(kept) if kept else np.empty((0, *self.row))
+
+    @property
+    def _width(self) -> int:
+        return int(np.prod(self.row, dtype=np.int64))
+
+    def _to_memory(self) -> None:
+        assert self._file is not None
+        self._file.seek(0)
+        back = np.fromfile(self._file, dtype=np.float64, count=self.rows * self._width)
+        self._file.close()
+        self._file = None
+        self._kept = [back.reshape((self.rows, *self.row))]
 
 
 def let_go(a: Array) -> None:

@@ -48,6 +48,7 @@ from pipe_nav_core.model import imu_noise as imu_model
 from pipe_nav_core.model.sensors import GRADES
 from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
 from pipe_nav_core.products.welds import Weld, detect_welds, jolt_deviation
+from pipe_nav_core.smooth import logs as smooth_logs
 from pipe_nav_core.smooth.ahead import FirstPassAhead
 from pipe_nav_core.smooth.centreline import SmoothResult
 from pipe_nav_core.smooth.chunks import drop_spare
@@ -76,16 +77,19 @@ def load_log(
     markers_csv: str | os.PathLike[str] | None = None,
     repair: bool = True,
     ahead: FirstPassAhead | None = None,
+    spill_imu_bytes: int | None = None,
 ) -> tuple[SensorLog, BagReport]:
     """Read a bag into memory (sorted per topic), leave out saturated IMU samples and shocks
     (imu_faults), re-align its clock steps and name its data gaps (gaps.find_holes; the bag's
     own markers follow its clock), leave out the readings of a stuck or spiking wheel
     (odometer_faults), merge the marker CSV. ``repair=False``: the data as recorded (what
     ekf_node would see; the live guard checks it then). ``ahead``: told the bag's time chunks
-    as they are read, and the log read."""
+    as they are read, and the log read. ``spill_imu_bytes``: an IMU larger than this is
+    gathered in files as it is read and mapped from them, read-only (io.read_bag)."""
     # failing: the ahead's context stops it; its pass is one busy thread beside the reading
     workers = read_workers(beside=1) if ahead is not None else None
-    log, report = read_bag(bag, topics, pieces=ahead, workers=workers)
+    log, report = read_bag(bag, topics, pieces=ahead, workers=workers,
+                           spill_imu_bytes=spill_imu_bytes)  # fmt: skip
     if ahead is not None:
         ahead.finish(log)
     if not repair:
@@ -170,9 +174,10 @@ def smooth_bag(
     say = told.stage
     with first_pass_ahead(bag, config, method, markers_csv) as ahead:
         say("reading bag")
-        log, report = load_log(bag, topics=topics, markers_csv=markers_csv, ahead=ahead)
+        log, report = load_log(bag, topics=topics, markers_csv=markers_csv, ahead=ahead,
+                               spill_imu_bytes=smooth_logs.MAP_IMU_BYTES)  # fmt: skip
         require_imu(log, report, bag, topics)
-        map_imu(log.imu)  # large: read from a file, in memory only while a pass reads it
+        map_imu(log.imu)  # large: read from a file (mapped as read unless repaired)
         trim_heap(len(log.imu))  # what a long run's reading freed (pieces, temporaries)
         require_markers(log, report, bag, topics)
         if plotter is not None:  # (unless told at its start) the first pass goes on alone

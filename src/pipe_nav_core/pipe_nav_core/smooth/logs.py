@@ -6,12 +6,11 @@ from __future__ import annotations
 
 import math
 import mmap
-import tempfile
 
 import numpy as np
 from numpy.typing import NDArray
 
-from pipe_nav_core.memory import mapping, root
+from pipe_nav_core.memory import Spool, mapping, root
 from pipe_nav_core.types import (
     ImuSamples,
     MagSamples,
@@ -75,16 +74,14 @@ def map_imu(imu: ImuSamples) -> None:
     if any(mapping(a) is not None for a in arrays) or not all(map(_whole, arrays)):
         return
     mapped = []
-    try:
-        for a in arrays:
-            with tempfile.TemporaryFile(prefix="pipe_nav_imu_") as f:
-                np.ascontiguousarray(a, dtype=np.float64).tofile(f)
-                f.flush()
-                m = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-            mapped.append(np.frombuffer(m, dtype=np.float64).reshape(a.shape))
-    except OSError:  # no room for the file (a full or read-only temporary folder): in memory
-        return
-    imu.t, imu.gyro, imu.accel = mapped
+    for a in arrays:
+        spool = Spool(a.shape[1:])
+        spool.append(a)
+        if not spool.in_file:  # no room for the file (a full or read-only temporary folder)
+            return
+        mapped.append(spool.gathered())
+    if all(mapping(m) is not None for m in mapped):  # else one could not be mapped: in memory
+        imu.t, imu.gyro, imu.accel = mapped
 
 
 def let_go(imu: ImuSamples, before: float = math.inf) -> None:
