@@ -143,6 +143,32 @@ def limit_arenas(arenas: int = ARENAS) -> None:
         libc.mallopt(-8, int(arenas))  # M_ARENA_MAX
 
 
+# blocks the C allocator serves from its heaps, and the free memory it keeps at a heap's top for
+# the next ones (glibc's M_MMAP_THRESHOLD and M_TRIM_THRESHOLD: keep_freed)
+KEEP_BELOW = 32 << 20
+KEEP_UP_TO = 256 << 20
+
+
+def keep_freed(below: int = KEEP_BELOW, up_to: int = KEEP_UP_TO) -> None:
+    """Have the C allocator serve blocks under ``below`` bytes from its heaps and keep up to
+    ``up_to`` bytes freed at a heap's top for the next (glibc's ``M_MMAP_THRESHOLD`` and
+    ``M_TRIM_THRESHOLD``; nothing elsewhere, nor where the environment sets them: the
+    ``MALLOC_*_`` variables or ``GLIBC_TUNABLES``). A run allocates and frees arrays of a few
+    MB by the thousand (a chunk's decompressed records, the checks' and the passes' batches):
+    by default glibc maps many of them afresh and gives them back at once, and every first
+    write of a page of one is a page fault (a fifth of the 10 km run's 250 k were such; the
+    run's peak is some 40 MB higher for it). A long run gives the freed memory back between
+    its stages all the same (:func:`trim_heap`)."""
+    if "glibc.malloc" in os.environ.get("GLIBC_TUNABLES", "") or any(
+        k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+    ):
+        return
+    libc = _c_library()
+    if libc is not None and hasattr(libc, "mallopt"):
+        libc.mallopt(-3, int(below))  # M_MMAP_THRESHOLD
+        libc.mallopt(-1, int(up_to))  # M_TRIM_THRESHOLD
+
+
 def small_pages() -> None:
     """Have numpy's large arrays take the system's ordinary pages, unless the environment says
     otherwise (``NUMPY_MADVISE_HUGEPAGE``). numpy asks for transparent huge pages on every

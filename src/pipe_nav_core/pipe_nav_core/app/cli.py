@@ -280,9 +280,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     main_thread = threading.current_thread() is threading.main_thread()
     if main_thread:
-        from pipe_nav_core.memory import limit_arenas, small_pages
+        from pipe_nav_core.memory import keep_freed, limit_arenas, small_pages
 
         limit_arenas()  # before the command starts its threads
+        keep_freed()
         small_pages()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
