@@ -281,13 +281,12 @@ def test_the_forms_rosbag2_itself_writes(plain, tmp_path):
         (f,) = (tmp_path / name).glob("*.mcap")
         with open(f, "rb") as fh:
             held = sum(1 for _ in make_reader(fh).iter_messages(topics=[DEFAULT_TOPICS.imu]))
-        # every message the file holds is read, or named as dropped: rosbag2 compresses the
-        # messages in a thread of its own, and under load it holds fewer of them (74 % of the
-        # sample's IMU messages with two benches beside it) and may write one more than
-        # REORDER_WINDOW_S after its neighbours (a stamp that old is dropped and counted)
-        dropped = sum(report.skipped_by_topic.get(DEFAULT_TOPICS.imu, {}).values())
-        assert len(log.imu) + dropped == held > 0.5 * len(plain[0].imu)
-        assert dropped <= 0.01 * held
+        # every message the file holds is read: rosbag2 compresses the messages in a thread of
+        # its own, and under load it holds fewer of them (74 % of the sample's IMU messages
+        # with two benches beside it) and writes some a second or more after their neighbours
+        # (their log times as late as their stamps: kept and sorted into place)
+        assert len(log.imu) == held > 0.5 * len(plain[0].imu)
+        assert DEFAULT_TOPICS.imu not in report.skipped_by_topic
 
 
 def test_a_full_temporary_folder_is_named(forms, tmp_path, monkeypatch, capsys):

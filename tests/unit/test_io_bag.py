@@ -319,6 +319,30 @@ def test_out_of_order_sorted_backwards_and_duplicates_dropped(tmp_path):
     assert idx.index(53) < idx.index(51) < idx.index(50)
 
 
+def test_a_message_written_late_is_sorted_into_place(tmp_path):
+    """A message the recorder wrote 1.3 s after its neighbours, its log time as late as its
+    stamp (rosbag2's message compression under load does so): kept and sorted into place,
+    where a stamp that far back with its log time on time (a clock stepping back) is
+    dropped."""
+    types = R.rosbags_types()
+
+    def bag(name: str, late_log: bool) -> Path:
+        order = [i for i in range(300) if i != 100]
+        order.insert(230, 100)  # message 100 written after message 229
+        msgs = []
+        for pos, i in enumerate(order):
+            stamp = 100.0 + 0.01 * i
+            logged = stamp if late_log else 100.0 + 0.01 * pos  # as late, or on time
+            msg = R.imu_to_msg(types, stamp, [float(i), 0.0, 0.0], [0.0, 0.0, 9.8])
+            msgs.append(("/imu/data", "sensor_msgs/msg/Imu", sec_to_ns_scalar(logged), msg))
+        return write_rosbags_dir(tmp_path / name, msgs)
+
+    got, rep = read_bag(bag("late", late_log=True))
+    assert got.imu.gyro[:, 0].astype(int).tolist() == list(range(300)) and rep.skipped == {}
+    stepped, rep = read_bag(bag("stepped", late_log=False))
+    assert len(stepped.imu) == 299 and rep.skipped_by_topic["/imu/data"] == {"non_monotonic": 1}
+
+
 def test_genuine_time_gap_is_kept(tmp_path):
     stamps = [100.0 + 0.01 * i for i in range(100)] + [300.0 + 0.01 * i for i in range(100)]
     got, rep = read_bag(_stamped_imu_bag(tmp_path, stamps, "gap"))

@@ -57,26 +57,32 @@ _FIELDS = {
 
 @dataclass
 class Pieces:
-    """Decoded samples of one topic in arrival order: stamps (ns) and value arrays."""
+    """Decoded samples of one topic in arrival order: stamps (ns) and value arrays; ``log``:
+    each message's log time in the bag (ns; when the recorder received it), where known."""
 
     ns: NDArray[np.int64]
     values: dict[str, NDArray]
+    log: NDArray[np.int64] | None = None
 
     def take(self, idx: NDArray | slice) -> Pieces:
         """The samples at ``idx`` (indices or a mask, in that order; or a slice: views)."""
-        return Pieces(self.ns[idx], {k: v[idx] for k, v in self.values.items()})
+        log = None if self.log is None else self.log[idx]
+        return Pieces(self.ns[idx], {k: v[idx] for k, v in self.values.items()}, log)
 
     def __len__(self) -> int:
         return len(self.ns)
 
     @staticmethod
     def concat(parts: Sequence[Pieces], keys: Sequence[str]) -> Pieces:
-        """The parts one after the other (the part itself when there is one)."""
+        """The parts one after the other (the part itself when there is one); their log
+        times where every part has them."""
         if len(parts) == 1:
             return parts[0]
+        logs = [p.log for p in parts]
         return Pieces(
             np.concatenate([p.ns for p in parts]),
             {k: np.concatenate([p.values[k] for p in parts]) for k in keys},
+            None if any(x is None for x in logs) else np.concatenate(logs),  # type: ignore[arg-type]
         )
 
 
@@ -131,12 +137,14 @@ def decode_role(
     if not ns_parts:
         return empty_pieces(role)
     keys = VALUE_KEYS[role]
+    pos = np.concatenate(pos_parts)
     p = Pieces(
         np.concatenate(ns_parts),
         {k: np.concatenate([v[k] for v in val_parts]) for k in keys},
+        batch.log_time[sel][pos],
     )
     if len(ns_parts) > 1:
-        p = p.take(np.argsort(np.concatenate(pos_parts), kind="stable"))
+        p = p.take(np.argsort(pos, kind="stable"))
     finite = _finite(role, p)
     if not finite.all():
         report.add_skipped(topic, SKIP_NAN, int((~finite).sum()))

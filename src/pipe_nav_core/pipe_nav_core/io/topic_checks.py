@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
 from pipe_nav_core.io.bagdecode import VALUE_KEYS, Pieces, empty_pieces
 from pipe_nav_core.io.stamps import NS_PER_S
@@ -52,6 +53,7 @@ class TopicState:
     role: str
     report: BagReport
     run_max: int | None = None  # newest accepted stamp, ns
+    run_max_log: int | None = None  # newest log time met, ns (where the bag gives them)
     prev_ns: int | None = None  # stamp of the previous message in arrival order
     pending: Pieces | None = None  # last message, held for the time-jump test
     buffer: list[Pieces] = field(default_factory=list)
@@ -112,6 +114,8 @@ class TopicState:
         window = np.int64(int(REORDER_WINDOW_S * NS_PER_S))
         lo = np.where(before == np.iinfo(np.int64).min, before, before - window)
         accept = ~spike & (ns > lo)
+        if p.log is not None:
+            accept |= ~spike & ~accept & self._written_late(p.log[:keep_n], ns, before, window)
         n_back = int((~spike & ~accept).sum())
         if n_back:
             self.report.add_skipped(self.topic, SKIP_NON_MONOTONIC, n_back)
@@ -128,10 +132,33 @@ class TopicState:
             top = int(cm[-1])
             self.run_max = top if self.run_max is None else max(self.run_max, top)
         idx = np.flatnonzero(accept)
-        if len(idx) == keep_n:  # all of them, as usual: views, not copies
-            self.buffer.append(p.take(slice(0, keep_n)))
-        elif len(idx):
-            self.buffer.append(p.take(idx))
+        kept = p.take(slice(0, keep_n) if len(idx) == keep_n else idx)  # all: views, not copies
+        if len(kept):
+            kept.log = None  # judged: the buffer holds the stamps and values only
+            self.buffer.append(kept)
+
+    def _written_late(
+        self,
+        log: NDArray[np.int64],
+        ns: NDArray[np.int64],
+        before: NDArray[np.int64],
+        window: np.int64,
+    ) -> NDArray[np.bool_]:
+        """Which samples' log times are behind the newest log time before them by as much as
+        their stamps are behind the newest stamp (less the window): messages the recorder
+        wrote late (rosbag2's message compression does so under load, a second or more after
+        their neighbours), not a clock that stepped back (its log times go on). Sorted into
+        place at :meth:`emit` like the smaller disorder."""
+        low = np.iinfo(np.int64).min
+        seen = np.maximum.accumulate(log)
+        log_before = np.empty(len(log), dtype=np.int64)
+        log_before[0] = low if self.run_max_log is None else self.run_max_log
+        log_before[1:] = np.maximum(seen[:-1], log_before[0])
+        self.run_max_log = int(max(int(seen[-1]), log_before[0]))
+        known = (log_before != low) & (before != low)
+        late = np.zeros(len(log), dtype=bool)
+        late[known] = (log_before[known] - log[known]) >= (before[known] - ns[known] - window)
+        return late
 
     def _ingest_markers(self, p: Pieces) -> None:
         """Markers: only the late check here (duplicates are removed at emit), with a warning
