@@ -6,7 +6,9 @@ and applies, vectorized over each batch:
 1. an isolated stamp more than :data:`TIME_JUMP_S` ahead of both its neighbours is a clock
    glitch (``time_jump``); to judge the newest sample its successor is awaited (``pending``);
 2. a stamp more than :data:`REORDER_WINDOW_S` behind the newest accepted stamp of its topic is
-   dropped (``non_monotonic``); smaller disorder is repaired by sorting at :meth:`emit`;
+   dropped (``non_monotonic``), unless its log time is as far behind (a message the recorder
+   wrote late, not a clock that stepped back); smaller disorder is repaired by sorting at
+   :meth:`emit`, and so are the late writes;
 3. after sorting, repeated stamps keep the first sample (``duplicate``);
 4. streaming: a sample older than the boundary of a time chunk already handed out is dropped
    (``late``).
