@@ -102,7 +102,7 @@ def empty_pieces(role: str) -> Pieces:
     vals: dict[str, NDArray] = {}
     for k in VALUE_KEYS[role]:
         vals[k] = np.empty(0, dtype=object) if k == "marker" else np.zeros(shapes[k])
-    return Pieces(np.zeros(0, dtype=np.int64), vals)
+    return Pieces(np.zeros(0, dtype=np.int64), vals, np.zeros(0, dtype=np.int64))
 
 
 def decode_role(
@@ -141,7 +141,7 @@ def decode_role(
     p = Pieces(
         np.concatenate(ns_parts),
         {k: np.concatenate([v[k] for v in val_parts]) for k in keys},
-        batch.log_time[sel][pos],
+        batch.log_time[sel[pos]],
     )
     if len(ns_parts) > 1:
         p = p.take(np.argsort(pos, kind="stable"))

@@ -117,7 +117,11 @@ class TopicState:
         lo = np.where(before == np.iinfo(np.int64).min, before, before - window)
         accept = ~spike & (ns > lo)
         if p.log is not None:
-            accept |= ~spike & ~accept & self._written_late(p.log[:keep_n], ns, before, window)
+            log = p.log[:keep_n]
+            if not (accept | spike).all():  # only a batch with stamps out of the window
+                accept |= ~spike & ~accept & self._written_late(log, ns, before, window)
+            newest = int(log.max())
+            self.run_max_log = newest if self.run_max_log is None else max(self.run_max_log, newest)
         n_back = int((~spike & ~accept).sum())
         if n_back:
             self.report.add_skipped(self.topic, SKIP_NON_MONOTONIC, n_back)
@@ -156,7 +160,6 @@ class TopicState:
         log_before = np.empty(len(log), dtype=np.int64)
         log_before[0] = low if self.run_max_log is None else self.run_max_log
         log_before[1:] = np.maximum(seen[:-1], log_before[0])
-        self.run_max_log = int(max(int(seen[-1]), log_before[0]))
         known = (log_before != low) & (before != low)
         late = np.zeros(len(log), dtype=bool)
         late[known] = (log_before[known] - log[known]) >= (before[known] - ns[known] - window)
