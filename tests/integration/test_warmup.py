@@ -44,3 +44,60 @@ def test_the_installer_writes_the_package_bytecode(tmp_path, monkeypatch):
     tag = sys.implementation.cache_tag
     assert (pkg / "__pycache__" / f"errors.{tag}.pyc").is_file()
     assert (pkg / "io" / "__pycache__" / f"stamps.{tag}.pyc").is_file()
+
+
+def _child(monkeypatch, code: str) -> list[str]:
+    """warmup._fresh_build replaced by a Python process running ``code``; how many started."""
+    import subprocess
+    import sys
+
+    started: list[str] = []
+
+    def fresh() -> subprocess.Popen[str]:
+        started.append(code)
+        return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+
+    monkeypatch.setattr(warmup, "_fresh_build", fresh)
+    return started
+
+
+def test_the_aot_module_is_built_by_a_fresh_process_and_its_outcome_kept(monkeypatch):
+    from pipe_nav_core import jit
+
+    said: list[str] = []
+    built_here: list[int] = []
+
+    def build_here() -> int:
+        built_here.append(1)
+        return 105
+
+    monkeypatch.setattr(jit, "build_aot", build_here)
+    monkeypatch.setattr(warmup, "_cached_to_disk", lambda: True)
+    started = _child(monkeypatch, "print('compiling...'); print('built 39 exports')")
+    assert warmup._build_aot(jit, said.append) == "39 exports"
+    assert len(started) == 1 and said == [] and built_here == []
+    _child(monkeypatch, "print('failed (LinkerError: no cc)')")
+    assert warmup._build_aot(jit, said.append) == "failed (LinkerError: no cc)"
+    assert said == ["pipe_nav_core: kernels stay just-in-time (the ahead-of-time build failed: "
+                    "LinkerError: no cc)"]  # fmt: skip
+    # the fresh process crashed: this one builds the module from what it compiled
+    _child(monkeypatch, "raise SystemExit(1)")
+    assert warmup._build_aot(jit, said.append) == "105 exports" and built_here == [1]
+    # no disk cache: a fresh process would compile every kernel again
+    monkeypatch.setattr(warmup, "_cached_to_disk", lambda: False)
+    started = _child(monkeypatch, "print('built 39 exports')")
+    assert warmup._build_aot(jit, said.append) == "105 exports" and started == []
+
+
+def test_the_kernels_are_cached_to_disk_here():
+    """The install these tests run in caches numba's kernels to disk, as the fresh process
+    building the AOT module needs (where it did not, that process would compile them again)."""
+    from pipe_nav_core import jit
+
+    jit.to_jit("the test asks numba's dispatcher")
+    assert warmup._cached_to_disk()
+
+
+def test_the_warm_up_module_names_what_it_was_asked_wrongly(capsys):
+    assert warmup.main(["--aot"]) == 2
+    assert "(got --aot)" in capsys.readouterr().err
