@@ -136,7 +136,7 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     tell = say or (lambda m: print(m, file=sys.stderr, flush=True))
     tell(
         "pipe_nav_core: preparing the numeric kernels for this install (once; compiling "
-        "them takes 4 to 5 minutes on a 2-core machine)"
+        "them takes 4 to 7 minutes on a 2-core machine)"
     )
     t0 = time.perf_counter()
     jit.to_jit("the warm-up compiles every kernel and builds the AOT module from them")
