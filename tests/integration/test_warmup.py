@@ -47,7 +47,8 @@ def test_the_installer_writes_the_package_bytecode(tmp_path, monkeypatch):
 
 
 def _child(monkeypatch, code: str) -> list[str]:
-    """warmup._fresh_build replaced by a Python process running ``code``; how many started."""
+    """warmup._fresh_build replaced by a Python process running ``code``; the list of the
+    processes started (their code)."""
     import subprocess
     import sys
 

@@ -101,7 +101,14 @@ def warm_products() -> float:
     return time.perf_counter() - t0
 
 
-WARM_UPS = (warm_live, warm_smoothers, warm_products, warm_reading)  # what the warm-up runs
+def _compile_every_kernel(why: str) -> None:
+    """Turn this process to numba's JIT kernels (saying ``why``) and run every warm-up: each
+    kernel is compiled, or loaded from numba's disk cache where it is there."""
+    from pipe_nav_core import jit
+
+    jit.to_jit(why)
+    for warm in (warm_live, warm_smoothers, warm_products, warm_reading):
+        warm()
 
 
 def _marker() -> Path:
@@ -139,9 +146,7 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
         "them takes 4 to 7 minutes on a 2-core machine)"
     )
     t0 = time.perf_counter()
-    jit.to_jit("the warm-up compiles every kernel and builds the AOT module from them")
-    for warm in WARM_UPS:
-        warm()
+    _compile_every_kernel("the warm-up compiles every kernel and builds the AOT module from them")
     aot = "not built (PIPE_NAV_KERNELS=jit)" if jit.FORCED_JIT else _build_aot(jit, tell)
     try:
         marker = _marker()
@@ -213,9 +218,7 @@ def _build_from_cache() -> int:
     AOT module from them, printing "built N exports" or "failed (why)"."""
     from pipe_nav_core import jit
 
-    jit.to_jit("the warm-up's AOT build")
-    for warm in WARM_UPS:
-        warm()
+    _compile_every_kernel("the warm-up's AOT build")
     try:
         print(f"built {jit.build_aot()} exports", flush=True)
     except Exception as exc:  # no C compiler, numba without pycc, ...
