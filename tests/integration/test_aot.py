@@ -7,6 +7,7 @@ from __future__ import annotations
 import collections
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -100,6 +101,106 @@ def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
             assert got[1] == want[1]
             ran += 1
     assert ran == 1
+
+
+FITTING_FLAGS = aot._PREBUILT_FLAGS | {"sse", "sse2"}
+
+
+def test_a_prebuilt_module_is_installed_only_where_it_fits(tmp_path, monkeypatch):
+    """A toy module built for aot.PREBUILT_CPU, packed as the package's prebuilt one, then
+    installed into a package without any module: it runs where the fingerprint and the CPU
+    fit, and is left alone, nothing written, where either does not or the file is damaged."""
+    _skip_without_a_compiler()
+    from numba import njit
+
+    @njit
+    def scaled(x, k):  # noqa: ANN001, ANN202
+        return x * k, np.sum(x)
+
+    x = np.arange(4.0)
+    want = scaled(x, 2.5)
+    (tmp_path / "__pycache__").mkdir()
+    assert aot.build(tmp_path, "stamp", [("toy:scaled", scaled)], aot.PREBUILT_CPU) == 1
+    fp = {"sources": "abc", "abi": "".join(next(tmp_path.glob("__pycache__/kernels-*")).suffixes),
+          "numba": "1", "llvmlite": "2", "numpy": "3"}  # fmt: skip
+    out = aot.pack_prebuilt(tmp_path, fp)
+    shutil.rmtree(tmp_path / "__pycache__")
+    monkeypatch.setattr(aot, "_cpu_flags", lambda: FITTING_FLAGS - {"avx2"})
+    assert not aot.install_prebuilt(tmp_path, "fresh", fp)  # a CPU without AVX2
+    monkeypatch.setattr(aot, "_cpu_flags", lambda: FITTING_FLAGS)
+    assert not aot.install_prebuilt(tmp_path, "fresh", {**fp, "numba": "1.1"})
+    assert not aot.install_prebuilt(tmp_path, "fresh", {**fp, "sources": "abd"})
+    assert not (tmp_path / "__pycache__").exists() or not any((tmp_path / "__pycache__").iterdir())
+    packed = (out / "kernels.so.xz").read_bytes()
+    (out / "kernels.so.xz").write_bytes(packed[: len(packed) // 2])  # damaged
+    assert not aot.install_prebuilt(tmp_path, "fresh", fp)
+    assert [p.name for p in (tmp_path / "__pycache__").iterdir()] == []  # nothing half-written
+    (out / "kernels.so.xz").write_bytes(packed)
+    assert aot.install_prebuilt(tmp_path, "fresh", fp)
+    assert aot.sidecar(tmp_path)["prebuilt"] == aot.PREBUILT_CPU
+    exports = aot.load(tmp_path, "fresh")
+    assert exports is not None and aot.load(tmp_path, "stamp") is None
+    ((check, fn, _, _),) = aot.checked(exports["toy:scaled"])
+    assert check(x, 2.5)
+    got = fn(x, 2.5)
+    np.testing.assert_array_equal(got[0], want[0])
+    assert got[1] == want[1]
+
+
+def _pins() -> dict[str, str]:
+    pins = {}
+    for line in (ROOT / ".ci" / "constraints.txt").read_text(encoding="utf-8").splitlines():
+        if line and not line.startswith("#"):
+            name, _, version = line.partition(";")[0].strip().partition("==")
+            pins[name] = version
+    return pins
+
+
+def test_the_prebuilt_module_is_of_these_sources_and_the_pinned_versions():
+    """The package's prebuilt module was built from the kernels' sources as they are now, for
+    the CPython of this machine kind and the numba, llvmlite and NumPy that .ci/constraints.txt
+    pins: so a fresh install with .ci/bootstrap takes it instead of compiling."""
+    import sysconfig
+
+    meta = json.loads((jit._PACKAGE / aot.PREBUILT / aot.SIDECAR).read_text(encoding="utf-8"))
+    fp = meta["fingerprint"]
+    rebuild = "stale: run python -m pipe_nav_core.warmup --prebuild after the warm-up"
+    assert fp["sources"] == jit.fingerprint()["sources"], rebuild
+    assert {k: fp[k] for k in ("numba", "llvmlite", "numpy")} == _pins(), rebuild
+    assert fp["abi"] == sysconfig.get_config_var("EXT_SUFFIX") == ".cpython-311-x86_64-linux-gnu.so"
+    assert meta["target"] == aot.PREBUILT_CPU and meta["format"] == aot.FORMAT
+    kernels = {e["kernel"] for e in meta["exports"]}
+    assert {"filter.epoch:run_epochs", "smooth.rts:_rts_backward"} <= {
+        k.removeprefix("pipe_nav_core.") for k in kernels
+    }
+
+
+def test_a_fresh_copy_of_the_package_runs_the_prebuilt_module(tmp_path):
+    """The package copied as an installer copies it (no __pycache__) and imported in a fresh
+    process: where this machine fits the prebuilt module (this venv's versions are the pinned
+    ones and the CPU has AVX2 and FMA), the process runs it without numba, and its kernel
+    gives what numba's gives here; where it does not, the process says it has no module."""
+    shutil.copytree(jit._PACKAGE, tmp_path / "pipe_nav_core",
+                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
+    code = """
+import json, sys
+from pipe_nav_core import jit
+from pipe_nav_core.geo import earth
+print(json.dumps({"prebuilt": jit.AOT_PREBUILT, "jit": jit.JIT_REASON, "file": jit.__file__,
+                  "numba": "numba" in sys.modules, "g": float(earth._gravity(0.7, 100.0))}))
+"""
+    r = _python(code, PYTHONPATH=str(tmp_path))
+    assert r["file"].startswith(str(tmp_path))
+    prebuilt = json.loads((jit._PACKAGE / aot.PREBUILT / aot.SIDECAR).read_text(encoding="utf-8"))
+    fits = jit.fingerprint() == prebuilt["fingerprint"] and aot._cpu_flags() >= aot._PREBUILT_FLAGS
+    if fits:
+        assert r["prebuilt"] and r["jit"] is None and not r["numba"]
+        assert (tmp_path / "pipe_nav_core" / "__pycache__" / aot.SIDECAR).is_file()
+    else:
+        assert not r["prebuilt"] and r["jit"] == "no ahead-of-time module for these sources"
+    from pipe_nav_core.geo import earth
+
+    assert r["g"] == float(earth._gravity(0.7, 100.0))
 
 
 def _aot_built() -> bool:
@@ -208,6 +309,7 @@ def test_the_aot_kernels_are_said_in_the_warm_marker(tmp_path, monkeypatch):
 
     marker = tmp_path / "kernels_warm.txt"
     monkeypatch.setattr(warmup, "_marker", lambda: marker)
+    monkeypatch.setattr(jit, "AOT_PREBUILT", False)  # a module built here, not the prebuilt one
     marker.write_text(jit._package_stamp())  # a marker written before the AOT module existed
     assert not warmup.is_warm()
     marker.write_text(f"{jit._package_stamp()}\naot: 12 exports (warm-up {warmup.WARM_UP})")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from pipe_nav_core import warmup
 
 
@@ -10,6 +12,9 @@ def test_ensure_warm_compiles_once_and_says_so(tmp_path, monkeypatch):
     monkeypatch.setattr(warmup, "_marker", lambda: marker)
     # the AOT module of the real install is left as it is (tests/integration/test_aot.py builds one)
     monkeypatch.setattr(warmup, "_build_aot", lambda jit, tell: "not built in this test")
+    from pipe_nav_core import jit
+
+    monkeypatch.setattr(jit, "AOT_PREBUILT", False)  # no prebuilt module: the kernels compiled
     said: list[str] = []
     assert not warmup.is_warm()
     assert warmup.ensure_warm(said.append) is True
@@ -102,3 +107,17 @@ def test_the_kernels_are_cached_to_disk_here():
 def test_the_warm_up_module_names_what_it_was_asked_wrongly(capsys):
     assert warmup.main(["--aot"]) == 2
     assert "(got --aot)" in capsys.readouterr().err
+
+
+def test_the_prebuilt_module_makes_the_install_warm(tmp_path, monkeypatch):
+    """Where the package's prebuilt module serves, there is nothing to compile: no marker is
+    needed, ensure_warm says nothing and compiles nothing."""
+    from pipe_nav_core import jit
+
+    monkeypatch.setattr(warmup, "_marker", lambda: tmp_path / "none.txt")
+    monkeypatch.setattr(jit, "AOT_PREBUILT", True)
+    monkeypatch.setattr(warmup, "_compile_every_kernel", lambda why: pytest.fail(why))
+    said: list[str] = []
+    assert warmup.is_warm() and warmup.ensure_warm(said.append) is False and said == []
+    monkeypatch.setattr(jit, "AOT_PREBUILT", False)
+    assert not warmup.is_warm()

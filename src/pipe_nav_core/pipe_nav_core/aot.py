@@ -12,6 +12,12 @@ sidecar JSON beside it records both and, per export, the kernel and its argument
 export is the same compiled code numba would run (a trampoline calling the kernel, so the
 kernel keeps its own compile options), and it releases the GIL as ``@kernel(nogil=True)``.
 Where the build fails (no C compiler, numba without pycc) the kernels stay just-in-time.
+
+The package also carries the module prebuilt (``prebuilt/``: the module xz-compressed and its
+sidecar), built for any x86-64 CPU with AVX2 and FMA (:data:`PREBUILT_CPU`) from the kernels'
+exact sources with the numba, llvmlite and NumPy that ``.ci/constraints.txt`` pins. Where all of
+that fits, a fresh install takes it (:func:`install_prebuilt`, a second) instead of compiling
+for minutes; where anything differs it is not used.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from __future__ import annotations
 import importlib.machinery
 import importlib.util
 import json
+import lzma
 import os
 import shutil
 import sys
@@ -33,6 +40,13 @@ import numpy as np
 MODULE = "_pipe_nav_kernels"  # the extension module's name (its PyInit symbol)
 FORMAT = 1  # of the sidecar: a module built by another version of this file is not loaded
 SIDECAR = "kernels_aot.json"
+PREBUILT = "prebuilt"  # the package's folder holding the prebuilt module and its sidecar
+PREBUILT_CPU = "x86-64-v3"  # LLVM's name for x86-64 with AVX2, FMA, BMI2 (2013 on)
+# the /proc/cpuinfo flags x86-64-v3 code needs (its levels 2 and 3; "abm" is LZCNT, "pni" SSE3)
+_PREBUILT_FLAGS = frozenset(
+    ["avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "movbe", "xsave", "abm", "cx16", "lahf_lm",
+     "popcnt", "sse4_1", "sse4_2", "ssse3", "pni"]
+)  # fmt: skip
 Check = Callable[..., bool]
 Loaded = tuple[Callable[..., Any], int, list[dict[str, Any]]]  # fn, arity, specs
 Export = tuple[Check, Callable[..., Any], int, list[dict[str, Any]]]  # check, fn, arity, specs
@@ -126,12 +140,87 @@ def checked(loaded: list[Loaded]) -> list[Export]:
     return [(_checker(specs), fn, arity, specs) for fn, arity, specs in loaded]
 
 
+def sidecar(package: Path) -> dict[str, Any]:
+    """The sidecar of the module in the package's ``__pycache__`` (raises OSError or ValueError
+    where there is none or it is unreadable)."""
+    meta = json.loads((package / "__pycache__" / SIDECAR).read_text(encoding="utf-8"))
+    if not isinstance(meta, dict):
+        raise ValueError(SIDECAR)
+    return meta
+
+
+def _cpu_flags() -> frozenset[str]:
+    """This CPU's feature flags in /proc/cpuinfo (none where it cannot be read)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return frozenset(line.partition(":")[2].split())
+    except OSError:
+        pass
+    return frozenset()
+
+
+def install_prebuilt(package: Path, stamp: str, fingerprint: dict[str, str]) -> bool:
+    """Install the package's prebuilt module as the module of this ``stamp``, where it was built
+    for exactly this ``fingerprint`` (the kernels' source digest, the interpreter's extension
+    suffix, numba's, llvmlite's and NumPy's versions) and this CPU runs its code; True if it
+    did. The module and its sidecar are written under new names and then renamed into place,
+    so nothing is left half-written."""
+    try:
+        meta = json.loads((package / PREBUILT / SIDECAR).read_text(encoding="utf-8"))
+        if meta.get("format") != FORMAT or meta.get("fingerprint") != fingerprint:
+            return False
+        if meta.get("target") != PREBUILT_CPU or not _cpu_flags() >= _PREBUILT_FLAGS:
+            return False
+        cache = package / "__pycache__"
+        cache.mkdir(exist_ok=True)
+        name = f"kernels-{stamp[:16]}{fingerprint['abi']}"
+        tmp = cache / f"{name}.{os.getpid()}.tmp"
+        try:
+            with lzma.open(package / PREBUILT / meta["file"]) as src, open(tmp, "wb") as dst:
+                shutil.copyfileobj(src, dst)
+            tmp.replace(cache / name)
+        finally:
+            tmp.unlink(missing_ok=True)
+        _write_sidecar(cache, {"format": FORMAT, "stamp": stamp, "cpu": _cpu(), "file": name,
+                               "prebuilt": PREBUILT_CPU, "exports": meta["exports"]})  # fmt: skip
+        return True
+    except (OSError, ValueError, KeyError, TypeError, EOFError, lzma.LZMAError):
+        return False
+
+
+def pack_prebuilt(package: Path, fingerprint: dict[str, str]) -> Path:
+    """Write the module built in the package's ``__pycache__`` (for :data:`PREBUILT_CPU`) and
+    its exports into the package's ``prebuilt/`` folder for this ``fingerprint``; returns the
+    folder. Raises ValueError where the module there was built for another CPU."""
+    meta = sidecar(package)
+    if meta.get("target") != PREBUILT_CPU:
+        raise ValueError(f"the module in __pycache__ is built for {meta.get('target')}")
+    out = package / PREBUILT
+    out.mkdir(exist_ok=True)
+    name = "kernels.so.xz"
+    tmp = out / f"{name}.{os.getpid()}.tmp"
+    with open(package / "__pycache__" / meta["file"], "rb") as src:
+        tmp.write_bytes(lzma.compress(src.read(), preset=9))
+    tmp.replace(out / name)
+    _write_sidecar(out, {"format": FORMAT, "fingerprint": fingerprint, "target": PREBUILT_CPU,
+                         "file": name, "exports": meta["exports"]})  # fmt: skip
+    return out
+
+
+def _write_sidecar(folder: Path, meta: dict[str, Any]) -> None:
+    tmp = folder / f"{SIDECAR}.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(meta), encoding="utf-8")
+    tmp.replace(folder / SIDECAR)
+
+
 def load(package: Path, stamp: str) -> dict[str, list[Loaded]] | None:
     """The exports of the module built for this stamp and CPU, by kernel ("module:qualname"),
     without their checks (:func:`checked`); None when there is none (not built, stale, built
     elsewhere or failing to load)."""
     try:
-        meta = json.loads((package / "__pycache__" / SIDECAR).read_text(encoding="utf-8"))
+        meta = sidecar(package)
         if (meta.get("format"), meta.get("stamp"), meta.get("cpu")) != (FORMAT, stamp, _cpu()):
             return None
         path = package / "__pycache__" / meta["file"]
@@ -220,10 +309,13 @@ def _entries(dispatchers: Iterable[tuple[str, Any]]) -> list[tuple[str, Any, Any
     return out
 
 
-def build(package: Path, stamp: str, dispatchers: Iterable[tuple[str, Any]]) -> int:
+def build(
+    package: Path, stamp: str, dispatchers: Iterable[tuple[str, Any]], target: str | None = None
+) -> int:
     """Compile the specializations of these (key, numba dispatcher) pairs that this process
-    has compiled into the extension module for this CPU and write its sidecar; returns how
-    many exports. Raises (anything numba.pycc or the C compiler raise) when it cannot."""
+    has compiled into the extension module for this CPU (or for LLVM's CPU ``target``, which
+    this one must run) and write its sidecar; returns how many exports. Raises (anything
+    numba.pycc or the C compiler raise) when it cannot."""
     from llvmlite import binding
 
     with warnings.catch_warnings():  # pending deprecation since numba 0.57, no replacement yet
@@ -247,7 +339,7 @@ def build(package: Path, stamp: str, dispatchers: Iterable[tuple[str, Any]]) -> 
         cc = CC(MODULE)
         cc.output_dir = str(work)
         cc.verbose = False
-        cc.target_cpu = binding.get_host_cpu_name()
+        cc.target_cpu = target or binding.get_host_cpu_name()
         meta_exports = []
         for i, (key, disp, sig, specs) in enumerate(entries):
             passed = [t for t, s in zip(sig.args, specs) if s["k"] != "o"]
@@ -269,11 +361,8 @@ def build(package: Path, stamp: str, dispatchers: Iterable[tuple[str, Any]]) -> 
         tmp = cache / f"{name}.{os.getpid()}.tmp"
         shutil.copyfile(built, tmp)
         tmp.replace(cache / name)  # a new name: a process holding the old one is unaffected
-        meta = {"format": FORMAT, "stamp": stamp, "cpu": _cpu(), "file": name,
-                "exports": meta_exports}  # fmt: skip
-        side = cache / f"{SIDECAR}.{os.getpid()}.tmp"
-        side.write_text(json.dumps(meta), encoding="utf-8")
-        side.replace(cache / SIDECAR)
+        _write_sidecar(cache, {"format": FORMAT, "stamp": stamp, "cpu": _cpu(), "file": name,
+                               "target": cc.target_cpu, "exports": meta_exports})  # fmt: skip
         for old in cache.glob("kernels-*"):
             if old.name != name and not old.name.endswith(".tmp"):
                 old.unlink(missing_ok=True)

@@ -1,7 +1,8 @@
 """Compiled numeric kernels: one place that decides how they are compiled and called.
 
 A kernel is a nopython function compiled by numba (``@kernel``). Where the installer has built
-the ahead-of-time module for the current sources (:mod:`pipe_nav_core.aot`), a kernel called
+the ahead-of-time module for the current sources, or the package's prebuilt one fits them and
+this machine (:mod:`pipe_nav_core.aot`; installed on the first import), a kernel called
 from Python runs its AOT export and numba is not even imported; a call that no export fits
 (argument types the installer never saw, or a kernel Python never called there) turns the
 whole process to numba's just-in-time kernels, cached on disk (:func:`to_jit`). The results
@@ -124,6 +125,23 @@ def _package_stamp() -> str:
     except OSError:  # a read-only install: analysed in every process
         pass
     return digest(sources)
+
+
+def fingerprint() -> dict[str, str]:
+    """What a prebuilt AOT module must have been built from to serve here (aot.install_prebuilt):
+    the digest of the contents of the kernels' source files and of the warm-up (which chooses
+    the exports), the interpreter's extension-module suffix, and numba's, llvmlite's and
+    NumPy's versions (read from their metadata: numba is not imported)."""
+    import sysconfig
+    from importlib import metadata
+
+    h = hashlib.sha256()
+    for p in [*_kernel_sources(), _PACKAGE / "warmup.py"]:
+        h.update(f"{p.relative_to(_PACKAGE).as_posix()}:".encode())
+        h.update(hashlib.sha256(p.read_bytes()).digest())
+    versions = {name: metadata.version(name) for name in ("numba", "llvmlite", "numpy")}
+    return {"sources": h.hexdigest(), "abi": str(sysconfig.get_config_var("EXT_SUFFIX")),
+            **versions}  # fmt: skip
 
 
 def _install_package_locators() -> None:
@@ -261,11 +279,32 @@ JIT_REASON: str | None = None  # why this process runs numba's JIT kernels (None
 
 
 def _load_exports() -> dict[str, list[aot.Loaded]] | None:
-    return None if FORCED_JIT else aot.load(_PACKAGE, _package_stamp())
+    """The AOT module's exports for these sources: the module built here, else the package's
+    prebuilt one where it fits (installed first), else None."""
+    if FORCED_JIT:
+        return None
+    stamp = _package_stamp()
+    exports = aot.load(_PACKAGE, stamp)
+    if exports is None:
+        try:
+            if aot.install_prebuilt(_PACKAGE, stamp, fingerprint()):
+                exports = aot.load(_PACKAGE, stamp)
+        except Exception:  # a package's metadata or a source unreadable, ...: compile instead
+            return None
+    return exports
+
+
+def _prebuilt_loaded() -> bool:
+    try:
+        return bool(aot.sidecar(_PACKAGE).get("prebuilt"))
+    except (OSError, ValueError):
+        return False
 
 
 _EXPORTS = _load_exports()
 AOT_LOADED = _EXPORTS is not None  # this process started on the AOT module
+# ... and that module is the package's prebuilt one, made for exactly these sources
+AOT_PREBUILT = AOT_LOADED and _prebuilt_loaded()
 if _EXPORTS is None:
     JIT_REASON = "no ahead-of-time module for these sources"
 
@@ -319,9 +358,10 @@ def kernel(func: Callable[..., Any] | None = None, *, nogil: bool = False) -> An
     return _compile(func, nogil, njit)
 
 
-def build_aot() -> int:
+def build_aot(target: str | None = None) -> int:
     """Build the AOT module from the kernels this process has compiled with numba (run the
-    work first: pipe_nav_core.warmup does); returns the number of exports."""
+    work first: pipe_nav_core.warmup does), for this CPU or LLVM's CPU ``target``; returns the
+    number of exports."""
     from numba.core.registry import CPUDispatcher
 
     found = {}
@@ -331,4 +371,4 @@ def build_aot() -> int:
         for value in list(vars(module).values()):
             if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name:
                 found[f"{name}:{value.py_func.__qualname__}"] = value
-    return aot.build(_PACKAGE, _package_stamp(), sorted(found.items()))
+    return aot.build(_PACKAGE, _package_stamp(), sorted(found.items()), target)

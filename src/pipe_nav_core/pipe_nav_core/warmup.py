@@ -8,7 +8,9 @@ declares itself ready, so it follows a bag from its first message.
 
 The ahead-of-time module is then built by a fresh process that finds every kernel in numba's
 cache (:func:`_build_aot`): it exports the kernels Python calls, not those only other kernels
-call (already in their callers' code), and is built in half the time.
+call (already in their callers' code), and is built in half the time. Where the package's
+prebuilt module fits (:func:`pipe_nav_core.aot.install_prebuilt`) none of this is needed:
+``--prebuild`` makes it, and must be run again after any change to a kernel or to this file.
 """
 
 from __future__ import annotations
@@ -120,9 +122,13 @@ def _marker() -> Path:
 def is_warm() -> bool:
     """Whether every kernel has been compiled for the package's current sources, and the
     ahead-of-time module built or found not buildable (a marker beside the package holds the
-    kernels' source stamp and the AOT outcome once :func:`ensure_warm` has run)."""
+    kernels' source stamp and the AOT outcome once :func:`ensure_warm` has run), or the
+    package's prebuilt module serves (nothing to compile: a kernel Python calls with types it
+    does not export is compiled when called)."""
     from pipe_nav_core import jit
 
+    if jit.AOT_PREBUILT:  # the package's prebuilt module, made from these very sources
+        return True
     try:
         stamp, _, aot = _marker().read_text(encoding="utf-8").partition("\n")
     except OSError:
@@ -226,6 +232,22 @@ def _build_from_cache() -> int:
     return 0
 
 
+def prebuild() -> int:
+    """``--prebuild`` (for maintainers, after a change to a kernel, to the warm-up or to the
+    pinned numba, llvmlite or NumPy): build the AOT module for :data:`aot.PREBUILT_CPU` from
+    the kernels in numba's cache and write it into the package's ``prebuilt/`` folder, which
+    a fresh install then takes instead of compiling. Run it in a fresh process after the
+    warm-up, so that the module holds the kernels Python calls only."""
+    from pipe_nav_core import aot, jit
+
+    _compile_every_kernel("the prebuilt module's build")
+    n = jit.build_aot(aot.PREBUILT_CPU)
+    out = aot.pack_prebuilt(jit._PACKAGE, jit.fingerprint())
+    size = sum(f.stat().st_size for f in out.iterdir())
+    print(f"prebuilt {n} exports for {aot.PREBUILT_CPU} into {out} ({size / 1e6:.1f} MB)")
+    return 0
+
+
 def compile_bytecode() -> None:
     """Write the package's bytecode (``__pycache__/*.pyc``) where it is missing or stale.
     Python does not write it itself where PYTHONDONTWRITEBYTECODE is set (as on CI and some
@@ -241,13 +263,15 @@ def compile_bytecode() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m pipe_nav_core.warmup`` (the installers): :func:`compile_bytecode` and
     :func:`ensure_warm`; with ``--build-aot``, :func:`_build_from_cache` (what
-    :func:`ensure_warm` runs)."""
+    :func:`ensure_warm` runs); with ``--prebuild``, :func:`prebuild`."""
     args = list(sys.argv[1:] if argv is None else argv)
     if args == ["--build-aot"]:
         return _build_from_cache()
+    if args == ["--prebuild"]:
+        return prebuild()
     if args:
-        print(f"usage: python -m pipe_nav_core.warmup [--build-aot] (got {' '.join(args)})",
-              file=sys.stderr)  # fmt: skip
+        print(f"usage: python -m pipe_nav_core.warmup [--build-aot | --prebuild] (got "
+              f"{' '.join(args)})", file=sys.stderr)  # fmt: skip
         return 2
     compile_bytecode()
     ensure_warm()

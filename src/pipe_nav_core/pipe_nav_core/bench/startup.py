@@ -5,9 +5,10 @@ Times whole ``pipe-nav`` processes, as a user starts them: ``smooth`` of ``bags/
 into every product and ``info`` of the same bag, each the median of ``--repeat`` runs with the
 kernels compiled (as ``.ci/bootstrap`` leaves them: ahead of time, and numba's JIT cache for
 reference, PIPE_NAV_KERNELS=jit); with ``--cold``, also the first smooth of
-a fresh copy of the package (no compiled kernel: what a user would wait without the bootstrap's
-warm-up). Prints a Markdown table: wall seconds and the ratio to the bag's duration (x real
-time). Wall times are noisy on a shared machine: run it on a quiet one.
+a fresh copy of the package (no compiled kernel: what a user would wait without the bootstrap),
+once with its prebuilt kernels and once without them (compiled in the run). Prints a Markdown
+table: wall seconds and the ratio to the bag's duration (x real time). Wall times are noisy on a
+shared machine: run it on a quiet one.
 """
 
 from __future__ import annotations
@@ -53,11 +54,14 @@ def measure(bag: Path, repeat: int, cold: bool) -> list[tuple[str, float, float]
                           "--quiet"], env)  # fmt: skip
 
         if cold:
-            fresh = Path(tmp) / "fresh"
             src = Path(__file__).resolve().parents[1]  # the package
-            shutil.copytree(src, fresh / src.name, ignore=shutil.ignore_patterns("__pycache__"))
-            env = {**os.environ, "PYTHONPATH": str(fresh)}
-            rows.append(("smooth, fresh install (kernels compiled in the run)", smooth(env)))
+            for what, leave_out in (("the prebuilt kernels installed", ()),
+                                    ("kernels compiled in the run", ("prebuilt",))):  # fmt: skip
+                fresh = Path(tmp) / f"fresh{len(rows)}"
+                skip = shutil.ignore_patterns("__pycache__", *leave_out)
+                shutil.copytree(src, fresh / src.name, ignore=skip)
+                env = {**os.environ, "PYTHONPATH": str(fresh)}
+                rows.append((f"smooth, fresh install ({what} in the run)", smooth(env)))
         smooth()  # the kernels loaded once, as after the bootstrap
         jit_env = {**os.environ, "PIPE_NAV_KERNELS": "jit"}
         walls, jit_walls = [], []
