@@ -77,7 +77,9 @@ def test_only_layout_and_write_flag_are_coerced():
     assert aot.coerced((np.zeros(3), 1.0), specs) is None
 
 
-def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
+def _toy(tmp_path: Path) -> tuple:
+    """A toy numba kernel called with a float64 array, that array, the kernel's result, and an
+    empty ``__pycache__`` in tmp_path (a package) to build its module into."""
     _skip_without_a_compiler()
     from numba import njit
 
@@ -86,21 +88,30 @@ def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
         return x * k, np.sum(x)
 
     x = np.arange(4.0)
-    want = scaled(x, 2.5)
-    scaled(np.arange(4), 2.5)  # an int64 specialization too
     (tmp_path / "__pycache__").mkdir()
-    assert aot.build(tmp_path, "stamp", [("toy:scaled", scaled)]) == 2
-    exports = aot.load(tmp_path, "stamp")
-    assert exports is not None and len(exports["toy:scaled"]) == 2
-    assert aot.load(tmp_path, "another stamp") is None
+    return scaled, x, scaled(x, 2.5)
+
+
+def _ran(loaded: list, x: np.ndarray, want: tuple) -> int:
+    """How many of a kernel's exports take (x, 2.5); each that does must give want."""
     ran = 0
-    for check, fn, _, _ in aot.checked(exports["toy:scaled"]):
+    for check, fn, _, _ in aot.checked(loaded):
         if check(x, 2.5):
             got = fn(x, 2.5)
             np.testing.assert_array_equal(got[0], want[0])
             assert got[1] == want[1]
             ran += 1
-    assert ran == 1
+    return ran
+
+
+def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
+    scaled, x, want = _toy(tmp_path)
+    scaled(np.arange(4), 2.5)  # an int64 specialization too
+    assert aot.build(tmp_path, "stamp", [("toy:scaled", scaled)]) == 2
+    exports = aot.load(tmp_path, "stamp")
+    assert exports is not None and len(exports["toy:scaled"]) == 2
+    assert aot.load(tmp_path, "another stamp") is None
+    assert _ran(exports["toy:scaled"], x, want) == 1
 
 
 FITTING_FLAGS = aot._PREBUILT_FLAGS | {"sse", "sse2"}
@@ -110,16 +121,7 @@ def test_a_prebuilt_module_is_installed_only_where_it_fits(tmp_path, monkeypatch
     """A toy module built for aot.PREBUILT_CPU, packed as the package's prebuilt one, then
     installed into a package without any module: it runs where the fingerprint and the CPU
     fit, and is left alone, nothing written, where either does not or the file is damaged."""
-    _skip_without_a_compiler()
-    from numba import njit
-
-    @njit
-    def scaled(x, k):  # noqa: ANN001, ANN202
-        return x * k, np.sum(x)
-
-    x = np.arange(4.0)
-    want = scaled(x, 2.5)
-    (tmp_path / "__pycache__").mkdir()
+    scaled, x, want = _toy(tmp_path)
     assert aot.build(tmp_path, "stamp", [("toy:scaled", scaled)], aot.PREBUILT_CPU) == 1
     fp = {"sources": "abc", "abi": "".join(next(tmp_path.glob("__pycache__/kernels-*")).suffixes),
           "numba": "1", "llvmlite": "2", "numpy": "3"}  # fmt: skip
@@ -140,11 +142,7 @@ def test_a_prebuilt_module_is_installed_only_where_it_fits(tmp_path, monkeypatch
     assert aot.sidecar(tmp_path)["prebuilt"] == aot.PREBUILT_CPU
     exports = aot.load(tmp_path, "fresh")
     assert exports is not None and aot.load(tmp_path, "stamp") is None
-    ((check, fn, _, _),) = aot.checked(exports["toy:scaled"])
-    assert check(x, 2.5)
-    got = fn(x, 2.5)
-    np.testing.assert_array_equal(got[0], want[0])
-    assert got[1] == want[1]
+    assert _ran(exports["toy:scaled"], x, want) == 1
 
 
 def _pins() -> dict[str, str]:
