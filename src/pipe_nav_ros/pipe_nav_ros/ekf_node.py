@@ -20,8 +20,9 @@ then restart (used at the end of a bag replay).
 All estimator settings are parameters (config/ekf.yaml); invalid values stop the node at start
 with a message naming the parameter (exit status 2), and are refused when set at run time.
 
-Start-up: the numeric kernels are compiled (first run after an install: minutes) or loaded from
-their cache (about 1-2 s) by running the live filter over a short simulated run
+Start-up: the numeric kernels are loaded (about 1-2 s, from the prebuilt or installed module or
+numba's cache) or compiled (the first run after an install the prebuilt ones do not fit:
+minutes) by running the live filter over a short simulated run
 (:func:`pipe_nav_core.warmup.warm_live`) BEFORE the subscriptions exist and "ready" is logged,
 so that the first message is processed at once. Each input message is handled in its callback,
 together with every message already waiting on the inputs, in stamp order; the estimates they
@@ -77,8 +78,8 @@ def warm_kernels(log: Callable[[str], None]) -> float:
         log(f"numeric kernels already loaded in this process ({_KERNELS_READY_S:.1f} s)")
         return 0.0
     log(
-        "loading the numeric kernels (compiled once per install: minutes on a fresh one, "
-        "then about a second from the cache)"
+        "loading the numeric kernels (about a second; where no prebuilt or compiled ones "
+        "fit this install, compiling them first takes minutes)"
     )
     taken = warm_live()
     _KERNELS_READY_S = taken

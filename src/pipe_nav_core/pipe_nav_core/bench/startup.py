@@ -56,7 +56,7 @@ def measure(bag: Path, repeat: int, cold: bool) -> list[tuple[str, float, float]
         if cold:
             src = Path(__file__).resolve().parents[1]  # the package
             for what, leave_out in (("the prebuilt kernels installed", ()),
-                                    ("kernels compiled in the run", ("prebuilt",))):  # fmt: skip
+                                    ("the kernels compiled", ("prebuilt",))):  # fmt: skip
                 fresh = Path(tmp) / f"fresh{len(rows)}"
                 skip = shutil.ignore_patterns("__pycache__", *leave_out)
                 shutil.copytree(src, fresh / src.name, ignore=skip)
