@@ -127,18 +127,25 @@ def test_a_prebuilt_module_is_installed_only_where_it_fits(tmp_path, monkeypatch
           "numba": "1", "llvmlite": "2", "numpy": "3"}  # fmt: skip
     out = aot.pack_prebuilt(tmp_path, fp)
     shutil.rmtree(tmp_path / "__pycache__")
-    monkeypatch.setattr(aot, "_cpu_flags", lambda: FITTING_FLAGS - {"avx2"})
-    assert not aot.install_prebuilt(tmp_path, "fresh", fp)  # a CPU without AVX2
+    monkeypatch.setattr(aot, "_cpu_flags", lambda: FITTING_FLAGS - {"avx2", "fma"})
+    assert aot.install_prebuilt(tmp_path, "fresh", fp) == (
+        "this CPU lacks avx2 fma, which x86-64-v3 code needs"
+    )
     monkeypatch.setattr(aot, "_cpu_flags", lambda: FITTING_FLAGS)
-    assert not aot.install_prebuilt(tmp_path, "fresh", {**fp, "numba": "1.1"})
-    assert not aot.install_prebuilt(tmp_path, "fresh", {**fp, "sources": "abd"})
+    assert aot.install_prebuilt(tmp_path, "fresh", {**fp, "numba": "1.1"}) == (
+        "they are built for numba 1, this install has 1.1"
+    )
+    assert aot.install_prebuilt(tmp_path, "fresh", {**fp, "sources": "abd"}) == (
+        "the kernels' sources have changed since they were built"
+    )
     assert not (tmp_path / "__pycache__").exists() or not any((tmp_path / "__pycache__").iterdir())
     packed = (out / "kernels.so.xz").read_bytes()
     (out / "kernels.so.xz").write_bytes(packed[: len(packed) // 2])  # damaged
-    assert not aot.install_prebuilt(tmp_path, "fresh", fp)
+    assert aot.install_prebuilt(tmp_path, "fresh", fp).startswith("installing them failed (EOF")
     assert [p.name for p in (tmp_path / "__pycache__").iterdir()] == []  # nothing half-written
     (out / "kernels.so.xz").write_bytes(packed)
-    assert aot.install_prebuilt(tmp_path, "fresh", fp)
+    assert aot.install_prebuilt(tmp_path / "elsewhere", "fresh", fp) == "the package has none"
+    assert aot.install_prebuilt(tmp_path, "fresh", fp) is None
     assert aot.sidecar(tmp_path)["prebuilt"] == aot.PREBUILT_CPU
     exports = aot.load(tmp_path, "fresh")
     assert exports is not None and aot.load(tmp_path, "stamp") is None
@@ -185,6 +192,7 @@ import json, sys
 from pipe_nav_core import jit
 from pipe_nav_core.geo import earth
 print(json.dumps({"prebuilt": jit.AOT_PREBUILT, "jit": jit.JIT_REASON, "file": jit.__file__,
+                  "misfit": jit.PREBUILT_MISFIT,
                   "numba": "numba" in sys.modules, "g": float(earth._gravity(0.7, 100.0))}))
 """
     r = _python(code, PYTHONPATH=str(tmp_path))
@@ -192,10 +200,11 @@ print(json.dumps({"prebuilt": jit.AOT_PREBUILT, "jit": jit.JIT_REASON, "file": j
     prebuilt = json.loads((jit._PACKAGE / aot.PREBUILT / aot.SIDECAR).read_text(encoding="utf-8"))
     fits = jit.fingerprint() == prebuilt["fingerprint"] and aot._cpu_flags() >= aot._PREBUILT_FLAGS
     if fits:
-        assert r["prebuilt"] and r["jit"] is None and not r["numba"]
+        assert r["prebuilt"] and r["jit"] is None and not r["numba"] and r["misfit"] is None
         assert (tmp_path / "pipe_nav_core" / "__pycache__" / aot.SIDECAR).is_file()
     else:
         assert not r["prebuilt"] and r["jit"] == "no ahead-of-time module for these sources"
+        assert r["misfit"]  # and it is said why
     from pipe_nav_core.geo import earth
 
     assert r["g"] == float(earth._gravity(0.7, 100.0))

@@ -15,10 +15,13 @@ def test_ensure_warm_compiles_once_and_says_so(tmp_path, monkeypatch):
     from pipe_nav_core import jit
 
     monkeypatch.setattr(jit, "AOT_PREBUILT", False)  # no prebuilt module: the kernels compiled
+    monkeypatch.setattr(jit, "PREBUILT_MISFIT", "they are built for numba 0.1, this has 0.2")
     said: list[str] = []
     assert not warmup.is_warm()
     assert warmup.ensure_warm(said.append) is True
     assert len(said) == 2 and "compiling" in said[0] and "kernels ready in" in said[1]
+    assert said[0].endswith("; the prebuilt ones do not serve: they are built for numba 0.1, "
+                            "this has 0.2)")  # fmt: skip
     assert warmup.is_warm() and marker.is_file()
     said.clear()
     assert warmup.ensure_warm(said.append) is False and said == []

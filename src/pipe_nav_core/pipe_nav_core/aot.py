@@ -161,18 +161,39 @@ def _cpu_flags() -> frozenset[str]:
     return frozenset()
 
 
-def install_prebuilt(package: Path, stamp: str, fingerprint: dict[str, str]) -> bool:
+def _misfit(meta: dict[str, Any], fingerprint: dict[str, str]) -> str | None:
+    """Why a prebuilt module with this sidecar cannot serve an install of this ``fingerprint``
+    on this CPU, in words for its user; None where it can."""
+    theirs = meta.get("fingerprint") or {}
+    if meta.get("format") != FORMAT or meta.get("target") != PREBUILT_CPU:
+        return "they are of another format"
+    for key, what in (("abi", "Python"), ("numba", "numba"), ("llvmlite", "llvmlite"),
+                      ("numpy", "NumPy")):  # fmt: skip
+        if theirs.get(key) != fingerprint[key]:
+            return (
+                f"they are built for {what} {theirs.get(key)}, this install has {fingerprint[key]}"
+            )
+    if theirs.get("sources") != fingerprint["sources"]:
+        return "the kernels' sources have changed since they were built"
+    if missing := _PREBUILT_FLAGS - _cpu_flags():
+        return f"this CPU lacks {' '.join(sorted(missing))}, which {PREBUILT_CPU} code needs"
+    return None
+
+
+def install_prebuilt(package: Path, stamp: str, fingerprint: dict[str, str]) -> str | None:
     """Install the package's prebuilt module as the module of this ``stamp``, where it was built
     for exactly this ``fingerprint`` (the kernels' source digest, the interpreter's extension
-    suffix, numba's, llvmlite's and NumPy's versions) and this CPU runs its code; True if it
-    did. The module and its sidecar are written under new names and then renamed into place,
-    so nothing is left half-written."""
+    suffix, numba's, llvmlite's and NumPy's versions) and this CPU runs its code. None once
+    installed; else why not, in words for the user (nothing then written). The module and its
+    sidecar are written under new names and then renamed into place, so nothing is left
+    half-written."""
     try:
         meta = json.loads((package / PREBUILT / SIDECAR).read_text(encoding="utf-8"))
-        if meta.get("format") != FORMAT or meta.get("fingerprint") != fingerprint:
-            return False
-        if meta.get("target") != PREBUILT_CPU or not _cpu_flags() >= _PREBUILT_FLAGS:
-            return False
+    except (OSError, ValueError):
+        return "the package has none"
+    try:
+        if why := _misfit(meta, fingerprint):
+            return why
         cache = package / "__pycache__"
         cache.mkdir(exist_ok=True)
         name = f"kernels-{stamp[:16]}{fingerprint['abi']}"
@@ -185,9 +206,9 @@ def install_prebuilt(package: Path, stamp: str, fingerprint: dict[str, str]) -> 
             tmp.unlink(missing_ok=True)
         _write_sidecar(cache, {"format": FORMAT, "stamp": stamp, "cpu": _cpu(), "file": name,
                                "prebuilt": PREBUILT_CPU, "exports": meta["exports"]})  # fmt: skip
-        return True
-    except (OSError, ValueError, KeyError, TypeError, EOFError, lzma.LZMAError):
-        return False
+        return None
+    except (OSError, ValueError, KeyError, TypeError, EOFError, lzma.LZMAError) as exc:
+        return f"installing them failed ({type(exc).__name__}: {exc})"
 
 
 def pack_prebuilt(package: Path, fingerprint: dict[str, str]) -> Path:

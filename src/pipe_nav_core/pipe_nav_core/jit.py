@@ -276,6 +276,7 @@ class AotKernel:
 _KERNELS: list[AotKernel] = []
 _SWITCH = threading.Lock()
 JIT_REASON: str | None = None  # why this process runs numba's JIT kernels (None: AOT)
+PREBUILT_MISFIT: str | None = None  # why the package's prebuilt module was not installed here
 
 
 def _load_exports() -> dict[str, list[aot.Loaded]] | None:
@@ -283,14 +284,16 @@ def _load_exports() -> dict[str, list[aot.Loaded]] | None:
     prebuilt one where it fits (installed first), else None."""
     if FORCED_JIT:
         return None
+    global PREBUILT_MISFIT
     stamp = _package_stamp()
     exports = aot.load(_PACKAGE, stamp)
     if exports is None:
         try:
-            if aot.install_prebuilt(_PACKAGE, stamp, fingerprint()):
-                exports = aot.load(_PACKAGE, stamp)
-        except Exception:  # a package's metadata or a source unreadable, ...: compile instead
-            return None
+            PREBUILT_MISFIT = aot.install_prebuilt(_PACKAGE, stamp, fingerprint())
+        except Exception as exc:  # a package's metadata or a source unreadable, ...
+            PREBUILT_MISFIT = f"{type(exc).__name__}: {exc}"
+        if PREBUILT_MISFIT is None:
+            exports = aot.load(_PACKAGE, stamp)
     return exports
 
 

@@ -147,9 +147,12 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     from pipe_nav_core import jit
 
     tell = say or (lambda m: print(m, file=sys.stderr, flush=True))
+    unfit = (
+        f"; the prebuilt ones do not serve: {jit.PREBUILT_MISFIT}" if jit.PREBUILT_MISFIT else ""
+    )
     tell(
-        "pipe_nav_core: preparing the numeric kernels for this install (once; compiling "
-        "them takes 4 to 7 minutes on a 2-core machine)"
+        "pipe_nav_core: preparing the numeric kernels for this install (once; compiling them "
+        f"takes 4 to 7 minutes on a 2-core machine{unfit})"
     )
     t0 = time.perf_counter()
     _compile_every_kernel("the warm-up compiles every kernel and builds the AOT module from them")
