@@ -208,6 +208,22 @@ print(json.dumps({"prebuilt": jit.AOT_PREBUILT, "jit": jit.JIT_REASON, "file": j
     from pipe_nav_core.geo import earth
 
     assert r["g"] == float(earth._gravity(0.7, 100.0))
+    said = _version(tmp_path)
+    assert said.startswith("pipe-nav ") and ("kernels prebuilt for x86-64-v3" in said) is fits
+    # a kernel's source edited in that copy: the prebuilt module no longer serves, and is said so
+    with open(tmp_path / "pipe_nav_core" / "geo" / "earth.py", "a", encoding="utf-8") as f:
+        f.write("\n# edited\n")
+    assert _version(tmp_path).endswith(
+        "the prebuilt ones do not serve: the kernels' sources have changed since they were built)"
+    )
+
+
+def _version(where: Path) -> str:
+    """``pipe-nav --version`` of the package copied into ``where``."""
+    out = subprocess.run([sys.executable, "-m", "pipe_nav_core.app.cli", "--version"],
+                         env={**os.environ, "PYTHONPATH": str(where)}, capture_output=True,
+                         text=True, timeout=120, check=True)  # fmt: skip
+    return out.stdout.strip()
 
 
 def _aot_built() -> bool:

@@ -93,10 +93,42 @@ def _add_runs_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _kernels_in_use() -> str:
+    """Which numeric kernels this install runs, and why (for ``--version``)."""
+    from pipe_nav_core import aot, jit
+
+    if jit.AOT_PREBUILT:
+        return f"kernels prebuilt for {aot.PREBUILT_CPU}, ahead of time"
+    if jit.AOT_LOADED:
+        return "kernels built on this machine, ahead of time"
+    why = "PIPE_NAV_KERNELS=jit" if jit.FORCED_JIT else jit.JIT_REASON
+    if jit.PREBUILT_MISFIT:
+        why = f"{why}; the prebuilt ones do not serve: {jit.PREBUILT_MISFIT}"
+    return f"numba's just-in-time kernels: {why}"
+
+
+class _Version(argparse.Action):
+    """``--version``: the package's version and the kernels in use on stdout, then exit 0."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kw: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="the version and the kernels in use")
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> NoReturn:
+        from importlib import metadata
+
+        try:
+            version = metadata.version("pipe_nav_core")
+        except metadata.PackageNotFoundError:  # imported from a folder, not installed
+            version = "(not installed)"
+        print(f"pipe-nav {version} ({_kernels_in_use()})", flush=True)
+        parser.exit(0)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="pipe-nav", description="Pipeline pig navigation (ROS-free core).")
     ap.add_argument("--debug", action="store_true",
                     help="on an error, the Python traceback instead of one line")  # fmt: skip
+    ap.add_argument("--version", action=_Version)
     sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("smooth", help="smooth a recorded bag into a centreline")
