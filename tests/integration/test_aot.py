@@ -108,10 +108,11 @@ def test_a_toy_kernel_builds_loads_and_runs_its_export(tmp_path):
     scaled, x, want = _toy(tmp_path)
     scaled(np.arange(4), 2.5)  # an int64 specialization too
     assert aot.build(tmp_path, "stamp", [("toy:scaled", scaled)]) == 2
-    exports = aot.load(tmp_path, "stamp")
-    assert exports is not None and len(exports["toy:scaled"]) == 2
+    module = aot.load(tmp_path, "stamp")
+    assert module is not None and len(module.exports["toy:scaled"]) == 2
+    assert module.prebuilt is None  # built here
     assert aot.load(tmp_path, "another stamp") is None
-    assert _ran(exports["toy:scaled"], x, want) == 1
+    assert _ran(module.exports["toy:scaled"], x, want) == 1
 
 
 FITTING_FLAGS = aot._PREBUILT_FLAGS | {"sse", "sse2"}
@@ -146,10 +147,10 @@ def test_a_prebuilt_module_is_installed_only_where_it_fits(tmp_path, monkeypatch
     (out / "kernels.so.xz").write_bytes(packed)
     assert aot.install_prebuilt(tmp_path / "elsewhere", "fresh", fp) == "the package has none"
     assert aot.install_prebuilt(tmp_path, "fresh", fp) is None
-    assert aot.sidecar(tmp_path)["prebuilt"] == aot.PREBUILT_CPU
-    exports = aot.load(tmp_path, "fresh")
-    assert exports is not None and aot.load(tmp_path, "stamp") is None
-    assert _ran(exports["toy:scaled"], x, want) == 1
+    module = aot.load(tmp_path, "fresh")
+    assert module is not None and module.prebuilt == aot.PREBUILT_CPU
+    assert aot.load(tmp_path, "stamp") is None
+    assert _ran(module.exports["toy:scaled"], x, want) == 1
 
 
 def _pins() -> dict[str, str]:

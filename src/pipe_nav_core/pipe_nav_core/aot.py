@@ -33,7 +33,7 @@ import tempfile
 import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,6 +50,14 @@ _PREBUILT_FLAGS = frozenset(
 Check = Callable[..., bool]
 Loaded = tuple[Callable[..., Any], int, list[dict[str, Any]]]  # fn, arity, specs
 Export = tuple[Check, Callable[..., Any], int, list[dict[str, Any]]]  # check, fn, arity, specs
+
+
+class Module(NamedTuple):
+    """A loaded module: its exports by kernel ("module:qualname"), without their checks
+    (:func:`checked`), and the target it was prebuilt for (None: built on this machine)."""
+
+    exports: dict[str, list[Loaded]]
+    prebuilt: str | None
 
 
 def _cpu() -> str:
@@ -140,7 +148,7 @@ def checked(loaded: list[Loaded]) -> list[Export]:
     return [(_checker(specs), fn, arity, specs) for fn, arity, specs in loaded]
 
 
-def sidecar(package: Path) -> dict[str, Any]:
+def _sidecar(package: Path) -> dict[str, Any]:
     """The sidecar of the module in the package's ``__pycache__`` (raises OSError or ValueError
     where there is none or it is unreadable)."""
     meta = json.loads((package / "__pycache__" / SIDECAR).read_text(encoding="utf-8"))
@@ -215,7 +223,7 @@ def pack_prebuilt(package: Path, fingerprint: dict[str, str]) -> Path:
     """Write the module built in the package's ``__pycache__`` (for :data:`PREBUILT_CPU`) and
     its exports into the package's ``prebuilt/`` folder for this ``fingerprint``; returns the
     folder. Raises ValueError where the module there was built for another CPU."""
-    meta = sidecar(package)
+    meta = _sidecar(package)
     if meta.get("target") != PREBUILT_CPU:
         raise ValueError(f"the module in __pycache__ is built for {meta.get('target')}")
     out = package / PREBUILT
@@ -236,12 +244,11 @@ def _write_sidecar(folder: Path, meta: dict[str, Any]) -> None:
     tmp.replace(folder / SIDECAR)
 
 
-def load(package: Path, stamp: str) -> dict[str, list[Loaded]] | None:
-    """The exports of the module built for this stamp and CPU, by kernel ("module:qualname"),
-    without their checks (:func:`checked`); None when there is none (not built, stale, built
-    elsewhere or failing to load)."""
+def load(package: Path, stamp: str) -> Module | None:
+    """The module built (or the prebuilt one installed) for this stamp and CPU; None when there
+    is none (not built, stale, built elsewhere or failing to load)."""
     try:
-        meta = sidecar(package)
+        meta = _sidecar(package)
         if (meta.get("format"), meta.get("stamp"), meta.get("cpu")) != (FORMAT, stamp, _cpu()):
             return None
         path = package / "__pycache__" / meta["file"]
@@ -256,7 +263,7 @@ def load(package: Path, stamp: str) -> dict[str, list[Loaded]] | None:
         for e in meta["exports"]:
             fn = getattr(module, e["symbol"])
             exports.setdefault(e["kernel"], []).append((fn, len(e["args"]), e["args"]))
-        return exports
+        return Module(exports, meta.get("prebuilt"))
     except (OSError, ValueError, KeyError, ImportError, AttributeError, SyntaxError):
         return None
 

@@ -279,35 +279,30 @@ JIT_REASON: str | None = None  # why this process runs numba's JIT kernels (None
 PREBUILT_MISFIT: str | None = None  # why the package's prebuilt module was not installed here
 
 
-def _load_exports() -> dict[str, list[aot.Loaded]] | None:
-    """The AOT module's exports for these sources: the module built here, else the package's
-    prebuilt one where it fits (installed first), else None."""
+def _load_module() -> aot.Module | None:
+    """The AOT module for these sources: the module built here, else the package's prebuilt one
+    where it fits (installed first), else None."""
     if FORCED_JIT:
         return None
     global PREBUILT_MISFIT
     stamp = _package_stamp()
-    exports = aot.load(_PACKAGE, stamp)
-    if exports is None:
+    module = aot.load(_PACKAGE, stamp)
+    if module is None:
         try:
             PREBUILT_MISFIT = aot.install_prebuilt(_PACKAGE, stamp, fingerprint())
         except Exception as exc:  # a package's metadata or a source unreadable, ...
             PREBUILT_MISFIT = f"{type(exc).__name__}: {exc}"
         if PREBUILT_MISFIT is None:
-            exports = aot.load(_PACKAGE, stamp)
-    return exports
+            module = aot.load(_PACKAGE, stamp)
+    return module
 
 
-def _prebuilt_loaded() -> bool:
-    try:
-        return bool(aot.sidecar(_PACKAGE).get("prebuilt"))
-    except (OSError, ValueError):
-        return False
-
-
-_EXPORTS = _load_exports()
+_MODULE = _load_module()
+_EXPORTS = _MODULE.exports if _MODULE else None
 AOT_LOADED = _EXPORTS is not None  # this process started on the AOT module
 # ... and that module is the package's prebuilt one, made for exactly these sources
-AOT_PREBUILT = AOT_LOADED and _prebuilt_loaded()
+AOT_PREBUILT = bool(_MODULE and _MODULE.prebuilt)
+del _MODULE
 if _EXPORTS is None:
     JIT_REASON = "no ahead-of-time module for these sources"
 

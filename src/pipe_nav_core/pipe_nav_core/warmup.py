@@ -139,6 +139,24 @@ def is_warm() -> bool:
     return jit.AOT_LOADED or jit.FORCED_JIT or aot.startswith("aot: failed")
 
 
+def _unserved(jit: Any) -> str:
+    """ "; the prebuilt ones do not serve: WHY" where the package's prebuilt module was not
+    installed here, else ""."""
+    return f"; the prebuilt ones do not serve: {jit.PREBUILT_MISFIT}" if jit.PREBUILT_MISFIT else ""
+
+
+def kernels_in_use() -> str:
+    """Which numeric kernels this process runs, and why (``pipe-nav --version``)."""
+    from pipe_nav_core import aot, jit
+
+    if jit.AOT_PREBUILT:
+        return f"kernels prebuilt for {aot.PREBUILT_CPU}, ahead of time"
+    if jit.AOT_LOADED:
+        return "kernels built on this machine, ahead of time"
+    why = "PIPE_NAV_KERNELS=jit" if jit.FORCED_JIT else jit.JIT_REASON
+    return f"numba's just-in-time kernels: {why}{_unserved(jit)}"
+
+
 def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     """Compile every kernel unless :func:`is_warm`; ``say`` (default: a line on stderr) is told
     first and after, terminal or not, so no one waits in silence. True if it compiled."""
@@ -147,12 +165,9 @@ def ensure_warm(say: Callable[[str], None] | None = None) -> bool:
     from pipe_nav_core import jit
 
     tell = say or (lambda m: print(m, file=sys.stderr, flush=True))
-    unfit = (
-        f"; the prebuilt ones do not serve: {jit.PREBUILT_MISFIT}" if jit.PREBUILT_MISFIT else ""
-    )
     tell(
         "pipe_nav_core: preparing the numeric kernels for this install (once; compiling them "
-        f"takes 4 to 7 minutes on a 2-core machine{unfit})"
+        f"takes 4 to 7 minutes on a 2-core machine{_unserved(jit)})"
     )
     t0 = time.perf_counter()
     _compile_every_kernel("the warm-up compiles every kernel and builds the AOT module from them")

@@ -93,20 +93,6 @@ def _add_runs_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _kernels_in_use() -> str:
-    """Which numeric kernels this install runs, and why (for ``--version``)."""
-    from pipe_nav_core import aot, jit
-
-    if jit.AOT_PREBUILT:
-        return f"kernels prebuilt for {aot.PREBUILT_CPU}, ahead of time"
-    if jit.AOT_LOADED:
-        return "kernels built on this machine, ahead of time"
-    why = "PIPE_NAV_KERNELS=jit" if jit.FORCED_JIT else jit.JIT_REASON
-    if jit.PREBUILT_MISFIT:
-        why = f"{why}; the prebuilt ones do not serve: {jit.PREBUILT_MISFIT}"
-    return f"numba's just-in-time kernels: {why}"
-
-
 class _Version(argparse.Action):
     """``--version``: the package's version and the kernels in use on stdout, then exit 0."""
 
@@ -120,7 +106,9 @@ class _Version(argparse.Action):
             version = metadata.version("pipe_nav_core")
         except metadata.PackageNotFoundError:  # imported from a folder, not installed
             version = "(not installed)"
-        print(f"pipe-nav {version} ({_kernels_in_use()})", flush=True)
+        from pipe_nav_core.warmup import kernels_in_use
+
+        print(f"pipe-nav {version} ({kernels_in_use()})", flush=True)
         parser.exit(0)
 
 
