@@ -21,7 +21,7 @@ from pipe_nav_core.app.plot_process import PlotProcess
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.background import Background
 from pipe_nav_core.config import AUTO_GRADE, NavConfig
-from pipe_nav_core.faults import quality
+from pipe_nav_core.faults import clock_offset, quality
 from pipe_nav_core.faults.gaps import (
     fill_holes_at_rest,
     fill_short_holes,
@@ -78,14 +78,17 @@ def load_log(
     repair: bool = True,
     ahead: FirstPassAhead | None = None,
     spill_imu_bytes: int | None = None,
+    mount: np.ndarray | None = None,
 ) -> tuple[SensorLog, BagReport]:
     """Read a bag into memory (sorted per topic), leave out saturated IMU samples and shocks
     (imu_faults), re-align its clock steps and name its data gaps (gaps.find_holes; the bag's
-    own markers follow its clock), leave out the readings of a stuck or spiking wheel
-    (odometer_faults), merge the marker CSV. ``repair=False``: the data as recorded (what
-    ekf_node would see; the live guard checks it then). ``ahead``: told the bag's time chunks
-    as they are read, and the log read. ``spill_imu_bytes``: an IMU larger than this is
-    gathered in files as it is read and mapped from them, read-only (io.read_bag)."""
+    own markers follow its clock), re-time an IMU whose clock is offset from the odometer's
+    (clock_offset; ``mount``: (3, 3) imu_link -> base_link, identity if None), leave out the
+    readings of a stuck or spiking wheel (odometer_faults), merge the marker CSV.
+    ``repair=False``: the data as recorded (what ekf_node would see; the live guard checks it
+    then). ``ahead``: told the bag's time chunks as they are read, and the log read.
+    ``spill_imu_bytes``: an IMU larger than this is gathered in files as it is read and mapped
+    from them, read-only (io.read_bag)."""
     # failing: the ahead's context stops it; its pass is one busy thread beside the reading
     workers = read_workers(beside=1) if ahead is not None else None
     log, report = read_bag(bag, topics, pieces=ahead, workers=workers,
@@ -108,6 +111,10 @@ def load_log(
     holes = find_holes(log, short=True)  # what is left: short clock glitches and data gaps
     log = remove_clock_steps(log, holes)
     report.warnings += [h.describe() for h in steps + holes]
+    offset = clock_offset.measure(log, np.eye(3) if mount is None else mount)
+    if offset is not None and (offset.retime or offset.irregular):
+        report.warnings.append(offset.describe())
+        log = clock_offset.retimed(log, offset) if offset.retime else log
     log, faults = without_faults(log, find_odometer_faults(log))
     report.warnings += [f.describe() for f in faults]
     return _with_markers(log, report, markers_csv)
@@ -175,7 +182,8 @@ def smooth_bag(
     with first_pass_ahead(bag, config, method, markers_csv) as ahead:
         say("reading bag")
         log, report = load_log(bag, topics=topics, markers_csv=markers_csv, ahead=ahead,
-                               spill_imu_bytes=smooth_logs.MAP_IMU_BYTES)  # fmt: skip
+                               spill_imu_bytes=smooth_logs.MAP_IMU_BYTES,
+                               mount=imu_mount(config))  # fmt: skip
         require_imu(log, report, bag, topics)
         map_imu(log.imu)  # large: read from a file (mapped as read unless repaired)
         trim_heap(len(log.imu))  # what a long run's reading freed (pieces, temporaries)

@@ -82,6 +82,18 @@ def odometer_spike(log: SensorLog, at: float, size: float, step: bool = False) -
     return replace(log, odometer=replace(o, distance=d))
 
 
+def imu_clock(log: SensorLog, offset: float, ppm: float = 0.0) -> SensorLog:
+    """The IMU (and its magnetometer) stamped on a clock of its own: ``offset`` s late at the
+    first IMU sample, running ``ppm`` parts per million fast from there."""
+    t0 = _t0(log)
+
+    def late(t: np.ndarray) -> np.ndarray:
+        return t + offset + 1e-6 * ppm * (t - t0)
+
+    imu = replace(log.imu, t=late(log.imu.t))
+    return replace(log, imu=imu, mag=replace(log.mag, t=late(log.mag.t)))
+
+
 def marker_moved(log: SensorLog, index: int, east: float, north: float = 0.0) -> SensorLog:
     """Marker ``index`` (in time order) surveyed ``east``/``north`` m off."""
     markers = sorted(log.markers, key=lambda m: m.t)
