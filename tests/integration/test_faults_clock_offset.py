@@ -4,6 +4,7 @@ out; clean runs left as they are; what no offset explains named, nothing moved."
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 from pipe_nav_core.app.outputs import Outputs
 from pipe_nav_core.app.pipeline import load_log, smooth_bag
+from pipe_nav_core.app.replay import estimates_to_trajectory, replay_log
 from pipe_nav_core.bench.evaluation import score
 from pipe_nav_core.config import NavConfig
 from pipe_nav_core.faults import clock_offset
@@ -101,3 +103,22 @@ def test_the_smoothed_run_of_a_late_imu_is_as_good_as_the_clean_one(sample, tmp_
         assert s.inside_3sigma >= 0.95
         errors.append(s.max_h)
     assert errors[1] < errors[0] + 0.01, errors
+
+
+@pytest.mark.parametrize(("late", "state"), [(0.3, "navigating"), (0.6, "lost")])
+def test_the_live_engine_re_times_the_imu_at_the_second_marker(sample, late, state):
+    """ekf_node's engine (pipe-nav replay) measures the clock on the inputs it keeps until the
+    second marker and runs again from the alignment re-timed; an IMU later than its reorder
+    window lets it re-time is named and the solution lost, never a confident wrong answer."""
+    truth = read_centreline_csv(BAGS / "sample.truth.csv")[0]
+    live = replay_log(imu_clock(sample, late), NavConfig())
+    assert live.diagnostics["state"] == state
+    said = re.match(r"IMU clock: its stamps are (\d+) ms later", str(live.diagnostics["imu_clock"]))
+    assert said and abs(int(said[1]) - 1e3 * late) < 30, live.diagnostics["imu_clock"]
+    estimates = estimates_to_trajectory(live.estimates)
+    assert score(estimates, truth).inside_3sigma >= 0.95
+    if state == "lost":
+        assert "more than the reorder window" in str(live.diagnostics["lost_reason"])
+        assert estimates.t[-1] <= live.diagnostics["lost_since"]
+    else:
+        assert live.diagnostics["imu_clock_retimed"] == 1

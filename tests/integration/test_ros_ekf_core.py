@@ -176,6 +176,27 @@ def test_diagnostics_warn_when_the_imu_grade_does_not_fit():
     assert statuses[-1].level == WARN and "imu_grade" in statuses[-1].message
 
 
+def test_diagnostics_warn_of_an_imu_on_a_clock_of_its_own(run, config):
+    """The IMU stamped 0.3 s late: re-timed at the second marker (live_guard), and /diagnostics
+    turns WARN naming it from then on."""
+    from pipe_nav_core.sim.faults import imu_clock
+
+    core = EkfCore(config, TYPES)
+    handlers = {"imu": core.on_imu, "odometer": core.on_odometer, "mag": core.on_mag,
+                "markers": core.on_marker}  # fmt: skip
+    late = rosmsg.log_to_messages(TYPES, imu_clock(run.log, 0.3), CROP_S)
+    statuses = []
+    for k, (_, role, msg) in enumerate(sorted(late, key=lambda m: m[0])):
+        assert handlers[role](msg)
+        core.poll()
+        if k % 2000 == 1999:
+            statuses.append(core.diagnostics(float(k), now=float(k)).status[0])
+    assert statuses[0].level == OK
+    assert statuses[-1].level == WARN and statuses[-1].message.startswith("IMU clock: its stamps")
+    values = {kv.key: kv.value for kv in statuses[-1].values}
+    assert values["engine.imu_clock_retimed"] == "1" and values["engine.state"] == "navigating"
+
+
 def test_malformed_messages_are_counted_and_survived(run, config):
     core = EkfCore(config, TYPES)
     good = input_messages(run, t_end=3.0)

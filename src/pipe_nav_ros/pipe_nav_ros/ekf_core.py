@@ -737,6 +737,8 @@ class EkfCore:
             level, message = WARN, f"since the last report: {named}; {summary}"
         elif stopped:
             level, message = WARN, f"no {' and no '.join(stopped)} data since the last report"
+        elif clock := str(values.get("engine.imu_clock", "")):
+            level, message = WARN, clock  # re-timed (live_guard): said for as long as it holds
         elif misfit := self.nav.model_warnings():
             level, message = WARN, misfit[0]
         elif sum(received.values()) == 0:

@@ -41,6 +41,14 @@ readings of a stuck or spiking wheel found in them as offline (``odometer_fault_
 estimates already published stay, the later ones come from the new run (``heading_rerun``).
 The inputs are kept only until then.
 
+At the same moment the inputs kept show whether the **IMU's clock** is offset from the
+odometer's (faults.clock_offset, measured at the pig's starts and stops as offline): if it is,
+the filter runs again from the alignment with the IMU and the magnetometer re-timed, and so is
+every later sample of theirs (``imu_clock_retimed``); an IMU later than the odometer by more
+than the reorder window (minus ``CLOCK_MARGIN_S``) lets go of its samples too late to be
+re-timed, and the solution is lost instead. Either way ``imu_clock`` in the diagnostics says
+what was found.
+
 Each IMU fault is counted in the diagnostics as ``imu_fault_<kind>``. Times s, rates rad/s,
 forces m/s^2.
 """
@@ -53,6 +61,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from pipe_nav_core.faults import clock_offset
 from pipe_nav_core.faults.gaps import (
     MIN_GAP_S,
     REST_MOVED_M,
@@ -63,6 +72,7 @@ from pipe_nav_core.faults.gaps import (
 from pipe_nav_core.faults.imu import MARGIN_S, MAX_ACCEL, MAX_RATE, MIN_FLAT
 from pipe_nav_core.faults.odometer import find_odometer_faults, without_faults
 from pipe_nav_core.filter.estimates import NavEstimate
+from pipe_nav_core.filter.ingest import mount_rotation
 from pipe_nav_core.filter.kalman import chi2_threshold
 from pipe_nav_core.filter.navigator import Navigator
 from pipe_nav_core.geo.earth import geodetic_to_enu
@@ -77,6 +87,7 @@ MARKER_BOUND = chi2_threshold(1.0 - 1e-6, 3)  # a marker this far off the estima
 RECENT_SAMPLES = 2048  # IMU samples kept for a fill at rest (REST_WINDOW_S up to 4 kHz)
 MAX_ODO_SPEED = 10.0  # m/s: an odometer reading implying more since the last is a spike ...
 ODO_SPIKE_M = 0.5  # m: ... when it jumps by more than this
+CLOCK_MARGIN_S = 0.1  # s of the reorder window a re-timed IMU sample must still have
 
 
 class GuardedNavigator(Navigator):
@@ -103,11 +114,15 @@ class GuardedNavigator(Navigator):
             [] if self.cfg.heading_source == "markers" and self.reference is None else None
         )
         self._published = -math.inf  # s: the last estimate poll returned
+        self._clock: clock_offset.ClockOffset | None = None  # the IMU's, once re-timed
+        self._clock_note = ""  # what the inputs kept said of the IMU's clock
 
     def push_imu(self, t: float, gyro: Sequence[float], accel: Sequence[float]) -> None:
         if self.lost_since is not None:
             self._counts["ignored_lost"] += 1
             return
+        if self._clock is not None:
+            t -= float(self._clock.at(t))
         g = gx, gy, gz = (float(gyro[0]), float(gyro[1]), float(gyro[2]))
         a = ax, ay, az = (float(accel[0]), float(accel[1]), float(accel[2]))
         if not math.isfinite(t + gx + gy + gz + ax + ay + az) and not all(
@@ -197,6 +212,8 @@ class GuardedNavigator(Navigator):
 
     def push_mag(self, t: float, field_t: Sequence[float]) -> None:
         if self.lost_since is None:
+            if self._clock is not None:
+                t -= float(self._clock.at(t))
             super().push_mag(t, field_t)
 
     def push_marker(self, marker: Marker) -> None:
@@ -294,23 +311,31 @@ class GuardedNavigator(Navigator):
         from pipe_nav_core.smooth.heading import anchored_config
 
         kept, self._kept = self._kept or [], None
-        if self.reanchor_rad == 0.0 or len(self.inbox.markers_seen) < 2:
+        if len(self.inbox.markers_seen) < 2:
             return out
         second = sorted(m.t for m in self.inbox.markers_seen)[1]  # s, before reset() clears it
-        # the wheel's faults so far, found as offline (odometer_faults) and left out of both
         log = _log_of(kept)
+        clock = self._clock_of(log, second)
+        if clock is not None:
+            log = clock_offset.retimed(log, clock)
+            kept = sorted(((t - float(clock.at(t)) if kind in ("imu", "mag") else t, kind, p)
+                           for t, kind, p in kept), key=lambda x: x[0])  # fmt: skip
+        elif self.reanchor_rad == 0.0 or self.lost_since is not None:
+            return out
+        # the wheel's faults so far, found as offline (odometer_faults) and left out of both
         log, faults = without_faults(log, find_odometer_faults(log))
         try:
             cfg = anchored_config(log, self.cfg, self)
         except ValueError:  # the dead reckoning found no solution in what was kept: go on
             self._counts["heading_rerun_failed"] += 1
-            return out
-        if cfg is self.cfg:
+            cfg = self.cfg if clock is not None else None
+        if cfg is None or (cfg is self.cfg and clock is None):
             return out
         counts, declared = dict(self._counts), self.declared_imu_noise
         self.cfg = cfg
         self.reset()
         self.declared_imu_noise = declared
+        self._clock = clock
         good = set(log.odometer.t.tolist())
         for t, kind, payload in kept:
             if kind != "odometer" or t in good:
@@ -325,8 +350,31 @@ class GuardedNavigator(Navigator):
         last = out[-1].t if out else self._published
         return out + [e for e in Navigator.poll(self) if e.t > last]
 
+    def _clock_of(self, log: SensorLog, now: float) -> clock_offset.ClockOffset | None:
+        """The IMU's clock offset the inputs kept show, when it is to be taken out live (see
+        the module); noted for the diagnostics, and the solution lost where it cannot be."""
+        found = clock_offset.measure(log, mount_rotation(self.cfg.imu_mount_rpy))
+        if found is None or not (found.retime or found.irregular):
+            return None
+        self._clock_note = found.describe()
+        if not found.retime:
+            return None
+        if max(found.first, found.last) > self.cfg.reorder_window_s - CLOCK_MARGIN_S:
+            self._clock_note = found.describe().split(": the IMU")[0] + (
+                ": more than the reorder window lets the live filter re-time (pipe-nav "
+                "smooth re-times it)"
+            )
+            self._counts["imu_clock_lost"] += 1
+            if self.lost_since is None:
+                self.lost_since, self.lost_reason = now, self._clock_note
+            return None
+        self._counts["imu_clock_retimed"] += 1
+        return found
+
     def diagnostics(self) -> dict[str, int | float | str]:
         d = super().diagnostics()
+        if self._clock_note:
+            d["imu_clock"] = self._clock_note
         if self.marker_outliers:
             d["marker_outliers"] = ", ".join(self.marker_outliers)
         if self.lost_since is not None:

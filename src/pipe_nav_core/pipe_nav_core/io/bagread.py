@@ -9,9 +9,10 @@ warning), decodes the messages of the four sensor roles (:mod:`.bagdecode`: ``ba
 :mod:`.topics`, counted and explained in the :class:`BagReport`. Sample times are the header
 stamps, never the log times.
 
-Streaming (:func:`iter_bag`) holds back ``lag_seconds`` of data behind the newest stamp before it
-hands out a time chunk; a message that arrives after its chunk went out is dropped (``late``,
-with a warning), so in the normal case the chunks concatenate exactly to :func:`read_bag`.
+Streaming (:func:`iter_bag`) holds back ``lag_seconds`` of data behind the newest stamp of the
+slowest topic (within ``STALL_S`` of the newest of all) before it hands out a time chunk; a
+message that arrives after its chunk went out is dropped (``late``, with a warning), so in the
+normal case the chunks concatenate exactly to :func:`read_bag`.
 Cheap metadata without reading the messages through is :mod:`.baginfo`.
 """
 
@@ -59,6 +60,9 @@ from pipe_nav_core.types import (
 )
 
 EMIT_LAG_S = 5.0  # s: streaming holds back this much data behind the newest stamp
+# s: ... of the slowest topic, unless it is this far behind the newest (an IMU stamping on a
+# clock of its own, 10 s off the odometer's, lost 0.5 % of its samples as late before)
+STALL_S = 30.0
 READ_WORKERS_ENV = "PIPE_NAV_READ_WORKERS"  # threads that unpack the chunks (0: none)
 
 _MISSING_HINT = {
@@ -231,9 +235,15 @@ class _BagReader:
         }[role]
 
     def _high_water(self) -> int | None:
+        """The stamp (ns) up to which the sensor topics have been read: the slowest topic's
+        newest, but for topics STALL_S behind the newest of all (stopped, or on a clock of
+        their own so far off that their samples are named late)."""
         hw = [s.high_water() for s in self.states.values() if s.role != "markers"]
         hw = [h for h in hw if h is not None]
-        return max(hw) if hw else None
+        if not hw:
+            return None
+        top = max(hw)
+        return min(h for h in hw if h >= top - sec_to_ns_scalar(STALL_S))
 
     def _lowest_buffered(self) -> int | None:
         lows = [int(p.ns.min()) for s in self.states.values() for p in s.buffer if len(p)]

@@ -134,6 +134,7 @@ CORPUS = (
     FaultCase(
         "IMU samples dropped for 0.3 s", lambda lg, d: imu_dropped(lg, 0.53 * d, 0.3), "IMU"
     ),  # fmt: skip
+    FaultCase("IMU clock 0.3 s late", lambda lg, d: imu_clock(lg, 0.3), "IMU clock"),
     FaultCase(
         "wheel stuck for 20 s", lambda lg, d: odometer_stuck(lg, 0.21 * d, 20.0), "odometer stuck"
     ),  # fmt: skip
