@@ -87,7 +87,7 @@ class ClockOffset:
     irregular: bool = False
 
     def at(self, t: Array) -> Array:
-        """The offset (s) at IMU stamps ``t`` (s)."""
+        """The offset (s) at times ``t`` (s)."""
         return self.seconds + self.rate * (t - self.t_ref)
 
     def describe(self) -> str:
@@ -112,27 +112,22 @@ class ClockOffset:
 def measure(log: SensorLog, mount: Array) -> ClockOffset | None:
     """The offset of the IMU's stamps from the odometer's in ``log`` (``mount``: (3, 3)
     imu_link -> base_link), or None where no start or stop of the pig can be measured."""
-    found = [e for e in (_event(log, mount, *ev) for ev in _events(log)) if e is not None]
-    if not found:
+    found = np.array([e for e in (_event(log, mount, *ev) for ev in _events(log)) if e])
+    if not len(found):
         return None
-    misfit = np.array([e[3] for e in found])
-    kept = np.array([e[:2] for e in found])[misfit <= REJECT_FACTOR * float(np.median(misfit))]
-    weight = misfit[misfit <= REJECT_FACTOR * float(np.median(misfit))] ** -2.0
-    t, lag = kept[:, 0], kept[:, 1]
-    ends = log.imu.t[[0, -1]]
+    misfit = found[:, 3]
+    sound = misfit <= REJECT_FACTOR * float(np.median(misfit))
+    t, lag, weight = found[sound, 0], found[sound, 1], misfit[sound] ** -2.0
     model = _model(t, lag, weight)
-    if model is None:
-        irregular = float(np.ptp(lag)) > IRREGULAR_S
+    if model is None or np.max(np.abs(lag - model[0] - model[1] * (t - model[2]))) > IRREGULAR_S:
+        # no model, or an event the clock's model leaves that far off: the clock changed
+        irregular = model is not None or float(np.ptp(lag)) > IRREGULAR_S
         return ClockOffset(float(np.median(lag)), 0.0, float(t.mean()), float(lag.min()),
                            float(lag.max()), len(lag), False, irregular)  # fmt: skip
     c, rate, t_ref, n = model
-    if np.max(np.abs(lag - c - rate * (t - t_ref))) > IRREGULAR_S:  # the clock changed
-        return ClockOffset(float(np.median(lag)), 0.0, float(t.mean()), float(lag.min()),
-                           float(lag.max()), len(lag), False, True)  # fmt: skip
-    first, last = (c + rate * (ends - t_ref)).tolist()
+    first, last = (c + rate * (log.imu.t[[0, -1]] - t_ref)).tolist()
     least = MIN_OFFSET_S if n > 1 else ONE_EVENT_MIN_S
-    retime = max(abs(first), abs(last)) >= least
-    return ClockOffset(c, rate, t_ref, first, last, n, retime)
+    return ClockOffset(c, rate, t_ref, first, last, n, max(abs(first), abs(last)) >= least)
 
 
 def _model(t: Array, lag: Array, weight: Array) -> tuple[float, float, float, int] | None:
