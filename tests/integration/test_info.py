@@ -91,3 +91,24 @@ def test_cli_json_and_bad_input(tmp_path):
     assert json.dumps(info, allow_nan=False)
     r = subprocess.run([*cmd, str(tmp_path / "nope.mcap")], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "nope.mcap" in r.stderr
+
+
+def test_an_imu_on_a_clock_of_its_own(tmp_path):
+    """The sample's IMU stamped 3 s early: named, and its noise measured as pipe-nav smooth
+    re-times it (else the odometer's rests hold IMU samples of motion: consumer-like noise)."""
+    from pipe_nav_core.app.pipeline import load_log
+    from pipe_nav_core.sim.faults import imu_clock
+
+    clean = describe_bag(SAMPLE)
+    assert (
+        abs(clean["imu_clock"]["offset_s"]) < 0.02 and not clean["imu_clock"]["retimed_by_smooth"]
+    )
+    assert not any(w.startswith("IMU clock") for w in clean["warnings"])
+    bag = tmp_path / "early.mcap"
+    write_sensor_bag(bag, imu_clock(load_log(SAMPLE, repair=False)[0], -3.0))
+    info = describe_bag(bag)
+    assert info["imu_clock"]["retimed_by_smooth"] and info["imu_clock"]["events"] == 4
+    assert info["imu_clock"]["offset_s"] == pytest.approx(-3.0, abs=0.02)
+    assert info["imu_grade"]["nearest_to_measured"] == "industrial"
+    text = format_info(info)
+    assert "Warning:         IMU clock: its stamps are " in text and " ms earlier than " in text

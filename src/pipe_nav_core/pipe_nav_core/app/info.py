@@ -4,10 +4,12 @@ Per input topic: message type, count, rate and stamp gaps; the run's duration an
 distance; the markers (surveyed or not); the static spans (odometer still for at least
 ``MIN_STATIC_S``); the IMU noise measured in them (white-noise density from the sample scatter,
 and the Allan deviation of the longest span where it is long enough for a bias-instability
-figure); the per-sample noise the Imu messages declare; and the IMU grade the settings use
-against the one whose noise figures are nearest the measured ones. Times are s from the bag's
-first stamp, angles in the text in degrees (radians in the JSON's ``*_rad`` fields), SI
-otherwise.
+figure); the per-sample noise the Imu messages declare; the IMU grade the settings use
+against the one whose noise figures are nearest the measured ones; and the IMU's clock against
+the odometer's (faults.clock_offset: measured at the pig's starts and stops; where pipe-nav
+smooth would re-time the IMU, the static spans and the noise are measured as it re-times it).
+Times are s from the bag's first stamp, angles in the text in degrees (radians in the JSON's
+``*_rad`` fields), SI otherwise.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipe_nav_core.config import NavConfig
+from pipe_nav_core.faults import clock_offset
+from pipe_nav_core.filter.ingest import mount_rotation
 from pipe_nav_core.io import TopicNames, merge_markers, read_bag, read_markers_csv
 from pipe_nav_core.io.topics import DEFAULT_TOPICS
 from pipe_nav_core.model.imu_noise import choose, measured_noise, nearest_grade, static_spans
@@ -73,6 +77,10 @@ def describe_bag(
         if report.skipped_by_topic.get(name):
             row["skipped"] = dict(report.skipped_by_topic[name])
         topic_rows.append(row)
+    clock = clock_offset.measure(log, mount_rotation(cfg.imu_mount_rpy))
+    if clock is not None and (clock.retime or clock.irregular):
+        report.warn(clock.describe())
+        log = clock_offset.retimed(log, clock) if clock.retime else log  # as smooth reads it
     spans = static_spans(log)
     noise = measured_noise(log, spans)
     declared = report.imu_noise_declared
@@ -106,6 +114,15 @@ def describe_bag(
             "nearest_to_measured": nearest_grade(noise),
             "smooth_would_use": chosen.grade,
             "reason": chosen.reason,
+        },
+        "imu_clock": None
+        if clock is None
+        else {
+            "offset_s": clock.first,
+            "offset_at_end_s": clock.last,
+            "events": clock.events,
+            "retimed_by_smooth": clock.retime,
+            "irregular": clock.irregular,
         },
         "warnings": list(report.warnings),
         "truncated": report.truncated,
