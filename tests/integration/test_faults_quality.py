@@ -97,3 +97,44 @@ def test_smooth_reports_the_verdict_in_its_summary_and_bag_and_strict_exits_3(tm
     r = subprocess.run(slow, capture_output=True, text=True, timeout=300)
     assert r.returncode == 3 and "quality FAILED" in r.stderr, r.stdout + r.stderr
     assert "5 smoothing passes did not converge" in r.stdout
+
+
+def test_an_imu_mounted_90_deg_off_fails_in_bounded_memory(tmp_path):
+    """The sample with its IMU turned 90 deg about z from the configured mount: the filter
+    loses its way (a path of thousands of km). pipe-nav smooth says FAILED and why, writes
+    every output (the products' CSVs empty: no grid over such a path) in a process limited
+    to 6 GB of address space (before: 24 GB and killed by the kernel), and blames no clock."""
+    import resource
+
+    from pipe_nav_core.app.pipeline import load_log
+    from pipe_nav_core.faults.quality import lost_path
+    from pipe_nav_core.io import write_sensor_bag
+    from pipe_nav_core.types import ImuSamples
+
+    log = load_log(SAMPLE, repair=False)[0]
+    turn = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    imu = ImuSamples(log.imu.t, log.imu.gyro @ turn.T, log.imu.accel @ turn.T)
+    bag = tmp_path / "turned.mcap"
+    write_sensor_bag(bag, dataclasses.replace(log, imu=imu))
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))
+
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-m", "pipe_nav_core.app.cli", "smooth", str(bag),
+                          "--out", f"{out}/"], capture_output=True, text=True,
+                         preexec_fn=limit, timeout=600)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "quality FAILED" in run.stderr
+    assert re.search(r"the smoothed path is \S+ m long where the wheel counted 300 m", run.stdout)
+    assert "IMU clock" not in run.stdout + run.stderr
+    assert len(list(out.iterdir())) == 9
+    assert len((out / "turned_bends.csv").read_text().splitlines()) == 1  # the header
+    # the bound itself: twice the count and 50 m
+    assert lost_path(log_path(649.0), log.odometer) == ""
+    assert lost_path(log_path(651.0), log.odometer).startswith("the smoothed path is 651 m")
+
+
+def log_path(length: float) -> Trajectory:
+    line = _line(3)
+    return dataclasses.replace(line, distance=np.array([0.0, 0.5, 1.0]) * length)

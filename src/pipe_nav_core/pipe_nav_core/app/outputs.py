@@ -101,8 +101,12 @@ class Outputs:
 
 def centreline_rows(result: SmoothResult, spacing: float) -> Trajectory:
     """The centreline resampled every ``spacing`` m of chainage plus a row at every marker;
-    a centreline in pieces (segments across data gaps) gets no row across its holes."""
+    a centreline in pieces (segments across data gaps) gets no row across its holes. A path
+    that is not the pipe (quality.lost_path: its chainage means nothing) is written at its
+    own epochs."""
     c = result.centreline
+    if result.summary.get("path_lost"):
+        return c
     pieces = pieces_of(c)
     rows = []
     for p in pieces:

@@ -46,7 +46,12 @@ from pipe_nav_core.io.smoothed_bag import read_smoothed_bag
 from pipe_nav_core.memory import trim_heap
 from pipe_nav_core.model import imu_noise as imu_model
 from pipe_nav_core.model.sensors import GRADES
-from pipe_nav_core.products import IntegrityReport, integrity_report, read_bends_reference
+from pipe_nav_core.products import (
+    IntegrityReport,
+    integrity_report,
+    no_products,
+    read_bends_reference,
+)
 from pipe_nav_core.products.welds import Weld, detect_welds, jolt_deviation
 from pipe_nav_core.smooth import logs as smooth_logs
 from pipe_nav_core.smooth.ahead import FirstPassAhead
@@ -212,22 +217,32 @@ def smooth_bag(
     report.warnings += result.summary.get("marker_warnings", [])  # type: ignore[operator]
     failures = [f"{d}: the centreline does not fit its markers"
                 for d in [result.summary.get("marker_disagreement")] if d]  # fmt: skip
+    lost = quality.lost_path(result.centreline, log.odometer)
+    failures += [lost] if lost else []
     verdict = quality.judge(result.summary, result.centreline, report.warnings, failures)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
+    result.summary["path_lost"] = bool(lost)
     # the welds on the other core while the bends and strain are found (both read the
     # smoothed run only; numpy and the kernels let go of the GIL for most of their time),
     # unless the run is so long that their working sets together would raise the peak
     # memory (some 400 bytes per magnetometer sample: 1 GB at 100 km)
     cfg = result.config or config
     welds: Background | None = None
-    if jolts is not None:
+    if jolts is not None and not lost:
         welds = Background("pipe-nav-welds", run_welds, log, result, cfg, jolts.result())
     say("bends and strain")
-    result.products = integrity_report(result.centreline, cfg, spacing=spacing, reference=reference)
+    if lost:  # no products of a path that is not the pipe (their grid is of its length)
+        result.products = no_products(cfg, "no integrity products of a lost path")
+    else:
+        result.products = integrity_report(result.centreline, cfg, spacing=spacing,
+                                           reference=reference)  # fmt: skip
     result.summary["integrity"] = result.products.summary()
 
     def find_welds() -> None:
-        if len(log.mag.t):
+        if lost:  # nothing to place them on: an empty tally (and the IMU's part let go)
+            result.welds = [] if len(log.mag.t) else None
+            _ = jolts.result() if jolts is not None else None
+        elif len(log.mag.t):
             say("girth welds")
             trim_heap(len(log.imu))  # what the bends and the writing freed
             found = welds.result() if welds is not None else run_welds(log, result, cfg)

@@ -23,12 +23,12 @@ median event are left out.
 The events (the ``MAX_EVENTS`` longest rests') give one offset where most of them agree on it
 within ``AGREE_S``, else a steady drift where most lie within AGREE_S of one line over time;
 each weighted by the inverse square of its misfit (:func:`_model`). It is taken out where it
-reaches ``MIN_OFFSET_S`` (``ONE_EVENT_MIN_S`` on the word of a single event): the IMU's and the
-magnetometer's stamps are moved onto the odometer's clock (the magnetometer is in imu_link, the
-IMU's own chip: INTERFACES.md). Where neither explains the events (they lie ``IRREGULAR_S``
-apart), or one of them lies that far from what does (the clock changed within the run), it is
-named and nothing is moved. The odometer's clock is kept: the markers' passages and the outputs'
-``time_s`` are on it.
+reaches ``MIN_OFFSET_S`` (``ONE_EVENT_MIN_S`` on the word of a single event) and half the
+events or more agree on it: the IMU's and the magnetometer's stamps are moved onto the
+odometer's clock (the magnetometer is in imu_link, the IMU's own chip: INTERFACES.md). Where
+neither explains the events (they lie ``IRREGULAR_S`` apart), or one of them lies that far from
+what does (the clock changed within the run), it is named and nothing is moved. The
+odometer's clock is kept: the markers' passages and the outputs' ``time_s`` are on it.
 
 Times s (header stamps), distances m, specific force m/s^2.
 """
@@ -112,7 +112,8 @@ class ClockOffset:
 def measure(log: SensorLog, mount: Array) -> ClockOffset | None:
     """The offset of the IMU's stamps from the odometer's in ``log`` (``mount``: (3, 3)
     imu_link -> base_link), or None where no start or stop of the pig can be measured."""
-    found = np.array([e for e in (_event(log, mount, *ev) for ev in _events(log)) if e])
+    events = _events(log)
+    found = np.array([e for e in (_event(log, mount, *ev) for ev in events) if e])
     if not len(found):
         return None
     misfit = found[:, 3]
@@ -127,7 +128,10 @@ def measure(log: SensorLog, mount: Array) -> ClockOffset | None:
     c, rate, t_ref, n = model
     first, last = (c + rate * (log.imu.t[[0, -1]] - t_ref)).tolist()
     least = MIN_OFFSET_S if n > 1 else ONE_EVENT_MIN_S
-    return ClockOffset(c, rate, t_ref, first, last, n, max(abs(first), abs(last)) >= least)
+    # half the rests' events at least: else the fits that agree may be chance (an IMU whose
+    # mount is 90 deg off the configured one fitted one event of the sample's four at -5.2 s)
+    retime = max(abs(first), abs(last)) >= least and 2 * n >= len(events)
+    return ClockOffset(c, rate, t_ref, first, last, n, retime)
 
 
 def _model(t: Array, lag: Array, weight: Array) -> tuple[float, float, float, int] | None:

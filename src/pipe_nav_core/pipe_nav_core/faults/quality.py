@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipe_nav_core.types import Trajectory
+from pipe_nav_core.types import OdometerSamples, Trajectory
 
 OK, DEGRADED, FAILED = "OK", "DEGRADED", "FAILED"
 SCALE_LIMITS = (0.8, 1.25)  # odometer scale factors outside: a wrong solution, not a wheel
@@ -32,6 +32,26 @@ LOST_SHARE, LOST_MIN_SPAN_M = 0.1, 10.0  # (a run shorter than the span is judge
 # over this and the centreline is not known to its sigmas (a sound run's second pass moves
 # the attitude by 0.03 to 7 mrad, its third by under 0.4; a diverged run's fifth by tens)
 UNCONVERGED_RAD = 0.01
+
+
+# a smoothed path longer than this many times the wheel's count, plus PATH_SLACK_M, is not the
+# pipe: the filter lost its way (a wheel off by SCALE_LIMITS and slips stay far inside; the
+# sample with its IMU's mount 90 deg off made a path of 6 km, the products' grid of it 24 GB)
+PATH_FACTOR, PATH_SLACK_M = 2.0, 50.0
+
+
+def lost_path(centreline: Trajectory, odometer: OdometerSamples) -> str:
+    """Why the smoothed path is not the pipe (its length, m, beyond PATH_FACTOR times the
+    odometer's count plus PATH_SLACK_M, or not finite), or '' where it may be."""
+    if len(centreline.t) < 2 or len(odometer.t) < 2:
+        return ""
+    counted = float(np.ptp(odometer.distance))
+    path = float(np.ptp(centreline.distance))
+    if path <= PATH_FACTOR * counted + PATH_SLACK_M:  # (False for nan)
+        return ""
+    return (f"the smoothed path is {path:.4g} m long where the wheel counted {counted:.0f} m: "
+            "not the pipe (the filter lost its way; check the IMU's mount, imu_mount_rpy, and "
+            "its grade, imu_grade); no integrity products made of it")  # fmt: skip
 
 
 @dataclass

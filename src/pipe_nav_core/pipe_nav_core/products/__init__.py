@@ -11,7 +11,7 @@ from pipe_nav_core.products.curvature import (
     axis_track,
     curvature_profile,
 )
-from pipe_nav_core.products.integrity import IntegrityReport, integrity_report
+from pipe_nav_core.products.integrity import IntegrityReport, integrity_report, no_products
 from pipe_nav_core.products.strain import (
     StrainFeature,
     read_bends_reference,
@@ -30,6 +30,7 @@ __all__ = [
     "curvature_profile",
     "find_bends",
     "integrity_report",
+    "no_products",
     "read_bends_reference",
     "strain_features",
     "strain_pct",

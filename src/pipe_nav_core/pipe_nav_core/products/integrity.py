@@ -96,6 +96,17 @@ def integrity_report(
                            tuple(config.strain_thresholds), notes)  # fmt: skip
 
 
+def no_products(config: NavConfig, why: str) -> IntegrityReport:
+    """The report of a centreline no products can be made of (its CSVs: headers only), with
+    ``why`` in its notes."""
+    empty = np.zeros(0)
+    fields_ = CurvatureProfile.__dataclass_fields__
+    window = config.window()
+    profile = CurvatureProfile(**{k: window if k == "window" else empty for k in fields_})
+    return IntegrityReport(profile, empty, empty, [], [], config.outer_diameter(), window,
+                           tuple(config.strain_thresholds), [why])  # fmt: skip
+
+
 def _merged(reports: list[IntegrityReport]) -> IntegrityReport:
     """One report from those of consecutive pieces: rows one after the other, renumbered."""
     first = reports[0]
