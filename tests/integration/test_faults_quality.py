@@ -130,6 +130,13 @@ def test_an_imu_mounted_90_deg_off_fails_in_bounded_memory(tmp_path):
     assert "IMU clock" not in run.stdout + run.stderr
     assert len(list(out.iterdir())) == 9
     assert len((out / "turned_bends.csv").read_text().splitlines()) == 1  # the header
+    # ekf_node's engine on it: bounded, and told to check the mount
+    from pipe_nav_core.app.replay import replay_log
+    from pipe_nav_core.config import NavConfig
+
+    live = replay_log(load_log(bag, repair=False)[0], NavConfig())
+    assert any("check imu_grade (--imu-grade) and the IMU's mount (imu_mount_rpy)" in w
+               for w in live.warnings), live.warnings  # fmt: skip
     # the bound itself: twice the count and 50 m
     assert lost_path(log_path(649.0), log.odometer) == ""
     assert lost_path(log_path(651.0), log.odometer).startswith("the smoothed path is 651 m")
