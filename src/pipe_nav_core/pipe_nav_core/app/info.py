@@ -77,10 +77,10 @@ def describe_bag(
         if report.skipped_by_topic.get(name):
             row["skipped"] = dict(report.skipped_by_topic[name])
         topic_rows.append(row)
-    clock = clock_offset.measure(log, mount_rotation(cfg.imu_mount_rpy))
-    if clock is not None and (clock.retime or clock.irregular):
-        report.warn(clock.describe())
-        log = clock_offset.retimed(log, clock) if clock.retime else log  # as smooth reads it
+    log, clock = clock_offset.taken_out(log, mount_rotation(cfg.imu_mount_rpy))  # as smooth
+    if clock is not None and clock.named:
+        report.warn(clock.describe("pipe-nav smooth re-times the IMU and the magnetometer to "
+                                   "the odometer's clock"))  # fmt: skip
     spans = static_spans(log)
     noise = measured_noise(log, spans)
     declared = report.imu_noise_declared

@@ -116,10 +116,9 @@ def load_log(
     holes = find_holes(log, short=True)  # what is left: short clock glitches and data gaps
     log = remove_clock_steps(log, holes)
     report.warnings += [h.describe() for h in steps + holes]
-    offset = clock_offset.measure(log, np.eye(3) if mount is None else mount)
-    if offset is not None and (offset.retime or offset.irregular):
-        report.warnings.append(offset.describe())
-        log = clock_offset.retimed(log, offset) if offset.retime else log
+    log, clock = clock_offset.taken_out(log, np.eye(3) if mount is None else mount)
+    if clock is not None and clock.named:
+        report.warn(clock.describe())
     log, faults = without_faults(log, find_odometer_faults(log))
     report.warnings += [f.describe() for f in faults]
     return _with_markers(log, report, markers_csv)
@@ -239,9 +238,10 @@ def smooth_bag(
     result.summary["integrity"] = result.products.summary()
 
     def find_welds() -> None:
-        if lost:  # nothing to place them on: an empty tally (and the IMU's part let go)
+        if lost:  # nothing to place them on: an empty tally
             result.welds = [] if len(log.mag.t) else None
-            _ = jolts.result() if jolts is not None else None
+            if jolts is not None:
+                jolts.result()  # its thread reads the IMU, which let_go releases below
         elif len(log.mag.t):
             say("girth welds")
             trim_heap(len(log.imu))  # what the bends and the writing freed

@@ -90,7 +90,15 @@ class ClockOffset:
         """The offset (s) at times ``t`` (s)."""
         return self.seconds + self.rate * (t - self.t_ref)
 
-    def describe(self) -> str:
+    @property
+    def named(self) -> bool:
+        """Whether it is to be said: taken out, or no offset explains the events."""
+        return self.retime or self.irregular
+
+    def describe(
+        self, done: str = "the IMU and the magnetometer re-timed to the odometer's clock"
+    ) -> str:
+        """One line for people; ``done``: what was done about it (where it is retimed)."""
         ms = f"{1e3 * self.first:+.0f} to {1e3 * self.last:+.0f} ms"
         if self.irregular:
             return (
@@ -105,8 +113,7 @@ class ClockOffset:
         else:
             way = "later" if self.seconds > 0 else "earlier"
             what = f"are {1e3 * abs(self.seconds):.0f} ms {way} than the odometer's"
-        return (f"IMU clock: its stamps {what} for the same motion (measured at {where}): the "
-                "IMU and the magnetometer re-timed to the odometer's clock")  # fmt: skip
+        return f"IMU clock: its stamps {what} for the same motion (measured at {where}): {done}"
 
 
 def measure(log: SensorLog, mount: Array) -> ClockOffset | None:
@@ -177,6 +184,13 @@ def _line(
     return float(w @ ll / w.sum()), rate, t_ref, int(use.sum())
 
 
+def taken_out(log: SensorLog, mount: Array) -> tuple[SensorLog, ClockOffset | None]:
+    """``log`` as it is to be smoothed (re-timed where its offset is to be taken out) and the
+    offset measured in it (:func:`measure`)."""
+    offset = measure(log, mount)
+    return (retimed(log, offset) if offset is not None and offset.retime else log), offset
+
+
 def retimed(log: SensorLog, offset: ClockOffset) -> SensorLog:
     """``log`` with the IMU's and the magnetometer's stamps on the odometer's clock."""
     imu = ImuSamples(log.imu.t - offset.at(log.imu.t), log.imu.gyro, log.imu.accel)
@@ -227,13 +241,17 @@ def _event(
     f = np.asarray(log.imu.accel[k0:k1]) @ mount[0]  # along base_link x
     # each sample is the mean over the interval since the one before (INTERFACES.md)
     ti = np.r_[ti[0], 0.5 * (ti[1:] + ti[:-1])]
+    dt = np.diff(ti)
+    v = np.r_[0.0, np.cumsum(0.5 * (f[1:] + f[:-1]) * dt)]  # the integrals from ti[0]
+    x = np.r_[0.0, np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)]
+    imu = (ti, v, x, np.r_[0.0, np.cumsum(f)])
     lags = np.arange(-SEARCH_S, SEARCH_S + STEP_S / 2, STEP_S)
-    misfit, scale = _fit(ti, f, tc, dc, a, b, sign, lags)
+    misfit, scale = _fit(imu, tc, dc, a, b, sign, lags)
     if not np.isfinite(misfit).any():
         return None
     best = lags[int(np.argmin(misfit))]
     lags = best + np.arange(-2 * STEP_S, 2 * STEP_S + FINE_S / 2, FINE_S)
-    misfit, scale = _fit(ti, f, tc, dc, a, b, sign, lags)
+    misfit, scale = _fit(imu, tc, dc, a, b, sign, lags)
     k = int(np.argmin(misfit))
     if not np.isfinite(misfit[k]):
         return None
@@ -241,15 +259,20 @@ def _event(
 
 
 def _fit(
-    t: Array, f: Array, tc: Array, dc: Array, a: float, b: float, sign: int, lags: Array
+    imu: tuple[Array, Array, Array, Array],
+    tc: Array,
+    dc: Array,
+    a: float,
+    b: float,
+    sign: int,
+    lags: Array,
 ) -> tuple[Array, Array]:
     """The rms misfit (m; inf where the lag leaves the data or the scale is out of
     SCALE_RANGE) and the scale of the count's crossings (tc, dc) against the IMU's distance
-    from the rest, for each lag of the IMU's stamps."""
-    dt = np.diff(t)
-    v = np.r_[0.0, np.cumsum(0.5 * (f[1:] + f[:-1]) * dt)]  # the integrals from t[0]
-    x = np.r_[0.0, np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)]
-    total = np.r_[0.0, np.cumsum(f)]
+    from the rest, for each lag of the IMU's stamps. ``imu``: its sample times (s), the first
+    and second integrals of its specific force along the axis from its first sample (m/s, m)
+    and the running sum of the force (m/s^2), one more element than the samples."""
+    t, v, x, total = imu
     if sign > 0:
         r0, r1 = max(a, b - REST_S) + lags, b - MARGIN_S + lags
     else:

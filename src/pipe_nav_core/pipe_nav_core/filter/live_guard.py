@@ -354,15 +354,15 @@ class GuardedNavigator(Navigator):
         """The IMU's clock offset the inputs kept show, when it is to be taken out live (see
         the module); noted for the diagnostics, and the solution lost where it cannot be."""
         found = clock_offset.measure(log, mount_rotation(self.cfg.imu_mount_rpy))
-        if found is None or not (found.retime or found.irregular):
+        if found is None or not found.named:
             return None
         self._clock_note = found.describe()
         if not found.retime:
             return None
         if max(found.first, found.last) > self.cfg.reorder_window_s - CLOCK_MARGIN_S:
-            self._clock_note = found.describe().split(": the IMU")[0] + (
-                ": more than the reorder window lets the live filter re-time (pipe-nav "
-                "smooth re-times it)"
+            self._clock_note = found.describe(
+                "more than the reorder window lets the live filter re-time (pipe-nav smooth "
+                "re-times it)"
             )
             self._counts["imu_clock_lost"] += 1
             if self.lost_since is None:
