@@ -21,7 +21,7 @@ from pipe_nav_core.app.plot_process import PlotProcess
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.background import Background
 from pipe_nav_core.config import AUTO_GRADE, NavConfig
-from pipe_nav_core.faults import clock_offset, quality
+from pipe_nav_core.faults import clock_offset, mag_clock, quality
 from pipe_nav_core.faults.gaps import (
     fill_holes_at_rest,
     fill_short_holes,
@@ -218,6 +218,10 @@ def smooth_bag(
                 for d in [result.summary.get("marker_disagreement")] if d]  # fmt: skip
     lost = quality.lost_path(result.centreline, log.odometer)
     failures += [lost] if lost else []
+    if len(log.mag.t) and not lost:  # before the welds are found in its field
+        log, mag = mag_clock.taken_out(log, result.centreline)
+        if mag is not None and mag.retime:
+            report.warn(mag.describe())
     verdict = quality.judge(result.summary, result.centreline, report.warnings, failures)
     result.summary["quality"] = {"status": verdict.status, "reasons": verdict.reasons}
     result.summary["path_lost"] = bool(lost)

@@ -94,6 +94,11 @@ def imu_clock(log: SensorLog, offset: float, ppm: float = 0.0) -> SensorLog:
     return replace(log, imu=imu, mag=replace(log.mag, t=late(log.mag.t)))
 
 
+def mag_clock(log: SensorLog, offset: float) -> SensorLog:
+    """The magnetometer alone stamped ``offset`` s late (a board of its own)."""
+    return replace(log, mag=replace(log.mag, t=log.mag.t + offset))
+
+
 def marker_moved(log: SensorLog, index: int, east: float, north: float = 0.0) -> SensorLog:
     """Marker ``index`` (in time order) surveyed ``east``/``north`` m off."""
     markers = sorted(log.markers, key=lambda m: m.t)
@@ -135,6 +140,9 @@ CORPUS = (
         "IMU samples dropped for 0.3 s", lambda lg, d: imu_dropped(lg, 0.53 * d, 0.3), "IMU"
     ),  # fmt: skip
     FaultCase("IMU clock 0.3 s late", lambda lg, d: imu_clock(lg, 0.3), "IMU clock"),
+    FaultCase(
+        "magnetometer clock 0.3 s late", lambda lg, d: mag_clock(lg, 0.3), "magnetometer clock"
+    ),  # fmt: skip
     FaultCase(
         "wheel stuck for 20 s", lambda lg, d: odometer_stuck(lg, 0.21 * d, 20.0), "odometer stuck"
     ),  # fmt: skip
