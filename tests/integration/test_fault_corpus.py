@@ -5,6 +5,8 @@ covering 95 % of it, and the live replay stays inside its sigmas (or says it is 
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from pipe_nav_core.bench.faults import Size, run_case
 from pipe_nav_core.config import NavConfig
@@ -36,7 +38,10 @@ def test_each_fault(size, clean, case, tmp_path):
     assert o.named and o.verdict == "DEGRADED", o
     assert o.max_h < max(0.15, 2 * clean.max_h) and o.max_v < max(0.15, 2 * clean.max_v), o
     assert o.inside >= 0.95, o
-    assert o.live in ("navigating", "lost") and o.live_inside >= 0.95, o
+    assert o.live in ("navigating", "lost"), o
+    # published estimates inside their sigmas; a replay lost before its first position
+    # (markers on another clock) publishes none
+    assert o.live_inside >= 0.95 or (o.live == "lost" and math.isnan(o.live_inside)), o
 
 
 def test_the_command_line_on_a_damaged_run(size, tmp_path, capsys):

@@ -21,7 +21,7 @@ from pipe_nav_core.app.plot_process import PlotProcess
 from pipe_nav_core.app.progress import QUIET, Progress
 from pipe_nav_core.background import Background
 from pipe_nav_core.config import AUTO_GRADE, NavConfig
-from pipe_nav_core.faults import clock_offset, mag_clock, quality
+from pipe_nav_core.faults import clock_offset, mag_clock, marker_clock, quality
 from pipe_nav_core.faults.gaps import (
     fill_holes_at_rest,
     fill_short_holes,
@@ -150,6 +150,7 @@ def _markers_inside(log: SensorLog, report: BagReport) -> list[Marker]:
     t0, t1 = float(log.imu.t[0]), float(log.imu.t[-1])
     inside = [m for m in log.markers if t0 <= m.t <= t1]
     outside = [m for m in log.markers if not t0 <= m.t <= t1]
+    report.markers_outside = outside
     for m in outside:
         where = f"{t0 - m.t:.1f} s before" if m.t < t0 else f"{m.t - t1:.1f} s after"
         report.warnings.append(f"marker {m.name} passes {where} the data: left out")
@@ -191,6 +192,13 @@ def smooth_bag(
         require_imu(log, report, bag, topics)
         map_imu(log.imu)  # large: read from a file (mapped as read unless repaired)
         trim_heap(len(log.imu))  # what a long run's reading freed (pieces, temporaries)
+        if len(log.markers) < 2 and report.markers_outside:  # hours off: none left to smooth
+            say("the markers' passages lie outside the data: measuring their clock")
+            clock, moved = _on_the_bags_clock(log, report, config)
+            if moved is not None:
+                log = moved
+            elif clock is not None and clock.named:
+                report.warn(clock.describe(_not_retimed(False)))
         require_markers(log, report, bag, topics)
         if plotter is not None:  # (unless told at its start) the first pass goes on alone
             plotter.warm()
@@ -209,6 +217,9 @@ def smooth_bag(
 
         try:
             result = _smooth_segments(log, report, config, smooth, say)
+            if result.summary.get("marker_disagreement"):  # seconds off: they fit nowhere
+                say("the markers disagree with the run: measuring their clock")
+                log, result = _retried_on_the_bags_clock(log, report, result, config, smooth, say)
         finally:
             drop_spare()  # the recordings' chunk arrays kept for the next pass
             trim_heap(len(log.imu))  # and what the passes freed, not under the products' own
@@ -279,6 +290,66 @@ def first_pass_ahead(
     if total is None:
         return nullcontext()
     return FirstPassAhead(config, method) if total <= AHEAD_MAX_MESSAGES else nullcontext()
+
+
+def _on_the_bags_clock(
+    log: SensorLog, report: BagReport, config: NavConfig
+) -> tuple[marker_clock.MarkerClock | None, SensorLog | None]:
+    """The markers' clock against the bag's (faults.marker_clock, on every marker: those
+    outside the data too) and, where it is to be taken out, ``log`` with them re-timed (named
+    in the report, whose warnings about markers outside the data are made again), else
+    None."""
+    markers = log.markers + report.markers_outside
+    dr = imu_model.choose(log, config, report.imu_noise_declared).config
+    found = marker_clock.measure(log, markers, dr)
+    if found is None or not found.retime:
+        return found, None
+    report.warnings = [w for w in report.warnings if not _about_markers_outside(w)]
+    moved = replace(log, markers=marker_clock.retimed(markers, found))
+    moved.markers = _markers_inside(moved, report)
+    report.warn(found.describe())
+    return found, moved
+
+
+def _about_markers_outside(warning: str) -> bool:
+    """Whether ``warning`` is one of _markers_inside's."""
+    return (warning.startswith("marker ") and warning.endswith(" the data: left out")) or (
+        warning.startswith("only one marker (")
+    )
+
+
+def _retried_on_the_bags_clock(
+    log: SensorLog,
+    report: BagReport,
+    result: SmoothResult,
+    config: NavConfig,
+    smooth: Callable[..., SmoothResult],
+    say: Say,
+) -> tuple[SensorLog, SmoothResult]:
+    """The run smoothed again with its markers re-timed where their clock is found off the
+    bag's (:func:`_on_the_bags_clock`) and the markers then agree with it; else ``log`` and
+    ``result`` as they were (the report too)."""
+    kept = (list(report.warnings), list(report.markers_outside))
+    clock, moved = _on_the_bags_clock(log, report, config)
+    if moved is not None and len(moved.markers) >= 2:
+        say("smoothing again with the markers re-timed")
+        again = _smooth_segments(moved, report, config, smooth, say)
+        if not again.summary.get("marker_disagreement"):
+            report.warnings = list(dict.fromkeys(report.warnings))  # a gap's, said twice
+            return moved, again
+    report.warnings, report.markers_outside = kept
+    if clock is not None and clock.named:
+        report.warn(clock.describe(_not_retimed(moved is not None)))
+    return log, result
+
+
+def _not_retimed(tried: bool) -> str:
+    """What the marker clock's line says where the markers were not re-timed (``tried``:
+    they were, and still disagreed with the run)."""
+    if tried:
+        return "not re-timed: the markers disagree with the run re-timed so too"
+    return ("not re-timed, as it is not an offset clocks are known to be apart by (GPS time's "
+            "18 s, a time zone's quarter hours): correct the markers' times")  # fmt: skip
 
 
 def _smooth_segments(

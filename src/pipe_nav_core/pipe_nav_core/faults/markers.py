@@ -126,7 +126,9 @@ def screening(
         if m.name in res:
             R = marker_covariance(result, log, m, config)
             P = _position_cov(result, m.t)
-            if floor:
+            if not (np.isfinite(res[m.name]).all() and np.isfinite(P).all()):
+                out[m.name] = math.inf  # a run that diverged there: no test, it fails
+            elif floor:
                 out[m.name] = _screened_nis(res[m.name], R, P)
             else:
                 out[m.name] = _nis(res[m.name], R - P, 0.01 * float(np.linalg.eigvalsh(R)[0]))

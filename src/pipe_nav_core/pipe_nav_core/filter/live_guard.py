@@ -49,6 +49,12 @@ than the reorder window (minus ``CLOCK_MARGIN_S``) lets go of its samples too la
 re-timed, and the solution is lost instead. Either way ``imu_clock`` in the diagnostics says
 what was found.
 
+A filter aligned before any marker (the first one late, or on another clock) has no position
+until a marker places it: its estimates until then are withheld (``withheld_unpositioned``).
+An estimate with a value or a variance not finite, or a horizontal sigma over
+``DIVERGED_SIGMA_M``, is no solution: the solution is lost from the estimate before it
+(``diverged``), and said so, rather than published.
+
 Each IMU fault is counted in the diagnostics as ``imu_fault_<kind>``. Times s, rates rad/s,
 forces m/s^2.
 """
@@ -83,6 +89,9 @@ SATURATED_RATE = 5.0  # rad/s
 GRAVITY = 9.81  # m/s^2, the reference of the shock test
 QUIET_TURN = 1e-3  # rad: a hole is filled only if the rates either side differ by less ...
 QUIET_PUSH = 0.05  # m/s: ... and the forces too (else the solution is lost)
+# m: a horizontal sigma over this is no solution (nothing published before the first marker
+# has more than some 1.4 km): the engine is lost, and says so, rather than publishing it
+DIVERGED_SIGMA_M = 1e5
 MARKER_BOUND = chi2_threshold(1.0 - 1e-6, 3)  # a marker this far off the estimate is dropped
 RECENT_SAMPLES = 2048  # IMU samples kept for a fill at rest (REST_WINDOW_S up to 4 kHz)
 MAX_ODO_SPEED = 10.0  # m/s: an odometer reading implying more since the last is a spike ...
@@ -293,6 +302,19 @@ class GuardedNavigator(Navigator):
         if self._rerun_due:
             out = self._rerun(out)
         out = [e for e in out if e.t > self._published]
+        if self.positioned_at > -math.inf:  # aligned before any marker: no position till one
+            self._counts["withheld_unpositioned"] += sum(e.t < self.positioned_at for e in out)
+            out = [e for e in out if e.t >= self.positioned_at]
+        bad = next((k for k, e in enumerate(out) if _diverged(e)), None)
+        if bad is not None and self.lost_since is None:
+            self._counts["diverged"] += 1
+            self.lost_since = out[bad - 1].t if bad else self._published
+            self.lost_reason = (
+                f"the filter diverged at t = {out[bad].t:.3f} s (a state or sigma not finite, "
+                f"or a horizontal sigma over {DIVERGED_SIGMA_M:.0f} m): its markers contradict "
+                "the run beyond recovery (a marker clock?) or its IMU model does not fit"
+            )
+            out = out[:bad]
         if out:
             self._latest = out[-1]
             self._published = out[-1].t
@@ -382,6 +404,14 @@ class GuardedNavigator(Navigator):
             d["lost_since"] = self.lost_since
             d["lost_reason"] = self.lost_reason
         return d
+
+
+def _diverged(e: NavEstimate) -> bool:
+    """Whether an estimate is no solution: a value or variance not finite, or a horizontal
+    sigma over DIVERGED_SIGMA_M."""
+    var = np.diagonal(e.cov_pose)
+    values = np.r_[e.lat, e.lon, e.h, e.vel_n, e.quat_nb, var]
+    return not (np.isfinite(values).all() and var[0] + var[1] <= DIVERGED_SIGMA_M**2)
 
 
 def _log_of(kept: list[tuple[float, str, object]]) -> SensorLog:

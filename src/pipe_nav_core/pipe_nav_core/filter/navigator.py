@@ -19,6 +19,7 @@ heading re-anchored at the second marker when it comes from the markers
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import defaultdict
 from collections.abc import Sequence
@@ -178,6 +179,9 @@ class Navigator:
         self._prm: Settings | None = None
         self._epoch = 0  # epochs run since the alignment
         self.initial_azimuth: float | None = None  # rad, the alignment's
+        # s: no position before this (aligned before any marker: placed at 0, 0 until one is
+        # passed; inf until then)
+        self.positioned_at = -math.inf
 
     @property
     def datum(self) -> Datum | None:
@@ -326,6 +330,8 @@ class Navigator:
         )  # fmt: skip
         self.imu_choice, self.imu_spec = a.imu_choice, a.imu_spec
         self.initial_azimuth = a.azimuth
+        if ib.first_marker is None:
+            self.positioned_at = math.inf
         self.anchor.free_heading = a.free_heading
         s = a.state
         if self.reference is not None:
@@ -448,6 +454,8 @@ class Navigator:
         batch.ws_x[:] = kf.x  # the prediction as before_marker left it
         batch.P_pred[0] = kf.P
         mk = np.array([marker_vector(m) for m in due]).reshape(-1, 7)
+        if due and self.positioned_at == math.inf:
+            self.positioned_at = s.t
         batch.marker_res = np.zeros((len(due), 3))
         self._call(batch, inputs, mk, resume=True)
         if self.recording is not None:

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from pipe_nav_core.types import Marker
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
@@ -66,8 +70,6 @@ def normalize_type(name: str) -> str:
     return name.strip()
 
 
-
-
 @dataclass
 class BagReport:
     """What reading a bag found.
@@ -82,6 +84,8 @@ class BagReport:
     files: the MCAP files read, in order.
     imu_noise_declared: the per-sample variance diagonals ((rad/s)^2, (m/s^2)^2) the first
     Imu message declares ({"gyro_variance": [3], "accel_variance": [3]}), or {}.
+    markers_outside: the markers left out because their passage lies outside the data (a
+    marker clock offset is measured on them too: faults.marker_clock).
     """
 
     path: str = ""
@@ -93,6 +97,7 @@ class BagReport:
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
     imu_noise_declared: dict[str, list[float]] = field(default_factory=dict)
+    markers_outside: list[Marker] = field(default_factory=list)
 
     def add_skipped(self, topic: str, reason: str, n: int = 1) -> None:
         """Count n messages of ``topic`` dropped for ``reason``."""

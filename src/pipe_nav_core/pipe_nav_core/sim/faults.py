@@ -99,6 +99,12 @@ def mag_clock(log: SensorLog, offset: float) -> SensorLog:
     return replace(log, mag=replace(log.mag, t=log.mag.t + offset))
 
 
+def markers_clock(log: SensorLog, offset: float) -> SensorLog:
+    """Every marker's passage stamped ``offset`` s late (a marker file on another clock: GPS
+    time is 18 s ahead of UTC)."""
+    return replace(log, markers=[replace(m, t=m.t + offset) for m in log.markers])
+
+
 def marker_moved(log: SensorLog, index: int, east: float, north: float = 0.0) -> SensorLog:
     """Marker ``index`` (in time order) surveyed ``east``/``north`` m off."""
     markers = sorted(log.markers, key=lambda m: m.t)
@@ -128,6 +134,9 @@ class FaultCase:
 CORPUS = (
     FaultCase("marker surveyed 20 m off", lambda lg, d: marker_moved(lg, 2, 20.0), "left out"),
     FaultCase("marker stamped 3 s late", lambda lg, d: marker_late(lg, 2, 3.0), "left out"),
+    FaultCase(
+        "markers on GPS time (18 s late)", lambda lg, d: markers_clock(lg, 18.0), "marker clock"
+    ),  # fmt: skip
     FaultCase("data gap of 30 s", lambda lg, d: data_gap(lg, 0.42 * d, 30.0), "data gap"),
     FaultCase(
         "clock step of an hour", lambda lg, d: clock_step(lg, 0.5 * d, 3600.0), "clock step"

@@ -142,7 +142,7 @@ def arc_chainage(lat: Array, lon: Array, h: Array, quat_nb: Array) -> Array:
 def forward_trajectory(rec: Recording) -> Trajectory:
     """The forward filter's estimates, one per epoch (copies: the recording may go)."""
     st = rec.states
-    var = rec.pose_variances()  # position, attitude
+    var = np.maximum(rec.pose_variances(), 0.0)  # position, attitude; < 0 only diverged
     return Trajectory(
         t=st[:, SV_T].copy(),
         lat=st[:, SV_LAT].copy(),
