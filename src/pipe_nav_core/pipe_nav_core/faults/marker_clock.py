@@ -39,6 +39,7 @@ from pipe_nav_core.smooth.forward import run_forward
 from pipe_nav_core.types import Marker, SensorLog, markers_sorted
 
 STEP_S = 0.5  # s, the coarse search's step
+BATCH = 4096  # offsets fitted at once
 FINE_S = 0.05  # s, the fine search's step about the coarse best (over +-2 coarse steps)
 IMPROVEMENT = 0.6  # an offset's misfit against the stamps' own, at most
 MIN_S = 1.0  # s: an offset named (where not taken out) from this size
@@ -183,6 +184,15 @@ def _dead_reckoned(
 
 
 def _fits(t: Array, enu: Array, stamps: Array, surveys: Array, offsets: Array
+          ) -> tuple[Array, Array, Array]:  # fmt: skip
+    """:func:`_fits_of` in pieces of BATCH offsets (a 100 km run is tried at 2e5 offsets of 41
+    markers: 0.2 GB an array at once)."""
+    parts = [_fits_of(t, enu, stamps, surveys, offsets[a : a + BATCH])
+             for a in range(0, max(len(offsets), 1), BATCH)]  # fmt: skip
+    return tuple(np.concatenate(x) for x in zip(*parts, strict=True))  # type: ignore[return-value]
+
+
+def _fits_of(t: Array, enu: Array, stamps: Array, surveys: Array, offsets: Array
           ) -> tuple[Array, Array, Array]:  # fmt: skip
     """Per offset: the misfit (m, rms per degree of freedom) of the surveys against the
     dead-reckoned positions at the stamps less the offset, after the best rotation about the
