@@ -10,18 +10,21 @@ Measured where the markers disagree with the run, or lie outside its data (the p
 only then): the run is dead-reckoned from its first epoch (the filter in ``dr`` mode: the IMU
 and the wheel, no marker but a start), and for every offset that puts markers in the data,
 ``STEP_S`` apart and then ``FINE_S`` about the best, the markers' surveys are fitted to the
-dead-reckoned positions at their passages less the offset by a rotation about the vertical,
-a scale and a shift (the heading, the wheel's scale and the start, which the dead reckoning
-does not know). The dead reckoning is run again on the heading each fit finds, up to
-``HEADING_PASSES`` times (a gyro that senses the Earth's rate has it taken out in the wrong
-axes while the heading is off). The offset whose fit leaves the smallest misfit, with as many
-markers inside the data as any offset puts there and three or more, is the clock's; within
-``SNAP_S`` of an offset clocks are known to be apart by (``KNOWN``: GPS time's 18 s against
-UTC, whole quarter hours of a time zone) it is that one. It is taken out where it is a known
-one whose fit's misfit is at most ``IMPROVEMENT`` of the stamps' own. Another is only named
-(``MIN_S`` or more, the same misfit): the dead reckoning puts it no closer than 0.1-0.5 s
-(a 40 s offset: 39.56 to 40.19 s on three runs), and markers re-timed that far off are
-fitted anyway, confidently wrong (the sample: 0.54 m off, 15 % inside 3 sigma).
+dead-reckoned positions at their passages less the offset, ``WINDOW`` markers in a row at a
+time, by a rotation about the vertical, a scale and a shift (the heading, the wheel's scale and
+the start, which the dead reckoning does not know, nor keeps over a long run). It starts on
+the bearing of the first two markers' surveys and is run again on the heading each fit finds
+while the fit improves, up to ``HEADING_PASSES`` times (a gyro that senses the Earth's rate
+has it taken out in the wrong axes while the heading is off). The offset whose fit leaves the
+smallest misfit, with as many markers fitted as any offset gives and three or more, is the
+clock's; within ``SNAP_S`` of an offset clocks are known to be apart by (``KNOWN``: GPS time's
+18 s against UTC, whole quarter hours of a time zone) it is that one. It is taken out where
+it is a known one whose fit's misfit is at most ``KNOWN_IMPROVEMENT`` of the stamps' own (the
+pipeline keeps the re-timed run only where its markers then agree with it). Another is only
+named (``MIN_S`` or more, a misfit at most ``IMPROVEMENT`` of the stamps' own): the dead
+reckoning puts it 0.1-1 s off (a 40 s offset: 38.95 to 40.14 s on three runs), and markers
+re-timed that far off are fitted anyway, confidently wrong (the sample: 0.54 m off, 15 %
+inside 3 sigma).
 """
 
 from __future__ import annotations
@@ -40,12 +43,15 @@ from pipe_nav_core.types import Marker, SensorLog, markers_sorted
 
 STEP_S = 0.5  # s, the coarse search's step
 BATCH = 4096  # offsets fitted at once
+WINDOW = 6  # markers in a row fitted on their own
 FINE_S = 0.05  # s, the fine search's step about the coarse best (over +-2 coarse steps)
-IMPROVEMENT = 0.6  # an offset's misfit against the stamps' own, at most
+IMPROVEMENT = 0.6  # an offset's misfit against the stamps' own, at most, to be named
+KNOWN_IMPROVEMENT = 0.9  # and a known one's, to be taken out (the smoothing then checks it)
 MIN_S = 1.0  # s: an offset named (where not taken out) from this size
 MIN_MARKERS = 3  # markers a fit needs (a rotation, a scale and a shift leave 2 x 3 - 4)
 HEADING_PASSES = 5  # dead reckonings at most, each on the heading the one before fitted
 SETTLED_RAD = 1e-3  # rad: a fit that turns the track less has its heading
+SETTLED_SHARE = 0.95  # and a pass whose misfit is over this share of the one before
 SNAP_S = 3.0  # s: an offset found this close to one of KNOWN is that one
 # offsets that clocks are known to be apart by (s): GPS time ahead of UTC (18 s since 2017),
 # whole quarter hours (a box on local time), and the two together
@@ -104,18 +110,21 @@ def measure(log: SensorLog, markers: list[Marker], config: NavConfig) -> MarkerC
     surveys = np.array([np.asarray(geodetic_to_enu(m.lat, m.lon, m.alt, o.lat, o.lon, o.alt),
                                    dtype=np.float64).reshape(3) for m in ms])  # fmt: skip
     stamps = np.array([m.t for m in ms])
-    found, azimuth = None, 0.0
+    east, north = surveys[1, :2] - surveys[0, :2]
+    found, azimuth = None, math.atan2(east, north)  # the bearing of the first two markers
     for _ in range(HEADING_PASSES):  # again on the heading each fit finds: where the heading
         # is far off, a gyro that senses the Earth's rate has it taken out in the wrong axes
-        # and the track bends (the 3 km tactical line from north: 80 m off its markers)
+        # and the track bends (the 3 km tactical line started north: 80 m off its markers)
         track = _dead_reckoned(log, o, config, azimuth)
         if track is None:
             return found
         clock, turn = _search(*track, stamps, surveys)
         if clock is None:
             return found
-        if found is None or clock.misfit < found.misfit:  # the best fitting of them
-            found = clock
+        if found is not None and clock.misfit >= SETTLED_SHARE * found.misfit:
+            found = clock if clock.misfit < found.misfit else found
+            break  # hardly better for the fit's heading (a gyro's drift, not the start's)
+        found = clock
         azimuth = float(np.mod(azimuth - turn, 2.0 * math.pi))
         if abs(turn) < SETTLED_RAD:
             break
@@ -148,7 +157,7 @@ def _search(t: Array, enu: Array, stamps: Array, surveys: Array
     if known:
         k = min(known, key=lambda i: abs(fine[i] - fine[k]))
     seconds, low = float(fine[k]), float(f_misfit[k])
-    retime = bool(known) and low <= IMPROVEMENT * float(at_zero[0])
+    retime = bool(known) and low <= KNOWN_IMPROVEMENT * float(at_zero[0])
     clock = MarkerClock(seconds=seconds, misfit=low, misfit_as_stamped=float(at_zero[0]),
                         markers=int(f_count[k]), markers_as_stamped=int(n_zero[0]),
                         retime=bool(retime))  # fmt: skip
@@ -185,20 +194,41 @@ def _dead_reckoned(
 
 def _fits(t: Array, enu: Array, stamps: Array, surveys: Array, offsets: Array
           ) -> tuple[Array, Array, Array]:  # fmt: skip
-    """:func:`_fits_of` in pieces of BATCH offsets (a 100 km run is tried at 2e5 offsets of 41
-    markers: 0.2 GB an array at once)."""
-    parts = [_fits_of(t, enu, stamps, surveys, offsets[a : a + BATCH])
-             for a in range(0, max(len(offsets), 1), BATCH)]  # fmt: skip
-    return tuple(np.concatenate(x) for x in zip(*parts, strict=True))  # type: ignore[return-value]
+    """Per offset: the misfit (m, rms per degree of freedom) of the surveys (N, 3) m ENU
+    against the dead-reckoned positions at the stamps (N,) s less the offset, each WINDOW
+    markers in a row fitted on their own (over a long run the dead reckoning drifts further
+    than one fit can take out: 37 m over 100 km), over the markers then inside the data; the
+    number of markers fitted (windows with fewer than MIN_MARKERS inside are not; inf misfit
+    with none); and the first window's rotation (rad, counter-clockwise seen from above). In
+    pieces of BATCH offsets (a 100 km run is tried at 2e5 offsets)."""
+    cuts = list(range(0, len(stamps), WINDOW))
+    if len(cuts) > 1 and len(stamps) - cuts[-1] < MIN_MARKERS:
+        cuts.pop()  # the last few join the window before
+    groups = [slice(a, b) for a, b in zip(cuts, [*cuts[1:], len(stamps)], strict=True)]
+    out = []
+    for a in range(0, max(len(offsets), 1), BATCH):
+        o = offsets[a : a + BATCH]
+        ssr, dof, n = np.zeros(len(o)), np.zeros(len(o)), np.zeros(len(o))
+        turn = np.zeros(len(o))
+        for k, g in enumerate(groups):
+            g_ssr, g_n, g_turn = _fit_of(t, enu, stamps[g], surveys[g], o)
+            ok = g_n >= MIN_MARKERS
+            ssr += np.where(ok, g_ssr, 0.0)
+            dof += np.where(ok, 3.0 * g_n - 5.0, 0.0)  # 2 n horizontal less 4, n vertical less 1
+            n += np.where(ok, g_n, 0.0)
+            if k == 0:
+                turn = g_turn
+        misfit = np.where(dof > 0, np.sqrt(np.maximum(ssr, 0.0) / np.maximum(dof, 1.0)), np.inf)
+        out.append((misfit, n, turn))
+    return tuple(np.concatenate(x) for x in zip(*out, strict=True))  # type: ignore[return-value]
 
 
-def _fits_of(t: Array, enu: Array, stamps: Array, surveys: Array, offsets: Array
-          ) -> tuple[Array, Array, Array]:  # fmt: skip
-    """Per offset: the misfit (m, rms per degree of freedom) of the surveys against the
-    dead-reckoned positions at the stamps less the offset, after the best rotation about the
-    vertical, scale and shift (horizontal) and shift (vertical), over the markers then inside
-    the data, and their number (inf misfit with fewer than MIN_MARKERS); and the fit's
-    rotation (rad, counter-clockwise seen from above)."""
+def _fit_of(t: Array, enu: Array, stamps: Array, surveys: Array, offsets: Array
+            ) -> tuple[Array, Array, Array]:  # fmt: skip
+    """Per offset: the residual sum of squares (m^2) of the surveys against the dead-reckoned
+    positions at the stamps less the offset, after the best rotation about the vertical,
+    scale and shift (horizontal) and shift (vertical), over the markers then inside the data;
+    their number; and the fit's rotation (rad, counter-clockwise seen from above)."""
     when = stamps[None, :] - offsets[:, None]  # (O, N)
     inside = (when >= t[0]) & (when <= t[-1])
     w = inside.astype(np.float64)
@@ -219,9 +249,7 @@ def _fits_of(t: Array, enu: Array, stamps: Array, surveys: Array, offsets: Array
     horiz = np.sum(q**2, axis=(1, 2)) - (dot**2 + cross**2) / pp
     dz = (surveys[None, :, 2] - at[..., 2]) * w
     vert = np.sum(dz**2, axis=1) - np.sum(dz, axis=1) ** 2 / safe[:, 0]
-    dof = np.maximum(3.0 * n - 5.0, 1.0)  # 2 n horizontal less 4, n vertical less 1
-    misfit = np.sqrt(np.maximum(horiz + vert, 0.0) / dof)
-    return np.where(n >= MIN_MARKERS, misfit, np.inf), n, np.arctan2(cross, dot)
+    return horiz + vert, n, np.arctan2(cross, dot)
 
 
 __all__ = ["MarkerClock", "measure", "retimed"]
