@@ -333,8 +333,11 @@ def _retried_on_the_bags_clock(
     clock, moved = _on_the_bags_clock(log, report, config)
     if moved is not None and len(moved.markers) >= 2:
         say("smoothing again with the markers re-timed")
-        again = _smooth_segments(moved, report, config, smooth, say)
-        if not again.summary.get("marker_disagreement"):
+        try:
+            again = _smooth_segments(moved, report, config, smooth, say)
+        except ValueError:  # no solution re-timed either: the run as it was, and the offset said
+            again = None
+        if again is not None and not again.summary.get("marker_disagreement"):
             report.warnings = list(dict.fromkeys(report.warnings))  # a gap's, said twice
             return moved, again
     report.warnings, report.markers_outside = kept
