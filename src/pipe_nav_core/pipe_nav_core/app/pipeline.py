@@ -143,22 +143,29 @@ def _with_markers(
 
 def _markers_inside(log: SensorLog, report: BagReport) -> list[Marker]:
     """The markers whose passage lies within the IMU data (s of stamps); the others are left
-    out and named in a warning, as is a run that keeps only one (nothing then anchors the
-    heading)."""
+    out (``report.markers_outside``) and named in a warning, as is a run that keeps only one
+    (nothing then anchors the heading)."""
     if len(log.imu.t) == 0 or not log.markers:
         return log.markers
     t0, t1 = float(log.imu.t[0]), float(log.imu.t[-1])
     inside = [m for m in log.markers if t0 <= m.t <= t1]
-    outside = [m for m in log.markers if not t0 <= m.t <= t1]
-    report.markers_outside = outside
-    for m in outside:
-        where = f"{t0 - m.t:.1f} s before" if m.t < t0 else f"{m.t - t1:.1f} s after"
-        report.warnings.append(f"marker {m.name} passes {where} the data: left out")
+    report.markers_outside = [m for m in log.markers if not t0 <= m.t <= t1]
+    report.warnings += _outside_warnings(log, inside, report.markers_outside)
+    return inside
+
+
+def _outside_warnings(log: SensorLog, inside: list[Marker], outside: list[Marker]) -> list[str]:
+    """What :func:`_markers_inside` says of the markers ``outside`` the data of ``log``, with
+    ``inside`` within it."""
+    t0, t1 = float(log.imu.t[0]), float(log.imu.t[-1])
+    lines = [f"marker {m.name} passes "
+             + (f"{t0 - m.t:.1f} s before" if m.t < t0 else f"{m.t - t1:.1f} s after")
+             + " the data: left out" for m in outside]  # fmt: skip
     if outside and len(inside) == 1:
-        report.warnings.append(
+        lines.append(
             f"only one marker ({inside[0].name}) within the data: the heading is not anchored"
         )
-    return inside
+    return lines
 
 
 def smooth_bag(
@@ -194,11 +201,7 @@ def smooth_bag(
         trim_heap(len(log.imu))  # what a long run's reading freed (pieces, temporaries)
         if len(log.markers) < 2 and report.markers_outside:  # hours off: none left to smooth
             say("the markers' passages lie outside the data: measuring their clock")
-            clock, moved = _on_the_bags_clock(log, report, config)
-            if moved is not None:
-                log = moved
-            elif clock is not None and clock.named:
-                report.warn(clock.describe(_not_retimed(False)))
+            log = _on_the_bags_clock(log, report, config)[1] or log
         require_markers(log, report, bag, topics)
         if plotter is not None:  # (unless told at its start) the first pass goes on alone
             plotter.warm()
@@ -297,25 +300,24 @@ def _on_the_bags_clock(
 ) -> tuple[marker_clock.MarkerClock | None, SensorLog | None]:
     """The markers' clock against the bag's (faults.marker_clock, on every marker: those
     outside the data too) and, where it is to be taken out, ``log`` with them re-timed (named
-    in the report, whose warnings about markers outside the data are made again), else
-    None."""
+    in the report, whose warnings about markers outside the data are made again), else None
+    (the offset named where it is to be said: not one clocks are known to be apart by)."""
     markers = log.markers + report.markers_outside
     dr = imu_model.choose(log, config, report.imu_noise_declared).config
     found = marker_clock.measure(log, markers, dr)
     if found is None or not found.retime:
+        if found is not None and found.named:
+            report.warn(found.describe(
+                "not re-timed, as it is not an offset clocks are known to be apart by (GPS "
+                "time's 18 s, a time zone's quarter hours): correct the markers' times"
+            ))  # fmt: skip
         return found, None
-    report.warnings = [w for w in report.warnings if not _about_markers_outside(w)]
+    said = set(_outside_warnings(log, log.markers, report.markers_outside))
+    report.warnings = [w for w in report.warnings if w not in said]
     moved = replace(log, markers=marker_clock.retimed(markers, found))
     moved.markers = _markers_inside(moved, report)
     report.warn(found.describe())
     return found, moved
-
-
-def _about_markers_outside(warning: str) -> bool:
-    """Whether ``warning`` is one of _markers_inside's."""
-    return (warning.startswith("marker ") and warning.endswith(" the data: left out")) or (
-        warning.startswith("only one marker (")
-    )
 
 
 def _retried_on_the_bags_clock(
@@ -328,10 +330,12 @@ def _retried_on_the_bags_clock(
 ) -> tuple[SensorLog, SmoothResult]:
     """The run smoothed again with its markers re-timed where their clock is found off the
     bag's (:func:`_on_the_bags_clock`) and the markers then agree with it; else ``log`` and
-    ``result`` as they were (the report too)."""
+    ``result`` as they were (the report too, but for the offset named)."""
     kept = (list(report.warnings), list(report.markers_outside))
     clock, moved = _on_the_bags_clock(log, report, config)
-    if moved is not None and len(moved.markers) >= 2:
+    if clock is None or moved is None:
+        return log, result
+    if len(moved.markers) >= 2:
         say("smoothing again with the markers re-timed")
         try:
             again = _smooth_segments(moved, report, config, smooth, say)
@@ -341,18 +345,8 @@ def _retried_on_the_bags_clock(
             report.warnings = list(dict.fromkeys(report.warnings))  # a gap's, said twice
             return moved, again
     report.warnings, report.markers_outside = kept
-    if clock is not None and clock.named:
-        report.warn(clock.describe(_not_retimed(moved is not None)))
+    report.warn(clock.describe("not re-timed: the markers disagree with the run re-timed so too"))
     return log, result
-
-
-def _not_retimed(tried: bool) -> str:
-    """What the marker clock's line says where the markers were not re-timed (``tried``:
-    they were, and still disagreed with the run)."""
-    if tried:
-        return "not re-timed: the markers disagree with the run re-timed so too"
-    return ("not re-timed, as it is not an offset clocks are known to be apart by (GPS time's "
-            "18 s, a time zone's quarter hours): correct the markers' times")  # fmt: skip
 
 
 def _smooth_segments(
