@@ -277,8 +277,10 @@ class GuardedNavigator(Navigator):
                              tuple(x + f * (y - x) for x, y in zip(a0, a1)))  # fmt: skip
         self._counts["imu_fault_filled"] += n
 
-    def _lose(self, t: float, why: str) -> None:
-        self._counts["imu_fault_data_gap"] += 1
+    def _lose(self, t: float, why: str, count: str = "imu_fault_data_gap") -> None:
+        """The solution lost from ``t`` (s) for ``why`` (the first loss stays), counted as
+        ``count`` in the diagnostics."""
+        self._counts[count] += 1
         if self.lost_since is None:
             self.lost_since, self.lost_reason = t, why
 
@@ -307,12 +309,12 @@ class GuardedNavigator(Navigator):
             out = [e for e in out if e.t >= self.positioned_at]
         bad = next((k for k, e in enumerate(out) if _diverged(e)), None)
         if bad is not None and self.lost_since is None:
-            self._counts["diverged"] += 1
-            self.lost_since = out[bad - 1].t if bad else self._published
-            self.lost_reason = (
+            self._lose(
+                out[bad - 1].t if bad else self._published,
                 f"the filter diverged at t = {out[bad].t:.3f} s (a state or sigma not finite, "
                 f"or a horizontal sigma over {DIVERGED_SIGMA_M:.0f} m): its markers contradict "
-                "the run beyond recovery (a marker clock?) or its IMU model does not fit"
+                "the run beyond recovery (a marker clock?) or its IMU model does not fit",
+                "diverged",
             )
             out = out[:bad]
         if out:
@@ -386,9 +388,7 @@ class GuardedNavigator(Navigator):
                 "more than the reorder window lets the live filter re-time (pipe-nav smooth "
                 "re-times it)"
             )
-            self._counts["imu_clock_lost"] += 1
-            if self.lost_since is None:
-                self.lost_since, self.lost_reason = now, self._clock_note
+            self._lose(now, self._clock_note, "imu_clock_lost")
             return None
         self._counts["imu_clock_retimed"] += 1
         return found
